@@ -1,0 +1,92 @@
+"""One small set of validators for user input.
+
+Every public function calls these at its boundary, so errors name the argument and what was received,
+and nothing non-finite can travel on to ``grid_sample`` (whose CPU backward crashes the process on NaN).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor
+
+
+def describe(x: object) -> str:
+    """A short description of a value for error messages."""
+    if isinstance(x, Tensor):
+        return f"tensor of shape {tuple(x.shape)} and dtype {x.dtype}"
+    return f"{type(x).__name__} {x!r}"
+
+
+def check_tensor(
+    name: str,
+    x: object,
+    *,
+    ndim: int | Sequence[int] | None = None,
+    shape: Sequence[int | None] | None = None,
+    finite: bool = True,
+    floating: bool = True,
+) -> Tensor:
+    """Validate a tensor argument and return it.
+
+    Args:
+        name: the argument's name, quoted in the error.
+        x: the value received.
+        ndim: required rank (or ranks).
+        shape: required shape; ``None`` entries match any size.
+        finite: require every element to be finite.
+        floating: require a floating-point dtype.
+
+    Raises:
+        TypeError: ``x`` is not a tensor, or not floating point when required.
+        ValueError: wrong rank, shape, or non-finite values.
+    """
+    if not isinstance(x, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {describe(x)}")
+    if floating and not x.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}")
+    if ndim is not None:
+        allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
+        if x.ndim not in allowed:
+            raise ValueError(f"{name} must have {' or '.join(map(str, allowed))} dimensions, got shape {tuple(x.shape)}")
+    if shape is not None:
+        if x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
+            want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+            raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
+    if finite and x.numel() and not bool(torch.isfinite(x).all()):
+        raise ValueError(f"{name} contains non-finite values (NaN or inf); shape {tuple(x.shape)}")
+    return x
+
+
+def check_positive(name: str, value: float, *, allow_zero: bool = False) -> float:
+    """Validate a positive (or non-negative) finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a number, got {describe(value)}")
+    ok = value >= 0 if allow_zero else value > 0
+    if not ok or value != value or value in (float("inf"), float("-inf")):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+    return float(value)
+
+
+def check_int(name: str, value: object, *, minimum: int = 1) -> int:
+    """Validate an integer at least ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name} must be an int, got {describe(value)}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return value
+
+
+def check_size(name: str, value: object, *, minimum: int = 1) -> tuple[int, int]:
+    """Validate an ``(h, w)`` pair of integers (an int means square)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = (value, value)
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise TypeError(f"{name} must be an int or a pair (h, w) of ints, got {describe(value)}")
+    h, w = value
+    for v in (h, w):
+        if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+            raise ValueError(f"{name} must be a pair of ints >= {minimum}, got {tuple(value)!r}")
+    return int(h), int(w)

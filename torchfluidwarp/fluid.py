@@ -1,0 +1,380 @@
+"""Stable Fluids on a staggered grid: pure functions.
+
+One step is Stam's splitting (Stable Fluids, 1999): add force -> advect -> diffuse -> project. Every function
+takes and returns a staggered velocity ``(B, 2, h + 1, w + 1)`` in fluid cells per time unit (layout in
+:mod:`torchfluidwarp.grid`), with solid walls, is differentiable, and follows the input's device and dtype.
+The modules in :mod:`torchfluidwarp.simulator` are thin wrappers over these.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from torchfluidwarp._checks import check_positive, check_tensor
+from torchfluidwarp.grid import FluidGrid, interior_mask
+from torchfluidwarp.linalg import CGConfig, implicit_solve
+from torchfluidwarp.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
+
+__all__ = [
+    "divergence", "gradient", "faces_from_cells", "cells_from_faces", "sample_velocity", "advect",
+    "advect_velocity", "advect_points", "vector_laplacian", "strain_operator", "diffuse", "project",
+    "check_velocity",
+]
+
+Viscosity = float | Tensor
+
+
+def check_velocity(velocity: object, name: str = "velocity") -> Tensor:
+    """Validate a staggered velocity ``(B, 2, h + 1, w + 1)`` (finite, floating, h and w at least 2)."""
+    v = check_tensor(name, velocity, ndim=4)
+    if v.shape[1] != 2 or v.shape[2] < 3 or v.shape[3] < 3:
+        raise ValueError(f"{name} must be a staggered velocity of shape (B, 2, h + 1, w + 1) with h, w >= 2, "
+                         f"got {tuple(v.shape)}")
+    return v
+
+
+def _split(vel: Tensor) -> tuple[Tensor, Tensor]:
+    h, w = vel.shape[-2] - 1, vel.shape[-1] - 1
+    return vel[:, 0, :h, :], vel[:, 1, :, :w]  # (B, h, w + 1), (B, h + 1, w)
+
+
+def _pack(u: Tensor, v: Tensor) -> Tensor:
+    return torch.stack([F.pad(u, (0, 0, 0, 1)), F.pad(v, (0, 1))], dim=1)
+
+
+def divergence(velocity: Tensor) -> Tensor:
+    """Discrete divergence of a staggered velocity, per cell: ``(B, 1, h, w)`` in 1 / time unit."""
+    u, v = _split(velocity)
+    return (u[..., 1:] - u[..., :-1] + v[:, 1:] - v[:, :-1]).unsqueeze(1)
+
+
+def gradient(p: Tensor) -> Tensor:
+    """Gradient of a cell-centred ``(B, 1, h, w)`` field onto the interior faces: ``(B, 2, h + 1, w + 1)``."""
+    q = p[:, 0]
+    gu = F.pad(q[..., 1:] - q[..., :-1], (1, 1, 0, 1))
+    gv = F.pad(q[:, 1:] - q[:, :-1], (0, 1, 1, 1))
+    return torch.stack([gu, gv], dim=1)
+
+
+def faces_from_cells(field: Tensor) -> Tensor:
+    """Average a cell-centred vector field ``(B, 2, h, w)`` onto the interior faces ``(B, 2, h + 1, w + 1)``."""
+    fu = F.pad(0.5 * (field[:, 0, :, 1:] + field[:, 0, :, :-1]), (1, 1, 0, 1))
+    fv = F.pad(0.5 * (field[:, 1, 1:] + field[:, 1, :-1]), (0, 1, 1, 1))
+    return torch.stack([fu, fv], dim=1)
+
+
+def cells_from_faces(velocity: Tensor) -> Tensor:
+    """Average a staggered velocity onto cell centres: ``(B, 2, h, w)``, channel 0 = x."""
+    u, v = _split(velocity)
+    return torch.stack([0.5 * (u[..., 1:] + u[..., :-1]), 0.5 * (v[:, 1:] + v[:, :-1])], dim=1)
+
+
+def grid_sample_checked(image: Tensor, grid: Tensor, mode: str = "bilinear", align_corners: bool = True) -> Tensor:
+    """``grid_sample`` with border padding that refuses a non-finite sampling grid.
+
+    NaN in the grid makes ``grid_sample`` return finite garbage and its CPU backward crash the process, so
+    every sampling path in the library goes through here.
+
+    Raises:
+        FloatingPointError: ``grid`` holds NaN or inf (typically a flow that blew up).
+    """
+    if not bool(torch.isfinite(grid).all()):
+        raise FloatingPointError(
+            "non-finite sampling positions: the flow produced NaN or inf (forces or dt too large?)"
+        )
+    return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)
+
+
+# Internally point sets are channel-first, ``(B, 2, N)`` (row 0 = x): elementwise maths over a trailing
+# dimension of size 2 is several times slower on CPUs than over N. Public functions take ``(B, N, 2)``.
+
+
+@functools.lru_cache(maxsize=32)
+def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
+    """Memo of a pure function: constants of an ``(h, w)`` grid (box bounds, sampling affines, positions)."""
+    with torch.inference_mode(False), torch.no_grad():
+        def positions(ny: int, nx: int, x0: float, y0: float) -> Tensor:
+            gy, gx = torch.meshgrid(torch.arange(ny, dtype=dtype, device=device) + y0,
+                                    torch.arange(nx, dtype=dtype, device=device) + x0, indexing="ij")
+            return torch.stack([gx, gy]).reshape(1, 2, -1)
+
+        def col(a: float, b: float) -> Tensor:
+            return torch.tensor([a, b], dtype=dtype, device=device).view(1, 2, 1)
+
+        def affine(nx: int, ny: int, x0: float, y0: float) -> tuple[Tensor, Tensor]:
+            # align_corners=True: node k of n sits at normalised 2k/(n-1) - 1
+            sx, sy = 2.0 / (nx - 1), 2.0 / (ny - 1)
+            return col(sx, sy), col(-1 - x0 * sx, -1 - y0 * sy)
+
+        su, tu = affine(w + 1, h, -0.5, 0.0)
+        sv, tv = affine(w, h + 1, 0.0, -0.5)
+        sc, tc = affine(w, h, 0.0, 0.0)
+        return {
+            "lo": col(-0.5, -0.5), "hi": col(w - 0.5, h - 0.5),
+            "su": su, "tu": tu, "sv": sv, "tv": tv, "sc": sc, "tc": tc,
+            "faces": torch.cat([positions(h, w - 1, 0.5, 0.0), positions(h - 1, w, 0.0, 0.5)], dim=2),
+            "cells": positions(h, w, 0.0, 0.0),
+            "mask": interior_mask(FluidGrid(h, w), device=device, dtype=dtype),
+        }
+
+
+def _geo(h: int, w: int, like: Tensor) -> dict[str, Tensor]:
+    return _geometry(h, w, like.device, like.dtype)
+
+
+def _sample(image: Tensor, points: Tensor, scale: Tensor, shift: Tensor) -> Tensor:
+    """Sample ``image`` ``(B, C, n_y, n_x)`` at channel-first points ``(B, 2, N)`` mapped by ``p * scale + shift``.
+
+    Returns ``(B, C, N)``. Internal: callers guarantee finite points (finite inputs, clamped positions).
+    """
+    g = torch.addcmul(shift, points, scale).transpose(1, 2).unsqueeze(2)  # (B, N, 1, 2)
+    return F.grid_sample(image, g, mode="bilinear", padding_mode="border", align_corners=True)[..., 0]
+
+
+def _velocity_at(velocity: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:
+    """Velocity ``(B, 2, N)`` at channel-first points ``(B, 2, N)`` (fluid cells)."""
+    u, v = _split(velocity)
+    su = _sample(u.unsqueeze(1), points, geo["su"], geo["tu"])  # (B, 1, N)
+    sv = _sample(v.unsqueeze(1), points, geo["sv"], geo["tv"])
+    return torch.cat([su, sv], dim=1)
+
+
+def _clamp(points: Tensor, geo: dict[str, Tensor]) -> Tensor:
+    return torch.clamp(points, geo["lo"], geo["hi"])
+
+
+def _backtrace(velocity: Tensor, points: Tensor, dt: float, geo: dict[str, Tensor]) -> Tensor:
+    # explicit midpoint (RK2) back along the characteristic, clamped into the box
+    mid = _clamp(points - (0.5 * dt) * _velocity_at(velocity, points, geo), geo)
+    return _clamp(points - dt * _velocity_at(velocity, mid, geo), geo)
+
+
+def sample_velocity(velocity: Tensor, points: Tensor) -> Tensor:
+    """Bilinear velocity of a staggered field at points.
+
+    Args:
+        velocity: ``(B, 2, h + 1, w + 1)`` staggered, cells per time unit.
+        points: ``(B, N, 2)`` ``(x, y)`` in fluid cells; points outside the box are clamped to it.
+
+    Returns:
+        ``(B, N, 2)`` velocity ``(u, v)`` in cells per time unit.
+
+    Raises:
+        ValueError: non-finite velocity or points, or wrong shapes.
+    """
+    check_velocity(velocity)
+    check_tensor("points", points, shape=[velocity.shape[0], None, 2])
+    geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
+    return _velocity_at(velocity, _clamp(points.transpose(1, 2), geo), geo).transpose(1, 2)
+
+
+def advect(quantity: Tensor, velocity: Tensor, dt: float) -> Tensor:
+    """Semi-Lagrangian advection of a cell-centred field ``(B, C, h, w)`` through a staggered velocity.
+
+    Each cell centre is traced back by ``dt`` with the explicit midpoint rule and the field is sampled there
+    bilinearly (values beyond the outermost centres are held constant). This moves *values*, so repeated
+    steps blur; the warp layer advects texture coordinates instead.
+
+    Returns:
+        ``(B, C, h, w)`` the advected field.
+    """
+    check_velocity(velocity)
+    h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
+    check_tensor("quantity", quantity, shape=[velocity.shape[0], None, h, w])
+    geo = _geo(h, w, velocity)
+    back = _backtrace(velocity, geo["cells"].expand(velocity.shape[0], -1, -1), dt, geo)
+    return _sample(quantity, back, geo["sc"], geo["tc"]).view_as(quantity)
+
+
+def advect_velocity(velocity: Tensor, dt: float) -> Tensor:
+    """Self-advection of a staggered velocity (semi-Lagrangian, midpoint back-trace), walls kept at zero."""
+    check_velocity(velocity)
+    return _advect_velocity(velocity, dt)
+
+
+def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
+    h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
+    geo = _geo(h, w, velocity)
+    back = _backtrace(velocity, geo["faces"].expand(velocity.shape[0], -1, -1), dt, geo)
+    nu = h * (w - 1)
+    u, v = _split(velocity)
+    u_new = _sample(u.unsqueeze(1), back[..., :nu], geo["su"], geo["tu"]).view(-1, h, w - 1)
+    v_new = _sample(v.unsqueeze(1), back[..., nu:], geo["sv"], geo["tv"]).view(-1, h - 1, w)
+    return _pack(F.pad(u_new, (1, 1)), F.pad(v_new, (0, 0, 1, 1)))
+
+
+def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
+    """Carry points ``(B, M, 2)`` (fluid cells) forward by ``dt`` with RK2 (midpoint); they stay in the box."""
+    check_velocity(velocity)
+    check_tensor("points", points, shape=[velocity.shape[0], None, 2])
+    return _advect_points(points.transpose(1, 2), velocity, dt).transpose(1, 2)
+
+
+def _advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
+    """Channel-first version: ``(B, 2, M)`` in, ``(B, 2, M)`` out."""
+    geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
+    mid = _clamp(points + (0.5 * dt) * _velocity_at(velocity, points, geo), geo)
+    return _clamp(points + dt * _velocity_at(velocity, mid, geo), geo)
+
+
+def vector_laplacian(velocity: Tensor) -> Tensor:
+    """Vector Laplacian of a staggered velocity: no flow through the walls, free slip along them."""
+    u, v = _split(velocity)
+    uy = F.pad(u.unsqueeze(1), (0, 0, 1, 1), mode="replicate")[:, 0]
+    lu = (u[..., 2:] - 2 * u[..., 1:-1] + u[..., :-2]) + (uy[:, 2:, 1:-1] - 2 * u[:, :, 1:-1] + uy[:, :-2, 1:-1])
+    vx = F.pad(v.unsqueeze(1), (1, 1, 0, 0), mode="replicate")[:, 0]
+    lv = (v[:, 2:] - 2 * v[:, 1:-1] + v[:, :-2]) + (vx[:, 1:-1, 2:] - 2 * v[:, 1:-1] + vx[:, 1:-1, :-2])
+    return _pack(F.pad(lu, (1, 1)), F.pad(lv, (0, 0, 1, 1)))
+
+
+def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
+    """``-div(mu (grad v + grad v^T))`` on the staggered grid, for a viscosity field ``mu`` ``(B|1, 1, h, w)``.
+
+    It is the gradient of the discrete energy ``sum_cells mu (e_xx^2 + e_yy^2) + sum_corners mu/2 (u_y + v_x)^2``
+    (shear is zero on the walls: free slip), hence symmetric positive semi-definite, and it couples ``u``
+    and ``v``. The viscosity at a corner is the mean of its four cells.
+    """
+    u, v = _split(velocity)
+    mu = viscosity[:, 0]
+    mu_n = 0.25 * (mu[:, 1:, 1:] + mu[:, :-1, 1:] + mu[:, 1:, :-1] + mu[:, :-1, :-1])  # (B, h-1, w-1)
+    qx = 2 * mu * (u[..., 1:] - u[..., :-1])  # (B, h, w)
+    qy = 2 * mu * (v[:, 1:] - v[:, :-1])  # (B, h, w)
+    t = mu_n * ((u[:, 1:, 1:-1] - u[:, :-1, 1:-1]) + (v[:, 1:-1, 1:] - v[:, 1:-1, :-1]))  # (B, h-1, w-1)
+    gu = F.pad(qx, (1, 0)) - F.pad(qx, (0, 1))
+    gu = gu + F.pad(F.pad(t, (0, 0, 1, 0)) - F.pad(t, (0, 0, 0, 1)), (1, 1))
+    gv = F.pad(qy, (0, 0, 1, 0)) - F.pad(qy, (0, 0, 0, 1))
+    gv = gv + F.pad(F.pad(t, (1, 0)) - F.pad(t, (0, 1)), (0, 0, 1, 1))
+    h, w = u.shape[-2], v.shape[-1]
+    gu = torch.cat([gu[..., :1] * 0, gu[..., 1:w], gu[..., :1] * 0], dim=-1)
+    gv = torch.cat([gv[:, :1] * 0, gv[:, 1:h], gv[:, :1] * 0], dim=1)
+    return _pack(gu, gv)
+
+
+# The diffusion operators act on the interior faces and as the identity on walls and padding, with no
+# coupling between the two, so that they stay symmetric on the whole tensor (adjoint right-hand sides may
+# carry values on the walls).
+
+
+def _constant_operator(alpha: float, mask: Tensor):
+    def op(x: Tensor) -> Tensor:
+        return x - alpha * vector_laplacian(x * mask)
+    return op
+
+
+def _variable_operator(dt: float, mask: Tensor):
+    def op(x: Tensor, mu: Tensor) -> Tensor:
+        return x + dt * strain_operator(x * mask, mu)
+    return op
+
+
+def _strain_preconditioner(r: Tensor, alpha: Tensor, mask: Tensor) -> Tensor:
+    """Exact inverse of ``I + alpha K_mu`` for a constant ``mu`` (``alpha = dt * mu``, ``(B,)``).
+
+    With these walls the vector Laplacian commutes with the discrete gradient and divergence, so on
+    ``r = G q + w`` (Helmholtz split) ``I - a (Lap + G D)`` acts as ``I - a Lap`` on ``w`` and as
+    ``G (I - 2 a L)`` on ``q``. Hence ``x = (I - a Lap)^-1 r + G s`` with, per cosine mode of eigenvalue ``e``,
+    ``s = a / ((1 + 2 a e)(1 + a e)) * D r``: two fast solves and no null space.
+    """
+    a = alpha.view(-1, 1, 1, 1)
+    s = neumann_filter(divergence(r * mask), lambda e: a / ((1 + 2 * a * e) * (1 + a * e)))
+    return solve_velocity_helmholtz(r, alpha) + gradient(s)
+
+
+def diffuse(
+    velocity: Tensor,
+    viscosity: Viscosity,
+    dt: float,
+    *,
+    config: CGConfig = CGConfig(),
+    adjoint_config: CGConfig | None = None,
+    return_iterations: bool = False,
+) -> Tensor | tuple[Tensor, int]:
+    """Implicit viscous diffusion ``(I - dt L_mu) v_new = v``.
+
+    Args:
+        velocity: ``(B, 2, h + 1, w + 1)`` staggered velocity.
+        viscosity: a non-negative float ``mu`` (cells^2 per time unit; the operator is the vector Laplacian,
+            solved exactly by DST/DCT) or a field ``(B|1, 1, h, w)`` (the full term
+            ``div(mu (grad v + grad v^T))``, solved by CG preconditioned with the mean viscosity's exact solve;
+            differentiable in the field). Zero viscosity is the identity.
+        dt: time step (time units).
+        config: CG settings of the solve; ``adjoint_config`` those of its backward solve.
+        return_iterations: also return the CG iteration count.
+
+    Returns:
+        ``(B, 2, h + 1, w + 1)`` the diffused velocity (and the iteration count if asked).
+    """
+    mask = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)["mask"]
+    if isinstance(viscosity, Tensor):
+        mu = viscosity
+        alpha = dt * mu.detach().flatten(1).mean(1).expand(velocity.shape[0])
+        x, iters = implicit_solve(
+            _variable_operator(dt, mask), velocity, (mu,),
+            precond=lambda r: _strain_preconditioner(r, alpha, mask), config=config, adjoint_config=adjoint_config,
+            name="viscosity solve",
+        )
+    elif viscosity == 0:
+        x, iters = velocity, 0
+    else:
+        a = torch.full((velocity.shape[0],), dt * viscosity, device=velocity.device, dtype=velocity.dtype)
+        x, iters = implicit_solve(
+            _constant_operator(dt * viscosity, mask), velocity,
+            precond=lambda r: solve_velocity_helmholtz(r, a), config=config, adjoint_config=adjoint_config,
+            name="viscosity solve",
+        )
+    return (x, iters) if return_iterations else x
+
+
+def _pressure_operator(p: Tensor) -> Tensor:
+    # -L p + mean(p): the Neumann Laplacian made definite on constants, so that every right-hand side (also an
+    # adjoint one with a non-zero mean) is consistent; a zero-mean b gets the zero-mean pressure.
+    return p.mean(dim=(-2, -1), keepdim=True) - divergence(gradient(p))
+
+
+def project(
+    velocity: Tensor,
+    *,
+    config: CGConfig = CGConfig(),
+    adjoint_config: CGConfig | None = None,
+    return_iterations: bool = False,
+) -> Tensor | tuple[Tensor, int]:
+    """Pressure projection: solve ``-L p = -div v`` and return ``v - grad p``, divergence-free.
+
+    On the staggered grid the 5-point Neumann Laplacian is exactly ``div(grad)``, so after the solve the
+    discrete :func:`divergence` is zero to the CG tolerance; the DCT preconditioner is the exact inverse,
+    so CG takes one iteration.
+
+    Returns:
+        ``(B, 2, h + 1, w + 1)`` the projected velocity (and the iteration count if asked).
+    """
+    rhs = -divergence(velocity)
+    rhs = rhs - rhs.mean(dim=(-2, -1), keepdim=True)  # the walls make it zero-mean; remove round-off
+    p, iters = implicit_solve(
+        _pressure_operator, rhs, precond=solve_pressure_poisson, config=config, adjoint_config=adjoint_config,
+        name="pressure solve",
+    )
+    out = velocity - gradient(p)
+    return (out, iters) if return_iterations else out
+
+
+def check_viscosity(viscosity: object, batch: int, grid: tuple[int, int]) -> Viscosity:
+    """Validate a viscosity: a float ``>= 0`` or a field ``(B|1, 1, h, w)`` of finite values ``>= 0``."""
+    if isinstance(viscosity, Tensor):
+        mu = check_tensor("viscosity", viscosity)
+        if mu.ndim == 0:
+            mu = mu.reshape(1, 1, 1, 1).expand(1, 1, *grid)
+        if mu.ndim != 4 or mu.shape[1] != 1 or tuple(mu.shape[-2:]) != tuple(grid) or mu.shape[0] not in (1, batch):
+            raise ValueError(f"viscosity must be a float or a field of shape ({batch} or 1, 1, {grid[0]}, {grid[1]}), "
+                             f"got {tuple(mu.shape)}")
+        if bool((mu < 0).any()):
+            raise ValueError(f"viscosity must be >= 0 everywhere, got a minimum of {float(mu.min()):.3g}")
+        return mu
+    return check_positive("viscosity", viscosity, allow_zero=True)  # type: ignore[arg-type]
+
+
+Mode = Literal["bilinear", "bicubic", "nearest"]
