@@ -127,13 +127,15 @@ def _geo(h: int, w: int, like: Tensor) -> dict[str, Tensor]:
     return _geometry(h, w, like.device, like.dtype)
 
 
-def _sample(image: Tensor, points: Tensor, scale: Tensor, shift: Tensor) -> Tensor:
+def _sample(
+    image: Tensor, points: Tensor, scale: Tensor, shift: Tensor, align_corners: bool = True, mode: str = "bilinear"
+) -> Tensor:
     """Sample ``image`` ``(B, C, n_y, n_x)`` at channel-first points ``(B, 2, N)`` mapped by ``p * scale + shift``.
 
     Returns ``(B, C, N)``. Internal: callers guarantee finite points (finite inputs, clamped positions).
     """
     g = torch.addcmul(shift, points, scale).transpose(1, 2).unsqueeze(2)  # (B, N, 1, 2)
-    return F.grid_sample(image, g, mode="bilinear", padding_mode="border", align_corners=True)[..., 0]
+    return F.grid_sample(image, g, mode=mode, padding_mode="border", align_corners=align_corners)[..., 0]
 
 
 def _velocity_at(velocity: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:

@@ -139,7 +139,8 @@ class FluidSimulator(nn.Module):
         grid: ``(h, w)`` fluid cells (or an int for a square grid).
         dt: time step in time units; forces are in cells per time unit^2.
         viscosity: float ``>= 0``, a field ``(B|1, 1, h, w)`` (stored as a buffer, or a parameter if it is one),
-            or a module that returns such a field when called with no arguments.
+            or a module called as ``viscosity(grid, image_size)`` that returns such a field (see
+            :mod:`torchfluidwarp.forces`; ``image_size`` is the grid's own size unless a warp passes the image's).
         pressure, diffusion, adjoint: CG settings (see :class:`StableFluidsStep`).
         compressible: skip the projection.
 
@@ -174,9 +175,11 @@ class FluidSimulator(nn.Module):
         else:
             self.viscosity = check_viscosity(viscosity, 1, self.grid.shape)
 
-    def current_viscosity(self, batch: int) -> Viscosity:
+    def current_viscosity(self, batch: int, image_size: tuple[int, int] | None = None) -> Viscosity:
         """The viscosity in force: a float or a validated field ``(B|1, 1, h, w)``."""
-        mu = self.viscosity() if isinstance(self.viscosity, nn.Module) else self.viscosity
+        mu = self.viscosity
+        if isinstance(mu, nn.Module) and not isinstance(mu, nn.Parameter):
+            mu = mu(self.grid, image_size or self.grid.shape)
         return check_viscosity(mu, batch, self.grid.shape)
 
     def check_forces(self, forces: Tensor) -> Tensor:
@@ -184,7 +187,13 @@ class FluidSimulator(nn.Module):
         h, w = self.grid.shape
         return check_tensor("forces", forces, shape=[None, None, 2, h, w])
 
-    def forward(self, forces: Tensor, points: Tensor | None = None, velocity: Tensor | None = None) -> FluidRollout:
+    def forward(
+        self,
+        forces: Tensor,
+        points: Tensor | None = None,
+        velocity: Tensor | None = None,
+        image_size: tuple[int, int] | None = None,
+    ) -> FluidRollout:
         """Simulate ``T`` steps.
 
         Args:
@@ -192,6 +201,7 @@ class FluidSimulator(nn.Module):
             points: optional ``(B, M, 2)`` passive points ``(x, y)`` in fluid cells (cell centres at integers),
                 carried by RK2 through each step's velocity.
             velocity: optional initial staggered velocity ``(B, 2, h + 1, w + 1)``; zero by default.
+            image_size: ``(H, W)`` handed to a viscosity module (pixel-based maps); the grid's size by default.
 
         Returns:
             a :class:`FluidRollout`.
@@ -207,7 +217,7 @@ class FluidSimulator(nn.Module):
             check_tensor("velocity", velocity, shape=[B, 2, h + 1, w + 1])
         if points is not None:
             check_tensor("points", points, shape=[B, None, 2])
-        mu = self.current_viscosity(B)
+        mu = self.current_viscosity(B, image_size)
         vels, iters = [], []
         traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
         for t in range(T):

@@ -1,0 +1,362 @@
+"""Tests for torchfluidwarp.io: images, landmark points and animations on disk."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from torchfluidwarp import io as tio
+from torchfluidwarp.io import (
+    check_point_counts,
+    encode_animation,
+    read_image,
+    read_image_bytes,
+    read_points,
+    write_animation,
+    write_image,
+    write_points,
+)
+
+
+def random_image(gen: torch.Generator, shape: tuple[int, ...]) -> torch.Tensor:
+    """Random values on the 8-bit grid, so a PNG round trip is exact."""
+    return torch.randint(0, 256, shape, generator=gen).float() / 255.0
+
+
+def listing(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+# ---------------------------------------------------------------------------------------------- images
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_png_round_trip_is_exact(tmp_path, gen, channels):
+    image = random_image(gen, (1, channels, 7, 9))
+    path = write_image(tmp_path / "im.png", image)
+    back = read_image(path)
+    assert back.shape == (1, channels, 7, 9) and back.dtype == torch.float32
+    assert torch.equal(back, image)
+    assert torch.equal(read_image_bytes(path.read_bytes()), image)
+    assert listing(tmp_path) == ["im.png"]
+
+
+def test_write_image_accepts_chw(tmp_path, gen):
+    image = random_image(gen, (3, 5, 6))
+    assert torch.equal(read_image(write_image(tmp_path / "a.png", image))[0], image)
+
+
+def test_sixteen_bit_png(tmp_path):
+    array = (np.arange(20, dtype=np.uint16).reshape(4, 5) * 3000).astype(np.uint16)
+    iio.imwrite(tmp_path / "deep.png", array)
+    back = read_image(tmp_path / "deep.png", dtype=torch.float64)
+    assert back.shape == (1, 1, 4, 5)
+    torch.testing.assert_close(back[0, 0], torch.from_numpy(array / 65535.0))
+
+
+def test_channel_conversions(tmp_path, gen):
+    rgba = random_image(gen, (1, 4, 4, 5))
+    write_image(tmp_path / "rgba.png", rgba)
+    assert torch.equal(read_image(tmp_path / "rgba.png", channels=3), rgba[:, :3])
+    gray = random_image(gen, (1, 1, 4, 5))
+    write_image(tmp_path / "gray.png", gray)
+    assert torch.equal(read_image(tmp_path / "gray.png", channels=3), gray.expand(1, 3, 4, 5))
+    rgb4 = read_image(tmp_path / "gray.png", channels=4)
+    assert torch.equal(rgb4[:, 3], torch.ones(1, 4, 5))
+    luma = read_image(tmp_path / "rgba.png", channels=1)
+    expected = 0.299 * rgba[:, 0] + 0.587 * rgba[:, 1] + 0.114 * rgba[:, 2]
+    torch.testing.assert_close(luma[:, 0], expected)
+
+
+def test_gray_alpha_png_reads_as_rgba(tmp_path):
+    Image.new("LA", (3, 2), (128, 64)).save(tmp_path / "la.png")
+    image = read_image(tmp_path / "la.png")
+    assert image.shape == (1, 4, 2, 3)
+    torch.testing.assert_close(image[0, :, 0, 0], torch.tensor([128, 128, 128, 64]) / 255.0)
+
+
+def test_read_image_errors_name_the_path(tmp_path):
+    missing = tmp_path / "missing.png"
+    with pytest.raises(ValueError, match="missing.png.*no such file"):
+        read_image(missing)
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"this is not a png")
+    with pytest.raises(ValueError, match="junk.png.*not a readable image") as info:
+        read_image(junk)
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="image bytes"):
+        read_image_bytes(b"garbage")
+    with pytest.raises(ValueError, match="channels"):
+        read_image(junk, channels=2)
+
+
+@pytest.mark.parametrize("shape", [(4, 5), (2, 3, 4, 5), (1, 2, 4, 5), (1, 1, 1, 4, 5)])
+def test_write_image_rejects_bad_shapes(tmp_path, shape):
+    with pytest.raises(ValueError, match="image"):
+        write_image(tmp_path / "bad.png", torch.zeros(shape))
+    assert listing(tmp_path) == []
+
+
+def test_write_image_rejects_nan(tmp_path):
+    with pytest.raises(ValueError, match="non-finite"):
+        write_image(tmp_path / "nan.png", torch.full((1, 3, 3), float("nan")))
+
+
+# ---------------------------------------------------------------------------------------------- points
+
+
+POINTS = torch.tensor([[12.5, 40.25], [0.0, 511.0], [255.1234, 17.0001], [-3.5, 100.75]])
+
+
+@pytest.mark.parametrize("suffix", [".pts", ".json", ".csv"])
+def test_points_round_trip(tmp_path, suffix):
+    path = write_points(tmp_path / f"face{suffix}", POINTS)
+    back = read_points(path)
+    assert back.shape == (4, 2) and back.dtype == torch.float32
+    torch.testing.assert_close(back, POINTS, atol=1e-4, rtol=0)
+    assert listing(tmp_path) == [f"face{suffix}"]
+
+
+def test_pts_layout(tmp_path):
+    write_points(tmp_path / "a.pts", POINTS[:2])
+    assert (tmp_path / "a.pts").read_text() == "version: 1\nn_points: 2\n{\n12.5 40.25\n0 511\n}\n"
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        ("list.json", "[[1, 2], [3.5, 4.5]]"),
+        ("object.json", '{"points": [[1, 2], [3.5, 4.5]]}'),
+        ("header.csv", "x,y\n1,2\n3.5,4.5\n"),
+        ("noheader.csv", "1,2\n\n3.5, 4.5\n"),
+        ("spaced.pts", "version: 1\nn_points:  2\n{\n  1 2\n3.5\t4.5\n}\n\n"),
+    ],
+)
+def test_read_points_accepted_forms(tmp_path, name, text):
+    (tmp_path / name).write_text(text)
+    assert read_points(tmp_path / name).tolist() == [[1.0, 2.0], [3.5, 4.5]]
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "why"),
+    [
+        ("count.pts", "version: 1\nn_points: 3\n{\n1 2\n3 4\n}\n", "n_points: 3 but the file has 2"),
+        ("nobrace.pts", "version: 1\nn_points: 1\n1 2\n", "expected 'key: value'"),
+        ("noclose.pts", "version: 1\nn_points: 1\n{\n1 2\n", "no '}'"),
+        ("noheader.pts", "{\n1 2\n}\n", "n_points"),
+        ("three.pts", "version: 1\nn_points: 1\n{\n1 2 3\n}\n", "expected 2 values"),
+        ("word.pts", "version: 1\nn_points: 1\n{\n1 y\n}\n", "not a number"),
+        ("nan.pts", "version: 1\nn_points: 1\n{\nnan 2\n}\n", "non-finite"),
+        ("bad.json", "[[1, 2],", "invalid JSON"),
+        ("item.json", "[[1, 2, 3]]", "point 0"),
+        ("string.json", '[["1", 2]]', "point 0"),
+        ("key.json", '{"pts": [[1, 2]]}', "points"),
+        ("inf.json", "[[Infinity, 2]]", "non-finite"),
+        ("three.csv", "1,2,3\n", "expected 2 values"),
+        ("word.csv", "x,y\n1,2\na,b\n", "not a number"),
+    ],
+)
+def test_malformed_points_raise(tmp_path, name, text, why):
+    (tmp_path / name).write_text(text)
+    with pytest.raises(ValueError, match=name) as info:
+        read_points(tmp_path / name)
+    assert why in str(info.value)
+
+
+def test_points_path_errors(tmp_path):
+    with pytest.raises(ValueError, match="no such file"):
+        read_points(tmp_path / "missing.pts")
+    with pytest.raises(ValueError, match=r"face\.txt.*\.pts, \.json, \.csv"):
+        read_points(tmp_path / "face.txt")
+    with pytest.raises(ValueError, match="suffix"):
+        write_points(tmp_path / "face.txt", POINTS)
+    with pytest.raises(ValueError, match="points"):
+        write_points(tmp_path / "face.pts", torch.zeros(3, 3))
+    assert listing(tmp_path) == []
+
+
+def test_check_point_counts_names_both_counts():
+    check_point_counts(torch.zeros(5, 2), torch.ones(5, 2))
+    with pytest.raises(ValueError, match="^points_a has 68 points but points_b has 20$"):
+        check_point_counts(torch.zeros(68, 2), torch.zeros(20, 2))
+    with pytest.raises(ValueError, match="src.pts has 3 points but dst.pts has 4"):
+        check_point_counts(torch.zeros(3, 2), torch.zeros(4, 2), "src.pts", "dst.pts")
+
+
+# ------------------------------------------------------------------------------------------ animations
+
+
+def frames_with_repeats(gen: torch.Generator) -> torch.Tensor:
+    """7 small frames (fewer colours than a GIF palette holds): a, a, a, b, b, c, c."""
+    a, b, c = random_image(gen, (3, 3, 8, 10)).unbind(0)
+    return torch.stack([a, a, a, b, b, c, c])
+
+
+def gif_frames(data: bytes | Path) -> np.ndarray:
+    return iio.imread(data, index=None, extension=".gif")  # (T, H, W, 3)
+
+
+def test_gif_keeps_every_frame_including_repeats(tmp_path, gen):
+    frames = frames_with_repeats(gen)
+    path = write_animation(tmp_path / "anim.gif", frames, fps=10)
+    back = gif_frames(path)
+    assert back.shape == (7, 8, 10, 3)
+    expected = (frames * 255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    np.testing.assert_array_equal(back, expected)
+    with Image.open(path) as gif:
+        assert gif.n_frames == 7
+        assert gif.info["loop"] == 0 and gif.info["duration"] == 100
+    assert listing(tmp_path) == ["anim.gif"]
+
+
+def test_gif_of_identical_frames_and_gray(tmp_path, gen):
+    still = random_image(gen, (1, 1, 6, 6)).expand(5, 1, 6, 6)
+    back = gif_frames(write_animation(tmp_path / "still.gif", still))
+    assert back.shape == (5, 6, 6, 3)
+    assert all(np.array_equal(back[0], frame) for frame in back)
+
+
+def test_gif_of_larger_frames_keeps_count(tmp_path, gen):
+    # More colours than the palette: quantized, but repeats must still survive.
+    frames = random_image(gen, (2, 3, 40, 48))
+    frames = torch.stack([frames[0], frames[0], frames[1], frames[1], frames[1]])
+    back = gif_frames(write_animation(tmp_path / "big.gif", frames))
+    assert back.shape[0] == 5
+    assert np.array_equal(back[0], back[1]) and np.array_equal(back[2], back[4])
+
+
+def test_encode_animation_gif_bytes(gen):
+    frames = frames_with_repeats(gen)
+    data = encode_animation(frames, "gif", fps=5)
+    assert data[:6] == b"GIF89a"
+    assert gif_frames(data).shape[0] == 7
+    with pytest.raises(ValueError, match="fmt"):
+        encode_animation(frames, "webm")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("name", ["frames/", "frames"])
+def test_frames_folder(tmp_path, gen, name):
+    frames = random_image(gen, (3, 4, 5, 6))
+    out = write_animation(str(tmp_path / name), frames)
+    assert out == tmp_path / "frames" and listing(tmp_path) == ["frames"]
+    assert listing(out) == ["frame_0000.png", "frame_0001.png", "frame_0002.png"]
+    for t in range(3):
+        assert torch.equal(read_image(out / f"frame_{t:04d}.png")[0], frames[t])
+
+
+def test_frames_into_existing_empty_folder(tmp_path, gen):
+    (tmp_path / "out.d").mkdir()
+    write_animation(tmp_path / "out.d", random_image(gen, (2, 1, 4, 4)))
+    assert listing(tmp_path / "out.d") == ["frame_0000.png", "frame_0001.png"]
+
+
+def test_refuses_to_overwrite(tmp_path, gen):
+    frames = frames_with_repeats(gen)
+    path = write_animation(tmp_path / "anim.gif", frames)
+    with pytest.raises(FileExistsError, match="anim.gif.*overwrite=True"):
+        write_animation(path, frames[:2])
+    assert gif_frames(path).shape[0] == 7
+    write_animation(path, frames[:2], overwrite=True)
+    assert gif_frames(path).shape[0] == 2
+
+    folder = write_animation(tmp_path / "frames", frames[:3])
+    with pytest.raises(FileExistsError, match="frames"):
+        write_animation(folder, frames[:2])
+    write_animation(folder, frames[:2], overwrite=True)
+    assert listing(folder) == ["frame_0000.png", "frame_0001.png"]
+    assert listing(tmp_path) == ["anim.gif", "frames"]
+
+
+def test_never_replaces_a_folder_of_other_files(tmp_path, gen):
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "notes.txt").write_text("keep me")
+    with pytest.raises(FileExistsError, match="notes.txt"):
+        write_animation(tmp_path / "results", random_image(gen, (2, 3, 4, 4)), overwrite=True)
+    assert listing(tmp_path / "results") == ["notes.txt"]
+
+
+@pytest.mark.parametrize("shape", [(3, 2, 4, 4), (3, 4, 4), (0, 3, 4, 4)])
+@pytest.mark.parametrize("name", ["anim.gif", "frames/"])
+def test_bad_frames_leave_nothing(tmp_path, shape, name):
+    with pytest.raises(ValueError, match="frames"):
+        write_animation(str(tmp_path / name), torch.zeros(shape))
+    assert listing(tmp_path) == []
+
+
+def test_failing_gif_write_leaves_old_file_and_no_temp(tmp_path, gen, monkeypatch):
+    frames = frames_with_repeats(gen)
+    path = write_animation(tmp_path / "anim.gif", frames)
+    before = path.read_bytes()
+
+    def broken_save(self, fp, *args, **kwargs):
+        fp.write(b"GIF89a half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(Image.Image, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        write_animation(path, frames[:3], overwrite=True)
+    with pytest.raises(OSError, match="disk full"):
+        write_animation(tmp_path / "new.gif", frames)
+    assert listing(tmp_path) == ["anim.gif"]
+    assert path.read_bytes() == before
+
+
+def test_failing_frames_write_leaves_no_folder(tmp_path, gen, monkeypatch):
+    real_imwrite = tio.iio.imwrite
+    calls = []
+
+    def flaky_imwrite(uri, image, **kwargs):
+        calls.append(uri)
+        if len(calls) == 3:
+            raise OSError("disk full")
+        return real_imwrite(uri, image, **kwargs)
+
+    monkeypatch.setattr(tio.iio, "imwrite", flaky_imwrite)
+    with pytest.raises(OSError, match="disk full"):
+        write_animation(tmp_path / "frames", random_image(gen, (5, 3, 4, 4)))
+    assert listing(tmp_path) == []
+
+
+def test_unknown_suffix_and_bad_options(tmp_path, gen):
+    frames = random_image(gen, (2, 3, 4, 4))
+    with pytest.raises(ValueError, match=r"\.webm"):
+        write_animation(tmp_path / "a.webm", frames)
+    with pytest.raises(ValueError, match="fps"):
+        write_animation(tmp_path / "a.gif", frames, fps=0)
+    with pytest.raises(ValueError, match="loop"):
+        write_animation(tmp_path / "a.gif", frames, loop=-1)
+    with pytest.raises(ValueError, match="non-finite"):
+        write_animation(tmp_path / "a.gif", torch.full((2, 3, 4, 4), float("nan")))
+    assert listing(tmp_path) == []
+
+
+def test_mp4_without_ffmpeg_says_how_to_install(tmp_path, gen, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # makes `import imageio_ffmpeg` fail
+    frames = random_image(gen, (2, 3, 4, 4))
+    with pytest.raises(RuntimeError, match=r"imageio-ffmpeg: pip install 'torchfluidwarp\[video\]'"):
+        write_animation(tmp_path / "a.mp4", frames)
+    with pytest.raises(RuntimeError, match="imageio-ffmpeg"):
+        encode_animation(frames, "mp4")
+    assert listing(tmp_path) == []
+
+
+def test_mp4_round_trip_frame_count(tmp_path, gen):
+    pytest.importorskip("imageio_ffmpeg")
+    frames = random_image(gen, (2, 3, 15, 20))
+    frames = torch.stack([frames[0], frames[0], frames[1], frames[1], frames[1]])
+    path = write_animation(tmp_path / "a.mp4", frames, fps=12)
+    back = iio.imread(path, plugin="FFMPEG")
+    assert back.shape == (5, 16, 20, 3)  # odd height padded to even
+    assert listing(tmp_path) == ["a.mp4"]
+
+
+def test_json_written_as_points_object(tmp_path):
+    write_points(tmp_path / "p.json", POINTS[:1])
+    assert json.loads((tmp_path / "p.json").read_text()) == {"points": [[12.5, 40.25]]}
