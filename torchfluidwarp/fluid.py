@@ -349,7 +349,8 @@ def project(
 
     On the staggered grid the 5-point Neumann Laplacian is exactly ``div(grad)``, so after the solve the
     discrete :func:`divergence` is zero to the CG tolerance; the DCT preconditioner is the exact inverse,
-    so CG takes one iteration.
+    so CG takes one iteration (two in float32 on large grids, where round-off of the first exceeds the
+    default tolerance).
 
     Returns:
         ``(B, 2, h + 1, w + 1)`` the projected velocity (and the iteration count if asked).
