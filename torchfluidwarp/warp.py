@@ -15,7 +15,7 @@ covers the same rectangle whatever the image's resolution.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from typing import Literal, Union
 
 import torch
@@ -28,7 +28,10 @@ from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
 
-__all__ = ["FluidWarp", "warp_image", "identity_map", "backward_maps", "forward_maps", "jacobian_determinant"]
+__all__ = [
+    "FluidWarp", "warp_image", "identity_map", "backward_maps", "iter_backward_maps", "forward_maps",
+    "jacobian_determinant",
+]
 
 ForceSource = Union[Tensor, Callable[..., Tensor]]
 SampleMode = Literal["bilinear", "bicubic", "nearest"]
@@ -122,37 +125,72 @@ def _displacement(velocity: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     return F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
 
 
-def backward_maps(velocities: Tensor, size: tuple[int, int], dt: float = 1.0) -> Tensor:
-    """Backward coordinate maps of a roll-out, advected at the image's resolution.
+def _frame_times(T: int, times: Sequence[float] | None) -> list[float]:
+    if times is None:
+        return [float(t) for t in range(T + 1)]
+    out = [float(t) for t in times]
+    if any(not (0 <= t <= T) for t in out) or any(b < a for a, b in zip(out, out[1:])):
+        raise ValueError(f"times must be non-decreasing and within [0, {T}] (steps), got {out}")
+    return out
+
+
+def iter_backward_maps(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Sequence[float] | None = None
+) -> Iterator[Tensor]:
+    """Yield the backward maps ``(B, H, W, 2)`` (pixels) one at a time, at the given times.
 
     ``g_{t+1}(x) = g_t(x - d_t(x))`` where ``d_t`` is the midpoint back-trace displacement of step ``t``
     (see :func:`_displacement`), clamped to the image rectangle. The maps are carried as displacements
     ``g_t(x) - x``, sampled bilinearly: small numbers keep float32 round-off small, and a flow at rest gives
-    exactly the identity.
+    exactly the identity. A time ``s`` between steps ``t`` and ``t + 1`` applies step ``t``'s velocity for
+    ``(s - t) dt``.
+
+    Args:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities (cells per time unit).
+        size: ``(H, W)`` of the image.
+        dt: the roll-out's time step.
+        times: non-decreasing times in steps, within ``[0, T]`` (default ``0, 1, ..., T``).
+    """
+    check_tensor("velocities", velocities, ndim=5)
+    H, W = check_size("size", size)
+    B, T = velocities.shape[:2]
+    times = _frame_times(T, times)
+    pix = identity_map((H, W), device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)  # (1, 2, H, W)
+    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    scale, shift = _pixel_affine(H, W, velocities)
+
+    def advance(disp: Tensor, t: int, fraction: float) -> Tensor:
+        back = torch.clamp(pix - _displacement(velocities[:, t], (H, W), dt * fraction), lo, hi)
+        return back - pix + _sample(disp, back.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+
+    disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # g_t(x) - x at integer step `done`
+    done = 0
+    for s in times:
+        while done + 1 <= s:
+            disp = advance(disp, done, 1.0)
+            done += 1
+        current = disp if s == done else advance(disp, done, s - done)
+        yield (current + pix).permute(0, 2, 3, 1)
+
+
+def backward_maps(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Sequence[float] | None = None
+) -> Tensor:
+    """Backward coordinate maps of a roll-out, advected at the image's resolution.
 
     Args:
         velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities (fluid cells per time unit), as returned
             by :class:`~torchfluidwarp.simulator.FluidSimulator`.
         size: ``(H, W)`` of the image the maps are for.
         dt: the roll-out's time step.
+        times: optional times in steps (default ``0..T``); see :func:`iter_backward_maps`.
 
     Returns:
-        ``(B, T + 1, H, W, 2)`` maps in pixels; map 0 is the identity. Frame ``t`` is ``warp_image(f, maps[:, t])``.
+        ``(B, len(times), H, W, 2)`` maps in pixels (``T + 1`` by default; map 0 is the identity). Frame ``t``
+        is ``warp_image(f, maps[:, t])``.
     """
-    check_tensor("velocities", velocities, ndim=5)
-    H, W = check_size("size", size)
-    B, T = velocities.shape[:2]
-    pix = identity_map((H, W), device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)  # (1, 2, H, W)
-    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    scale, shift = _pixel_affine(H, W, velocities)
-    disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # g_t(x) - x
-    maps = [disp]
-    for t in range(T):
-        back = torch.clamp(pix - _displacement(velocities[:, t], (H, W), dt), lo, hi)  # (B, 2, H, W) pixels
-        disp = back - pix + _sample(disp, back.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
-        maps.append(disp)
-    return (torch.stack(maps, dim=1) + pix.unsqueeze(1)).permute(0, 1, 3, 4, 2)
+    return torch.stack(list(iter_backward_maps(velocities, size, dt, times)), dim=1)
 
 
 def forward_maps(velocities: Tensor, size: tuple[int, int], dt: float = 1.0) -> Tensor:
@@ -288,6 +326,22 @@ class FluidWarp(nn.Module):
         rep = image.unsqueeze(1).expand(B, T, *image.shape[1:]).reshape(B * T, *image.shape[1:])
         frames = _warp_image(rep, maps.reshape(B * T, *maps.shape[2:]), self.mode).view(B, T, *image.shape[1:])
         return torch.cat([image.unsqueeze(1), frames], dim=1)
+
+    def iter_frames(self, image: Tensor, forces: ForceSource) -> Iterator[Tensor]:
+        """Yield the frames ``(B, C, H, W)`` one at a time (``T + 1`` of them): long animations in little memory.
+
+        The fluid is rolled out first (cheap at fluid resolution); each frame is then resampled on demand, so a
+        caller can show progress.
+        """
+        check_tensor("image", image, ndim=4)
+        size = (image.shape[-2], image.shape[-1])
+        vel = self.rollout(forces, size).velocities.to(image.dtype)
+        if vel.shape[0] != image.shape[0]:
+            vel = vel.expand(image.shape[0], *vel.shape[1:])
+        yield image
+        for t, m in enumerate(iter_backward_maps(vel, size, self.dt)):
+            if t > 0:
+                yield _warp_image(image, m, self.mode)
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
