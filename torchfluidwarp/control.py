@@ -144,7 +144,7 @@ def fit_keyframes(
     regularization: float = 0.0,
     max_iter: int = 200,
     tolerance: float = 0.01,
-    compressible: bool = False,
+    compressible: bool | float = False,
     dtype: torch.dtype = torch.float64,
     progress: bool = True,
 ) -> KeyframeFit:
@@ -167,7 +167,7 @@ def fit_keyframes(
         regularization: weight on ``||u||^2`` (default 0: off).
         max_iter: maximum L-BFGS iterations.
         tolerance: pixels; the fit stops once every point is this close to its target.
-        compressible: skip the pressure projection.
+        compressible: skip (``True``) or weight the pressure projection (see :class:`~torchfluidwarp.warp.FluidWarp`).
         dtype: dtype of the fit (float64 by default: it converges more tightly at the same speed on CPUs).
         progress: show a tqdm bar with the loss.
 

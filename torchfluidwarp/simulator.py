@@ -76,7 +76,9 @@ class StableFluidsStep(nn.Module):
         dt: time step (time units).
         pressure: CG settings of the pressure solve (and ``adjoint`` those of every backward solve).
         diffusion: CG settings of the viscosity solve.
-        compressible: skip the projection (the flow may then compress and expand).
+        compressible: ``False`` (incompressible), ``True`` (skip the projection: the flow may compress and
+            expand), or a weight ``c`` in ``[0, 1]``: the step keeps ``c`` of the divergent part,
+            ``v <- c v + (1 - c) P(v)`` with ``P`` the projection.
 
     Example:
         >>> step = StableFluidsStep()
@@ -94,13 +96,17 @@ class StableFluidsStep(nn.Module):
         pressure: CGConfig = CGConfig(),
         diffusion: CGConfig = CGConfig(),
         adjoint: CGConfig | None = None,
-        compressible: bool = False,
+        compressible: bool | float = False,
     ) -> None:
         super().__init__()
         self.add_force = AddForce(dt)
         self.advect = Advect(dt)
         self.diffuse = Diffuse(dt, diffusion, adjoint)
-        self.project = None if compressible else Project(pressure, adjoint)
+        keep = float(compressible)
+        if not 0.0 <= keep <= 1.0:
+            raise ValueError(f"compressible must be a bool or a weight in [0, 1], got {compressible!r}")
+        self.keep_divergence = keep
+        self.project = None if keep == 1.0 else Project(pressure, adjoint)
 
     def forward(self, velocity: Tensor, force: Tensor, viscosity: Viscosity) -> tuple[Tensor, tuple[int, int]]:
         """Advance ``velocity`` ``(B, 2, h + 1, w + 1)`` by one step under ``force`` ``(B, 2, h, w)``.
@@ -112,7 +118,8 @@ class StableFluidsStep(nn.Module):
         v, it_visc = self.diffuse(v, viscosity)
         it_p = 0
         if self.project is not None:
-            v, it_p = self.project(v)
+            projected, it_p = self.project(v)
+            v = projected if self.keep_divergence == 0 else torch.lerp(projected, v, self.keep_divergence)
         return v, (it_visc, it_p)
 
 
@@ -142,7 +149,7 @@ class FluidSimulator(nn.Module):
             or a module called as ``viscosity(grid, image_size)`` that returns such a field (see
             :mod:`torchfluidwarp.forces`; ``image_size`` is the grid's own size unless a warp passes the image's).
         pressure, diffusion, adjoint: CG settings (see :class:`StableFluidsStep`).
-        compressible: skip the projection.
+        compressible: see :class:`StableFluidsStep`.
 
     Example:
         >>> sim = FluidSimulator(grid=(16, 24), dt=1.0)
@@ -161,7 +168,7 @@ class FluidSimulator(nn.Module):
         pressure: CGConfig = CGConfig(),
         diffusion: CGConfig = CGConfig(),
         adjoint: CGConfig | None = None,
-        compressible: bool = False,
+        compressible: bool | float = False,
     ) -> None:
         super().__init__()
         self.grid = FluidGrid.of(grid)

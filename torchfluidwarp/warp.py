@@ -29,7 +29,7 @@ from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
 
 __all__ = [
-    "FluidWarp", "warp_image", "identity_map", "backward_maps", "iter_backward_maps", "forward_maps",
+    "FluidWarp", "warp_image", "identity_map", "backward_maps", "iter_backward_maps", "forward_maps", "maps_to_end",
     "jacobian_determinant",
 ]
 
@@ -193,6 +193,47 @@ def backward_maps(
     return torch.stack(list(iter_backward_maps(velocities, size, dt, times)), dim=1)
 
 
+def maps_to_end(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Sequence[float] | None = None
+) -> Tensor:
+    """Where the fluid carries each pixel from time ``s`` to the end ``T``: ``(B, len(times), H, W, 2)`` pixels.
+
+    ``K_s = F_{s -> T}``, built backwards in time like the backward maps run forwards:
+    ``K_T(z) = z`` and ``K_s(z) = K_{t+1}(z + e(z))`` for ``s`` in ``[t, t + 1)``, where ``e`` is the forward
+    RK2 displacement of step ``t``'s velocity over ``(t + 1 - s) dt``. The morph uses it to pull the target
+    image back along the very flow that carries the source (``K_s`` inverts the backward map ``g_s`` composed
+    with ``K_0``).
+
+    Args:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities.
+        size: ``(H, W)``. dt: time step. times: non-decreasing times in ``[0, T]`` (default ``0..T``).
+    """
+    check_tensor("velocities", velocities, ndim=5)
+    H, W = check_size("size", size)
+    B, T = velocities.shape[:2]
+    times = _frame_times(T, times)
+    pix = identity_map((H, W), device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)
+    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    scale, shift = _pixel_affine(H, W, velocities)
+
+    def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
+        # forward displacement over fraction*dt = minus the back-trace displacement of a negative time step
+        ahead = torch.clamp(pix - _displacement(velocities[:, t], (H, W), -dt * fraction), lo, hi)
+        return ahead - pix + _sample(disp, ahead.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+
+    disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # K_t(z) - z at integer step `done`
+    done = T
+    out: list[Tensor] = []
+    for s in reversed(times):
+        while done - 1 >= s:
+            disp = pull(disp, done - 1, 1.0)
+            done -= 1
+        current = disp if s == done else pull(disp, done - 1, done - s)
+        out.append((current + pix).permute(0, 2, 3, 1))
+    return torch.stack(out[::-1], dim=1)
+
+
 def forward_maps(velocities: Tensor, size: tuple[int, int], dt: float = 1.0) -> Tensor:
     """Where each source pixel has gone: ``(B, T + 1, H, W, 2)`` pixel positions, carried forward by RK2.
 
@@ -247,7 +288,8 @@ class FluidWarp(nn.Module):
         dt: time step (time units).
         viscosity: float, field ``(B|1, 1, h, w)``, or a viscosity module from :mod:`torchfluidwarp.forces`.
         image_size: ``(H, W)`` used by :meth:`advect_points` when no image is at hand (optional).
-        compressible: skip the pressure projection (the warp may then change areas).
+        compressible: ``True`` skips the pressure projection (the warp may then change areas); a weight in
+            ``[0, 1]`` keeps that fraction of the divergent part (see :class:`~torchfluidwarp.simulator.StableFluidsStep`).
         mode: image sampling, ``"bilinear"`` or ``"bicubic"``.
         pressure, diffusion, adjoint: CG settings (:class:`~torchfluidwarp.linalg.CGConfig`).
 
@@ -270,7 +312,7 @@ class FluidWarp(nn.Module):
         viscosity: Viscosity | nn.Module = 0.0,
         *,
         image_size: tuple[int, int] | None = None,
-        compressible: bool = False,
+        compressible: bool | float = False,
         mode: SampleMode = "bilinear",
         pressure: CGConfig = CGConfig(),
         diffusion: CGConfig = CGConfig(),
