@@ -9,6 +9,7 @@ The modules in :mod:`torchfluidwarp.simulator` are thin wrappers over these.
 from __future__ import annotations
 
 import functools
+import math
 from typing import Literal
 
 import torch
@@ -210,18 +211,42 @@ def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
     return _pack(F.pad(u_new, (1, 1)), F.pad(v_new, (0, 0, 1, 1)))
 
 
+MAX_STRAIN_PER_SUBSTEP = 0.25
+"""Points and maps are carried in sub-steps short enough that ``dt_sub * max|grad v| <= 0.25``: each
+sub-step's map ``x -> x + dt_sub v`` then has a Jacobian determinant near 1 and can never fold."""
+
+
+def substeps(velocity: Tensor, dt: float) -> int:
+    """Number of sub-steps that keep ``dt_sub * max|grad v|`` within :data:`MAX_STRAIN_PER_SUBSTEP`.
+
+    The largest velocity difference between neighbouring faces of a staggered velocity ``(B, 2, h+1, w+1)``
+    bounds its velocity gradient (cells per time unit per cell). Most gentle flows need one sub-step.
+    """
+    u, v = _split(velocity.detach())
+    grads = [(u[..., 1:] - u[..., :-1]).abs().amax(), (u[:, 1:] - u[:, :-1]).abs().amax(),
+             (v[..., 1:] - v[..., :-1]).abs().amax(), (v[:, 1:] - v[:, :-1]).abs().amax()]
+    strain = float(torch.stack(grads).max()) * abs(dt)
+    return max(1, math.ceil(strain / MAX_STRAIN_PER_SUBSTEP))
+
+
 def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
-    """Carry points ``(B, M, 2)`` (fluid cells) forward by ``dt`` with RK2 (midpoint); they stay in the box."""
+    """Carry points ``(B, M, 2)`` (fluid cells) forward by ``dt`` with RK2 (midpoint); they stay in the box.
+
+    Strong flows are integrated in :func:`substeps` sub-steps."""
     check_velocity(velocity)
     check_tensor("points", points, shape=[velocity.shape[0], None, 2])
     return _advect_points(points.transpose(1, 2), velocity, dt).transpose(1, 2)
 
 
-def _advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
-    """Channel-first version: ``(B, 2, M)`` in, ``(B, 2, M)`` out."""
+def _advect_points(points: Tensor, velocity: Tensor, dt: float, n: int | None = None) -> Tensor:
+    """Channel-first version: ``(B, 2, M)`` in, ``(B, 2, M)`` out, in ``n`` sub-steps (default: :func:`substeps`)."""
     geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
-    mid = _clamp(points + (0.5 * dt) * _velocity_at(velocity, points, geo), geo)
-    return _clamp(points + dt * _velocity_at(velocity, mid, geo), geo)
+    n = substeps(velocity, dt) if n is None else n
+    h = dt / n
+    for _ in range(n):
+        mid = _clamp(points + (0.5 * h) * _velocity_at(velocity, points, geo), geo)
+        points = _clamp(points + h * _velocity_at(velocity, mid, geo), geo)
+    return points
 
 
 def vector_laplacian(velocity: Tensor) -> Tensor:

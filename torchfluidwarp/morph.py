@@ -29,7 +29,8 @@ from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.warp import _warp_image, backward_maps, identity_map, maps_to_end
 
-__all__ = ["morph", "MorphResult", "resize_pair"]
+__all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest"]
+
 
 InverseMethod = Literal["flow", "paper"]
 Blend = Literal["linear", "smooth"]
@@ -97,6 +98,32 @@ def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Ten
     return image_b, points_b
 
 
+def region_of_interest(points: Tensor, margin: float) -> tuple[int, int, int, int]:
+    """Pixel box ``(x0, y0, x1, y1)`` (x1, y1 exclusive) around ``points`` ``(M, 2)``, grown by ``margin`` times
+    its size on each side. It may reach beyond the image: points near an edge then stay clear of the fluid's
+    walls, where a fluid cannot move them."""
+    lo, hi = points.min(0).values, points.max(0).values
+    ext = (hi - lo).clamp(min=8.0)
+    x0, y0 = (lo - margin * ext).floor().tolist()
+    x1, y1 = (hi + margin * ext).ceil().tolist()
+    return int(x0), int(y0), int(x1) + 1, int(y1) + 1
+
+
+def _embed(maps: Tensor, box: tuple[int, int, int, int], size: tuple[int, int]) -> Tensor:
+    """Maps ``(N, h_r, w_r, 2)`` computed on a box (box pixels) as maps of the whole image ``(N, H, W, 2)``.
+
+    Pixels outside the box stay put; the box may extend beyond the image."""
+    x0, y0, x1, y1 = box
+    H, W = size
+    if (x0, y0, x1, y1) == (0, 0, W, H):
+        return maps
+    full = identity_map(size, batch=maps.shape[0], dtype=maps.dtype).clone()
+    offset = torch.tensor([x0, y0], dtype=maps.dtype)
+    ys, xs = slice(max(0, y0), min(H, y1)), slice(max(0, x0), min(W, x1))
+    full[:, ys, xs] = maps[:, ys.start - y0 : ys.stop - y0, xs.start - x0 : xs.stop - x0] + offset
+    return full
+
+
 def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
     u = times / T
     if blend == "linear":
@@ -147,7 +174,7 @@ def morph(
     frames: int = 30,
     grid: FluidGrid | int | tuple[int, int] = (64, 64),
     steps: int = 10,
-    control: tuple[int, int] | int = (5, 5),
+    control: tuple[int, int] | int = (8, 8),
     viscosity: Viscosity | nn.Module = 0.0,
     align: AlignKind | None = "similarity",
     inverse: InverseMethod = "flow",
@@ -155,6 +182,7 @@ def morph(
     compressible: bool | float = False,
     max_iter: int = 200,
     tolerance: float = 0.05,
+    margin: float | None = 0.5,
     warm_start: KeyframeFit | None = None,
     progress: bool = True,
 ) -> MorphResult:
@@ -165,14 +193,22 @@ def morph(
         image_b: target image; resized to A's size if needed (its points are scaled to match).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels.
         frames: number of output frames ``N >= 2``.
-        grid, steps, control, viscosity: the fluid and its control (see :func:`fit_keyframes`).
+        grid, steps, control, viscosity: the fluid and its control (see :func:`fit_keyframes`). Faces need a
+            finer control grid than the paper's 5 x 5: features close together move differently.
         align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
             or ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
         blend: cross-dissolve schedule, ``"linear"`` (the paper's) or ``"smooth"`` (ease in and out).
         compressible: ``True`` to let regions change area (skips the projection) or a weight in ``[0, 1]``;
-            use it when corresponding regions differ in size beyond what the global alignment explains.
+            use it when corresponding regions differ in size beyond what the global alignment explains (e.g. a
+            human face and a cat's: the cat's chin sits much closer to its mouth; ``0.5`` works well there).
+            The default keeps the flow incompressible: every region keeps its area.
         max_iter, tolerance: L-BFGS iterations and the per-point accuracy (pixels) at which the fit stops.
+        margin: the fluid fills a box around the points (A's and their targets) grown by this fraction of its
+            size on each side; the rest of the picture follows the pre-alignment only. The fluid's cells and
+            control points then land where the features are, and the box may reach beyond the image so that
+            points near an edge are not pinned by the fluid's walls. ``None`` makes the fluid cover exactly the
+            whole image (targets beyond it are clamped onto it).
         warm_start: a previous :class:`KeyframeFit` whose forces start the optimisation (interactive use).
         progress: show progress bars.
 
@@ -199,23 +235,30 @@ def morph(
     center = pa.double().mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb.double())
-    target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
-    fit_kwargs = dict(image_size=size, grid=grid, control=control, viscosity=viscosity, compressible=compressible,
+    if margin is None:
+        box = (0, 0, W, H)
+        target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
+    else:
+        box = region_of_interest(torch.cat([pa.double(), target]), margin)
+    offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
+    roi = (box[3] - box[1], box[2] - box[0])
+    fit_kwargs = dict(image_size=roi, grid=grid, control=control, viscosity=viscosity, compressible=compressible,
                       max_iter=max_iter, tolerance=tolerance, progress=progress)
-    fit = fit_keyframes(pa, target, steps=steps, forces=None if warm_start is None else warm_start.forces,
-                        **fit_kwargs)
+    fit = fit_keyframes(pa.double() - offset, target - offset, steps=steps,
+                        forces=None if warm_start is None else warm_start.forces, **fit_kwargs)
     t_fit = time.perf_counter()
 
     times = torch.linspace(0, steps, n, dtype=torch.float64)
     time_list = [float(s) for s in times]
     time_list[-1] = float(steps)
-    velocities = fit.warp.rollout(fit.forces, size).velocities.to(a.dtype)
-    g = backward_maps(velocities, size, fit.warp.dt, time_list)  # (1, N, H, W, 2)
+    velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
+    g = _embed(backward_maps(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(0)  # (1, N, H, W, 2)
     if inverse == "flow":
-        k_maps = list(maps_to_end(velocities, size, fit.warp.dt, time_list).unbind(1))
+        k_maps = list(_embed(maps_to_end(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(1))
     else:
         small_kwargs = {**fit_kwargs, "progress": False}
-        k_maps = [m.to(a.dtype) for m in _paper_inverse(fit, time_list, size, small_kwargs)]
+        k_maps = list(_embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size)
+                      .unsqueeze(1))
     t_inv = time.perf_counter()
 
     weights = _blend_weights(times, steps, blend)
@@ -238,7 +281,7 @@ def morph(
     frames_t[0], frames_t[-1] = a[0], b[0]
     t_render = time.perf_counter()
 
-    traj = torch.stack([apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[:, t])
+    traj = torch.stack([apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[:, t] + offset)
                         for t in range(steps + 1)], dim=1)
     fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=(traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1))
     return MorphResult(

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
-from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _geo, _sample
+from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _geo, _sample, substeps
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
@@ -161,8 +161,11 @@ def iter_backward_maps(
     scale, shift = _pixel_affine(H, W, velocities)
 
     def advance(disp: Tensor, t: int, fraction: float) -> Tensor:
-        back = torch.clamp(pix - _displacement(velocities[:, t], (H, W), dt * fraction), lo, hi)
-        return back - pix + _sample(disp, back.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+        n = substeps(velocities[:, t], dt * fraction)
+        for _ in range(n):  # sub-steps short enough never to fold (see fluid.substeps)
+            back = torch.clamp(pix - _displacement(velocities[:, t], (H, W), dt * fraction / n), lo, hi)
+            disp = back - pix + _sample(disp, back.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+        return disp
 
     disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # g_t(x) - x at integer step `done`
     done = 0
@@ -218,9 +221,12 @@ def maps_to_end(
     scale, shift = _pixel_affine(H, W, velocities)
 
     def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
-        # forward displacement over fraction*dt = minus the back-trace displacement of a negative time step
-        ahead = torch.clamp(pix - _displacement(velocities[:, t], (H, W), -dt * fraction), lo, hi)
-        return ahead - pix + _sample(disp, ahead.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+        n = substeps(velocities[:, t], dt * fraction)
+        for _ in range(n):
+            # forward displacement over a sub-step = minus the back-trace displacement of a negative time step
+            ahead = torch.clamp(pix - _displacement(velocities[:, t], (H, W), -dt * fraction / n), lo, hi)
+            disp = ahead - pix + _sample(disp, ahead.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+        return disp
 
     disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # K_t(z) - z at integer step `done`
     done = T
