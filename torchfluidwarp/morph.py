@@ -134,8 +134,13 @@ def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
 
 
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
-    """Read a map ``(1, H, W, 2)`` at pixel positions ``(1, H, W, 2)`` (bilinear)."""
-    return _warp_image(coords.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
+    """Read a map ``(1, H, W, 2)`` at pixel positions ``(1, H, W, 2)`` (bilinear).
+
+    The map's displacement is what is interpolated (and held constant beyond the image), so outside the image
+    the map continues as a translation instead of collapsing onto the edge: the composite stays a proper,
+    fold-free map."""
+    disp = coords - identity_map(tuple(coords.shape[1:3]), dtype=coords.dtype)
+    return at + _warp_image(disp.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
 
 
 def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], kwargs: dict) -> list[Tensor]:
