@@ -210,7 +210,8 @@ def fit_keyframes(
     optimizer = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, max_eval=max_iter * 2, history_size=20,
                                   tolerance_grad=1e-12, tolerance_change=1e-14, line_search_fn="strong_wolfe")
     history: list[float] = []
-    best: dict[str, object] = {"loss": math.inf, "state": None}
+    best_loss = math.inf
+    best_state: list[Tensor] | None = None
     start = time.perf_counter()
     bar = tqdm(total=max_iter * 2, desc="fit_keyframes", unit="eval", disable=not progress, leave=False)
 
@@ -225,6 +226,7 @@ def fit_keyframes(
         return loss, paths
 
     def closure() -> Tensor:
+        nonlocal best_loss, best_state
         optimizer.zero_grad()
         loss, paths = objective()
         value = float(loss.detach())
@@ -234,9 +236,9 @@ def fit_keyframes(
         history.append(value)
         bar.update(1)
         bar.set_postfix(loss=f"{value:.3g}")
-        if value < best["loss"]:  # type: ignore[operator]
-            best["loss"] = value
-            best["state"] = [p.detach().clone() for p in params]
+        if value < best_loss:
+            best_loss = value
+            best_state = [p.detach().clone() for p in params]
             errs = max(float((paths[:, t].detach() - q).norm(dim=-1).max()) for t, q in keyframes)
             if errs <= tolerance:
                 raise _Done
@@ -251,9 +253,9 @@ def fit_keyframes(
         converged = True
     finally:
         bar.close()
-    if best["state"] is not None:
+    if best_state is not None:
         with torch.no_grad():
-            for p, v in zip(params, best["state"]):  # type: ignore[arg-type]
+            for p, v in zip(params, best_state):
                 p.copy_(v)
     with torch.no_grad():
         paths = warp.advect_points(src, module)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
@@ -139,7 +139,7 @@ def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     The map's displacement is what is interpolated (and held constant beyond the image), so outside the image
     the map continues as a translation instead of collapsing onto the edge: the composite stays a proper,
     fold-free map."""
-    disp = coords - identity_map(tuple(coords.shape[1:3]), dtype=coords.dtype)
+    disp = coords - identity_map((coords.shape[1], coords.shape[2]), dtype=coords.dtype)
     return at + _warp_image(disp.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
 
 
@@ -227,8 +227,8 @@ def morph(
     a = _as_image("image_a", image_a)
     b = _as_image("image_b", image_b)
     n = check_int("frames", frames, minimum=2)
-    pa = check_points("points_a", points_a, tuple(a.shape[-2:]))[0]
-    pb = check_points("points_b", points_b, tuple(b.shape[-2:]))[0]
+    pa = check_points("points_a", points_a, (a.shape[-2], a.shape[-1]))[0]
+    pb = check_points("points_b", points_b, (b.shape[-2], b.shape[-1]))[0]
     if pa.shape[0] != pb.shape[0]:
         raise ValueError(f"points_a has {pa.shape[0]} points but points_b has {pb.shape[0]}")
     if inverse not in ("flow", "paper"):
@@ -247,7 +247,7 @@ def morph(
         box = region_of_interest(torch.cat([pa.double(), target]), margin)
     offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
     roi = (box[3] - box[1], box[2] - box[0])
-    fit_kwargs = dict(image_size=roi, grid=grid, control=control, viscosity=viscosity, compressible=compressible,
+    fit_kwargs: dict[str, Any] = dict(image_size=roi, grid=grid, control=control, viscosity=viscosity, compressible=compressible,
                       max_iter=max_iter, tolerance=tolerance, progress=progress)
     fit = fit_keyframes(pa.double() - offset, target - offset, steps=steps,
                         forces=None if warm_start is None else warm_start.forces, **fit_kwargs)
@@ -280,7 +280,10 @@ def morph(
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
         wk = float(weights[k])
         out.append(torch.lerp(fa, fb, wk))
-        fwd.append(fa), bwd.append(fb), maps_a.append(map_a), maps_b.append(map_b)
+        fwd.append(fa)
+        bwd.append(fb)
+        maps_a.append(map_a)
+        maps_b.append(map_b)
     frames_t = torch.cat(out)
     # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
     frames_t[0], frames_t[-1] = a[0], b[0]

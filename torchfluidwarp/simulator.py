@@ -1,4 +1,4 @@
-"""The solver as ``nn.Module``s: one module per operator, a step, and a roll-out.
+"""The solver as ``nn.Module`` objects: one module per operator, a step, and a roll-out.
 
 :class:`StableFluidsStep` is ``AddForce -> Advect -> Diffuse -> Project`` (Stam 1999), each a thin module over
 the functions of :mod:`torchfluidwarp.fluid`. :class:`FluidSimulator` rolls a step out over a force schedule
@@ -8,6 +8,7 @@ and carries passive points along.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import torch
 from torch import Tensor, nn
@@ -175,10 +176,11 @@ class FluidSimulator(nn.Module):
         self.dt = check_positive("dt", dt)
         self.step = StableFluidsStep(dt, pressure=pressure, diffusion=diffusion, adjoint=adjoint,
                                      compressible=compressible)
-        if isinstance(viscosity, nn.Module) or isinstance(viscosity, nn.Parameter):
+        self.viscosity: Viscosity | nn.Module
+        if isinstance(viscosity, (nn.Module, nn.Parameter)):
             self.viscosity = viscosity
         elif isinstance(viscosity, Tensor):
-            self.register_buffer("viscosity", check_viscosity(viscosity, viscosity.shape[0], self.grid.shape))
+            self.register_buffer("viscosity", cast(Tensor, check_viscosity(viscosity, viscosity.shape[0], self.grid.shape)))
         else:
             self.viscosity = check_viscosity(viscosity, 1, self.grid.shape)
 
