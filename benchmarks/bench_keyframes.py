@@ -1,0 +1,633 @@
+"""Benchmark of keyframe control: the paper's morphing set-up, fitted with :func:`fit_keyframes`.
+
+The set-up (from the issue): a 64x64 fluid, 10 steps, the paper's 500 control parameters
+(``ControlGrid`` with ``control=(5, 5)``), 14 points in a 64x64-pixel frame, targets 5 to 10 px away.
+Targets: a mean final error below 0.05 px and the whole fit under 3 s (the issue quotes 5 minutes for the
+paper). The fit stops once every point is within ``--tolerance`` px (0.05 by default), which implies the
+mean target whenever it is reached.
+
+**Problem instances.** The 0.05 px target only means something if the targets can be reached by an
+incompressible flow, so most instances are made by a flow:
+
+* *flow* instances (one per seed): four random steady Gaussian :class:`~torchfluidwarp.forces.Brushes`
+  drive the library's own :class:`~torchfluidwarp.warp.FluidWarp` (same fluid grid and step count as the fit,
+  float64). Candidate points lie on a jittered 1-px lattice at least 6 px from the walls; the brushes' strength
+  is scaled (bisection) so that 60% of the candidates move less than 7.5 px; then 14 sources are chosen in
+  random order among the candidates that move 5 to 10 px, at least 6 px apart. The targets are where the flow
+  carries them. The brushes are not the fit's control grid, so the fit does not merely recover the forces
+  that made the targets.
+* one *random* instance: sources drawn the same way (uniform, 6 px from the walls, 6 px apart), each target
+  5 to 10 px away in a uniformly random direction (inside the frame, 1 px from the walls). A flow need not
+  carry the points there (nearby points may be asked to cross), so this instance may be partly unreachable:
+  it is reported separately and carries no target.
+
+**Measurements.**
+
+1. Each instance is fitted in float64 and in float32, ``--repeats`` times, the repeats interleaved over all
+   instances and both dtypes. Reported: mean and max final error (px), evaluations (objective + gradient),
+   the median wall time of the fit, ms per evaluation, and ``converged`` / ``reached`` as the fit reports them.
+2. The cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), for
+   each dtype and control size, on the forces fitted to the first flow instance; interleaved repeats, medians.
+3. The same fit of the first flow instance with ``control=(3, 3)``, ``(5, 5)`` and ``(8, 8)`` (180, 500 and
+   1280 parameters), interleaved, to show that the time per evaluation does not grow with the parameter count.
+4. Peak memory of a fit of the first flow instance, per dtype, each in a fresh subprocess: ``VmHWM`` after the
+   fit minus ``VmRSS`` at a baseline taken after imports, a tiny warm-up fit and building the inputs (``VmHWM``
+   reset there through ``/proc/self/clear_refs``).
+
+Run ``python benchmarks/bench_keyframes.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import gc
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp.control import fit_keyframes, keyframe_loss
+from torchfluidwarp.forces import Brushes, ControlGrid
+from torchfluidwarp.warp import FluidWarp
+
+FRAME = (64, 64)  # image size, pixels
+MARGIN = 6.0  # px: sources at least this far from the walls
+SPACING = 6.0  # px: sources at least this far apart
+DISPLACEMENT = (5.0, 10.0)  # px
+N_BRUSHES = 4
+TARGET_MEAN_PX = 0.05
+TARGET_SECONDS = 3.0
+PAPER_SECONDS = 300.0  # the issue's figure for the paper, quoted, not measured
+DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+
+# ----------------------------------------------------------------------------------------------- instances
+
+
+@dataclass
+class Instance:
+    """One problem: ``source`` and ``target`` ``(M, 2)`` in pixels, and how it was made."""
+
+    name: str
+    kind: str  # "flow" or "random"
+    seed: int
+    source: list[list[float]]
+    target: list[list[float]]
+    min_displacement: float = 0.0
+    max_displacement: float = 0.0
+    min_spacing: float = 0.0
+    min_wall_distance_target: float = 0.0
+    brush_scale: float | None = None
+    attempts: int = 1
+
+    def tensors(self, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+        return torch.tensor(self.source, dtype=dtype), torch.tensor(self.target, dtype=dtype)
+
+    def describe(self) -> None:
+        src, tgt = self.tensors(torch.float64)
+        d = (tgt - src).norm(dim=-1)
+        self.min_displacement, self.max_displacement = float(d.min()), float(d.max())
+        pair = torch.cdist(src, src) + torch.eye(len(src), dtype=src.dtype) * 1e9
+        self.min_spacing = float(pair.min())
+        H, W = FRAME
+        walls = torch.stack([tgt[:, 0] + 0.5, W - 0.5 - tgt[:, 0], tgt[:, 1] + 0.5, H - 0.5 - tgt[:, 1]])
+        self.min_wall_distance_target = float(walls.min())
+
+
+def _greedy_pick(points: Tensor, ok: Tensor, m: int, gen: torch.Generator) -> list[int]:
+    """Indices of up to ``m`` points with ``ok``, visited in random order, at least ``SPACING`` apart."""
+    chosen: list[int] = []
+    for i in torch.randperm(len(points), generator=gen).tolist():
+        if not ok[i]:
+            continue
+        if all(float((points[i] - points[j]).norm()) >= SPACING for j in chosen):
+            chosen.append(i)
+            if len(chosen) == m:
+                break
+    return chosen
+
+
+def flow_instance(seed: int, m: int, grid: tuple[int, int], steps: int, max_attempts: int = 20) -> Instance:
+    """Targets made by carrying the sources through a random brush-driven flow (see the module doc)."""
+    H, W = FRAME
+    lo, hi = DISPLACEMENT
+    warp = FluidWarp(grid, steps, image_size=FRAME).double()
+    for attempt in range(max_attempts):
+        gen = torch.Generator().manual_seed(10_000 * seed + attempt)
+        centers = MARGIN + torch.rand(N_BRUSHES, 2, generator=gen, dtype=torch.float64) * torch.tensor(
+            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64)
+        angle = torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64) * 2 * math.pi
+        radius = 8.0 + 8.0 * torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
+        base = 0.5 + torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
+        brushes = Brushes(centers, torch.stack([angle.cos(), angle.sin()], -1), radius=radius, amplitude=base).double()
+        ys, xs = torch.meshgrid(torch.arange(MARGIN, H - MARGIN, dtype=torch.float64),
+                                torch.arange(MARGIN, W - MARGIN, dtype=torch.float64), indexing="ij")
+        cand = torch.stack([xs, ys], -1).reshape(-1, 2)
+        cand = (cand + torch.rand(cand.shape, generator=gen, dtype=torch.float64) - 0.5).clamp(
+            torch.tensor([MARGIN, MARGIN], dtype=torch.float64),
+            torch.tensor([W - 1 - MARGIN, H - 1 - MARGIN], dtype=torch.float64))
+
+        def carry(scale: float) -> Tensor:
+            with torch.no_grad():
+                brushes.amplitude.copy_(base * scale)
+                return warp.advect_points(cand[None], brushes)[0, -1]  # (N, 2) pixels
+
+        s_lo, s_hi = 0.0, 4.0
+        for _ in range(16):  # the displacement grows about linearly with the strength
+            s = 0.5 * (s_lo + s_hi)
+            if float((carry(s) - cand).norm(dim=-1).quantile(0.6)) < 0.5 * (lo + hi):
+                s_lo = s
+            else:
+                s_hi = s
+        end = carry(s_hi)
+        d = (end - cand).norm(dim=-1)
+        chosen = _greedy_pick(cand, (d >= lo) & (d <= hi), m, gen)
+        if len(chosen) == m:
+            inst = Instance(name=f"flow seed {seed}", kind="flow", seed=seed, source=cand[chosen].tolist(),
+                            target=end[chosen].tolist(), brush_scale=s_hi, attempts=attempt + 1)
+            inst.describe()
+            return inst
+    raise RuntimeError(f"no flow instance with {m} points for seed {seed} in {max_attempts} attempts")
+
+
+def random_instance(seed: int, m: int) -> Instance:
+    """Sources spread over the frame; targets 5 to 10 px away in random directions (maybe unreachable)."""
+    H, W = FRAME
+    lo, hi = DISPLACEMENT
+    gen = torch.Generator().manual_seed(seed)
+    src: list[Tensor] = []
+    while len(src) < m:
+        p = MARGIN + torch.rand(2, generator=gen, dtype=torch.float64) * torch.tensor(
+            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64)
+        if all(float((p - q).norm()) >= SPACING for q in src):
+            src.append(p)
+    tgt: list[Tensor] = []
+    for p in src:
+        while True:
+            a = float(torch.rand((), generator=gen, dtype=torch.float64)) * 2 * math.pi
+            r = lo + float(torch.rand((), generator=gen, dtype=torch.float64)) * (hi - lo)
+            q = p + r * torch.tensor([math.cos(a), math.sin(a)], dtype=torch.float64)
+            if 0.5 <= float(q[0]) <= W - 1.5 and 0.5 <= float(q[1]) <= H - 1.5:  # 1 px inside the frame
+                tgt.append(q)
+                break
+    inst = Instance(name=f"random seed {seed}", kind="random", seed=seed, source=torch.stack(src).tolist(),
+                    target=torch.stack(tgt).tolist())
+    inst.describe()
+    return inst
+
+
+# ----------------------------------------------------------------------------------------------- fits
+
+
+@dataclass
+class FitRun:
+    """One fit (one repeat)."""
+
+    seconds: float
+    evaluations: int
+    mean_error: float
+    max_error: float
+    converged: bool
+    reached: bool
+    final_loss: float
+
+
+def run_fit(inst: Instance, dtype: torch.dtype, cfg: dict[str, Any], control: tuple[int, int]) -> tuple[FitRun, Any]:
+    src, tgt = inst.tensors(dtype)
+    fit = fit_keyframes(src, tgt, image_size=FRAME, grid=cfg["grid"], steps=cfg["steps"], control=control,
+                        max_iter=cfg["max_iter"], tolerance=cfg["tolerance"], dtype=dtype, progress=False)
+    run = FitRun(seconds=fit.seconds, evaluations=fit.evaluations, mean_error=float(fit.error.mean()),
+                 max_error=float(fit.error.max()), converged=fit.converged, reached=fit.reached,
+                 final_loss=fit.loss_history[-1] if fit.loss_history else math.nan)
+    return run, fit
+
+
+@dataclass
+class FitRow:
+    """Medians over the repeats of one instance, dtype and control."""
+
+    instance: str
+    kind: str
+    dtype: str
+    control: tuple[int, int]
+    parameters: int
+    repeats: int
+    seconds: float
+    evaluations: int
+    ms_per_evaluation: float
+    mean_error: float
+    max_error: float
+    converged: bool
+    reached: bool
+    deterministic: bool
+    seconds_all: list[float] = field(default_factory=list)
+
+
+def summarise_fits(inst: Instance, dtype: str, control: tuple[int, int], steps: int, runs: list[FitRun]) -> FitRow:
+    first = runs[0]
+    same = all((r.evaluations, r.mean_error, r.max_error, r.reached) ==
+               (first.evaluations, first.mean_error, first.max_error, first.reached) for r in runs)
+    secs = statistics.median(r.seconds for r in runs)
+    evals = int(statistics.median(r.evaluations for r in runs))
+    return FitRow(instance=inst.name, kind=inst.kind, dtype=dtype, control=control,
+                  parameters=2 * steps * control[0] * control[1], repeats=len(runs), seconds=secs, evaluations=evals,
+                  ms_per_evaluation=secs / max(evals, 1) * 1e3, mean_error=first.mean_error,
+                  max_error=first.max_error, converged=first.converged, reached=first.reached, deterministic=same,
+                  seconds_all=[r.seconds for r in runs])
+
+
+# ----------------------------------------------------------------------------------------------- gradient cost
+
+
+@dataclass
+class GradRow:
+    dtype: str
+    control: tuple[int, int]
+    parameters: int
+    repeats: int
+    forward_ms: float
+    gradient_ms: float
+    ratio: float
+
+
+def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int
+                  ) -> list[GradRow]:
+    """Forward (no grad) against forward + backward of the fit's objective, at each fit's own forces."""
+    cases = []
+    for (dtype_name, control), fit in fits.items():
+        src, tgt = inst.tensors(DTYPES[dtype_name])
+        src, tgt = src[None], tgt[None]
+        warp, forces = fit.warp, fit.forces
+        params = [p for p in forces.parameters() if p.requires_grad]
+
+        def forward(warp=warp, forces=forces, src=src) -> None:
+            with torch.no_grad():
+                warp.advect_points(src, forces)
+
+        def gradient(warp=warp, forces=forces, src=src, tgt=tgt, params=params) -> None:
+            for p in params:
+                p.grad = None
+            keyframe_loss(warp.advect_points(src, forces), [(steps, tgt)]).backward()
+
+        forward()
+        gradient()  # warm-up
+        cases.append((dtype_name, control, forward, gradient, [], []))
+    for _ in range(repeats):
+        for _dt, _c, forward, gradient, f_times, g_times in cases:
+            t0 = time.perf_counter()
+            forward()
+            f_times.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            gradient()
+            g_times.append(time.perf_counter() - t0)
+    rows = []
+    for dtype_name, control, _f, _g, f_times, g_times in cases:
+        f, g = statistics.median(f_times) * 1e3, statistics.median(g_times) * 1e3
+        rows.append(GradRow(dtype=dtype_name, control=control, parameters=2 * steps * control[0] * control[1],
+                            repeats=repeats, forward_ms=f, gradient_ms=g, ratio=g / f))
+    return rows
+
+
+# ----------------------------------------------------------------------------------------------- memory
+
+
+def _status_kib(name: str) -> float:
+    with open("/proc/self/status") as f:
+        return float(next(line.split()[1] for line in f if line.startswith(name + ":")))
+
+
+def _reset_peak() -> bool:
+    """Return freed heap to the OS and reset this process's ``VmHWM`` to its current RSS (Linux >= 4.0)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
+    """One fit in this (fresh) process; peak RSS growth over a baseline taken just before it."""
+    torch.set_num_threads(spec["threads"])
+    dtype = DTYPES[spec["dtype"]]
+    inst = Instance(**spec["instance"])
+    # warm-up on a tiny problem loads every code path (autograd, L-BFGS, FFT and BLAS kernels)
+    fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8, steps=2,
+                  control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+    src, tgt = inst.tensors(dtype)
+    gc.collect()
+    hwm_reset = _reset_peak()
+    base = _status_kib("VmRSS")
+    fit = fit_keyframes(src, tgt, image_size=FRAME, grid=tuple(spec["grid"]), steps=spec["steps"],
+                        control=tuple(spec["control"]), max_iter=spec["max_iter"], tolerance=spec["tolerance"],
+                        dtype=dtype, progress=False)
+    peak = _status_kib("VmHWM")
+    return {**{k: v for k, v in spec.items() if k != "instance"}, "instance": inst.name,
+            "peak_measure": "VmHWM" if hwm_reset else "VmHWM (not reset: includes the warm-up)",
+            "baseline_rss_mib": base / 1024, "peak_rss_mib": peak / 1024, "peak_rss_growth_mib": (peak - base) / 1024,
+            "evaluations": fit.evaluations, "seconds": fit.seconds, "reached": fit.reached}
+
+
+def run_child(spec: dict[str, Any]) -> dict[str, Any]:
+    proc = subprocess.run([sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on."""
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {
+        "cpu": model, "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(), "torch": torch.__version__, "platform": platform.platform(),
+        "date": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
+
+
+def yes(b: bool) -> str:
+    return "yes" if b else "no"
+
+
+def report_instances(instances: list[Instance]) -> str:
+    out = [f"Problem instances ({FRAME[1]}x{FRAME[0]} px frame; displacement = |target - source| px)"]
+    out.append(table(
+        ["instance", "points", "min disp", "max disp", "min spacing", "target min wall dist", "brush scale",
+         "attempts"],
+        [[i.name, str(len(i.source)), f"{i.min_displacement:.2f}", f"{i.max_displacement:.2f}",
+          f"{i.min_spacing:.2f}", f"{i.min_wall_distance_target:.2f}",
+          "-" if i.brush_scale is None else f"{i.brush_scale:.3f}", str(i.attempts)] for i in instances],
+    ))
+    return "\n".join(out)
+
+
+def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, Any]]:
+    head = ["instance", "dtype", "evals", "fit s", "ms/eval", "mean err px", "max err px", "converged", "reached",
+            "same each rep", "mean < 0.05", "< 3 s"]
+
+    def cells(r: FitRow, with_target: bool) -> list[str]:
+        c = [r.instance, r.dtype, str(r.evaluations), f"{r.seconds:.2f}", f"{r.ms_per_evaluation:.1f}",
+             f"{r.mean_error:.4f}", f"{r.max_error:.4f}", yes(r.converged), yes(r.reached), yes(r.deterministic)]
+        if with_target:
+            c += [verdict(r.mean_error < TARGET_MEAN_PX), verdict(r.seconds < TARGET_SECONDS)]
+        else:
+            c += ["(none)", "(none)"]
+        return c
+
+    flow = [r for r in rows if r.kind == "flow"]
+    rand = [r for r in rows if r.kind != "flow"]
+    out = [f"Fits, control {flow[0].control} ({flow[0].parameters} parameters), tolerance {tolerance:g} px "
+           f"(stop when every point is within it); fit s = median over {flow[0].repeats} repeats"]
+    out.append("\nReachable instances (targets made by a flow)")
+    out.append(table(head, [cells(r, True) for r in flow]))
+    if rand:
+        out.append("\nRandom-direction instance (may be partly unreachable; no target)")
+        out.append(table(head, [cells(r, False) for r in rand]))
+    targets: dict[str, Any] = {}
+    out.append("\nSummary over the reachable instances")
+    s_rows = []
+    for dtype in DTYPES:
+        rs = [r for r in flow if r.dtype == dtype]
+        if not rs:
+            continue
+        acc = all(r.mean_error < TARGET_MEAN_PX for r in rs)
+        fast = all(r.seconds < TARGET_SECONDS for r in rs)
+        med_s = statistics.median(r.seconds for r in rs)
+        targets[dtype] = {"mean_error_met": acc, "time_met": fast, "median_seconds": med_s,
+                          "max_seconds": max(r.seconds for r in rs), "worst_mean_error": max(r.mean_error for r in rs),
+                          "median_evaluations": statistics.median(r.evaluations for r in rs),
+                          "median_ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in rs)}
+        s_rows.append([dtype, f"{len(rs)}", f"{max(r.mean_error for r in rs):.4f}", verdict(acc),
+                       f"{min(r.seconds for r in rs):.2f} / {med_s:.2f} / {max(r.seconds for r in rs):.2f}",
+                       f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)}", verdict(fast),
+                       f"{statistics.median(r.evaluations for r in rs):g}",
+                       f"{statistics.median(r.ms_per_evaluation for r in rs):.1f}",
+                       f"{PAPER_SECONDS / med_s:.0f}x"])
+    out.append(table(["dtype", "instances", "worst mean err", "mean < 0.05 px", "fit s min/median/max", "under 3 s",
+                      "fit < 3 s", "median evals", "median ms/eval", "vs 5 min (quoted)"], s_rows))
+    return "\n".join(out), targets
+
+
+def report_gradient(rows: list[GradRow], control: tuple[int, int]) -> tuple[str, dict[str, Any]]:
+    out = ["Cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), "
+           "at the fitted forces of the first flow instance; medians of interleaved repeats"]
+    out.append(table(["dtype", "control", "params", "reps", "forward ms", "gradient ms", "gradient / forward",
+                      "expected ~1-2x"],
+                     [[r.dtype, f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.repeats),
+                       f"{r.forward_ms:.1f}", f"{r.gradient_ms:.1f}", f"{r.ratio:.2f}", verdict(r.ratio <= 2.0)]
+                      for r in rows]))
+    targets = {r.dtype: {"ratio": r.ratio, "met": r.ratio <= 2.0} for r in rows if r.control == control}
+    return "\n".join(out), targets
+
+
+def report_controls(fit_rows: list[FitRow], grad_rows: list[GradRow]) -> tuple[str, dict[str, Any]]:
+    out = [f"Parameter count: the same fit ({fit_rows[0].instance}, {fit_rows[0].dtype}) with each control grid, "
+           "interleaved in one run; gradient ms from the table above"]
+    rows = []
+    base = min(fit_rows, key=lambda r: r.parameters)
+    for r in sorted(fit_rows, key=lambda r: r.parameters):
+        g = next((x for x in grad_rows if x.control == r.control and x.dtype == r.dtype), None)
+        rows.append([f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.evaluations), f"{r.seconds:.2f}",
+                     f"{r.ms_per_evaluation:.1f}", f"{r.ms_per_evaluation / base.ms_per_evaluation:.2f}",
+                     "-" if g is None else f"{g.gradient_ms:.1f}", f"{r.mean_error:.4f}", yes(r.reached)])
+    out.append(table(["control", "params", "evals", "fit s", "ms/eval", "ms/eval vs fewest", "gradient ms",
+                      "mean err px", "reached"], rows))
+    big = max(fit_rows, key=lambda r: r.parameters)
+    growth = big.ms_per_evaluation / base.ms_per_evaluation
+    g_rows = [x for x in grad_rows if x.dtype == fit_rows[0].dtype]
+    g_growth = (max(g_rows, key=lambda x: x.parameters).gradient_ms / min(g_rows, key=lambda x: x.parameters).gradient_ms
+                if g_rows else math.nan)
+    met = growth <= 1.25 and (math.isnan(g_growth) or g_growth <= 1.25)
+    out.append(f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): ms per "
+               f"evaluation {growth:.2f}x, gradient ms {g_growth:.2f}x (target: does not grow, read as within "
+               f"25%) -> {verdict(met)}")
+    return "\n".join(out), {"ms_per_eval_growth": growth, "gradient_growth": g_growth, "met": met}
+
+
+def report_memory(runs: list[dict[str, Any]]) -> str:
+    out = ["Peak memory of a fit (each in a fresh process; peak RSS growth = VmHWM after the fit minus VmRSS at the "
+           "baseline)"]
+    rows = []
+    for r in runs:
+        if r.get("failed"):
+            rows.append([r["dtype"], "FAILED", f"rc {r['returncode']}", "", "", "", ""])
+            continue
+        rows.append([r["dtype"], r["instance"], f"{r['control'][0]}x{r['control'][1]}", str(r["evaluations"]),
+                     f"{r['baseline_rss_mib']:.1f}", f"{r['peak_rss_mib']:.1f}", f"{r['peak_rss_growth_mib']:.1f}"])
+    out.append(table(["dtype", "instance", "control", "evals", "baseline RSS MiB", "peak RSS MiB",
+                      "peak RSS growth MiB"], rows))
+    return "\n".join(out)
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def parse_control(text: str) -> tuple[int, int]:
+    try:
+        ky, kx = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a control grid is written KYxKX, e.g. 5x5, got {text!r}")
+    if ky < 2 or kx < 2:
+        raise argparse.ArgumentTypeError(f"control points per axis must be >= 2, got {text!r}")
+    return ky, kx
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke mode: 32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat")
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall "
+                             "for a scheduler slice whenever another process holds a core)")
+    parser.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
+    parser.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
+    parser.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")
+    parser.add_argument("--tolerance", type=float, default=0.05,
+                        help="px: the fit stops once every point is within it (default 0.05)")
+    parser.add_argument("--max-iter", type=int, default=200, help="L-BFGS iterations at most (default 200)")
+    parser.add_argument("--controls", type=parse_control, nargs="+",
+                        help="control grids of the parameter-count sweep (default 3x3 5x5 8x8)")
+    parser.add_argument("--_child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args._child:
+        print(json.dumps(memory_child(json.loads(args._child))))
+        return 0
+    if args.threads < 1 or not args.tolerance > 0 or args.max_iter < 1:
+        parser.error("--threads and --max-iter must be >= 1 and --tolerance > 0")
+
+    torch.set_num_threads(args.threads)
+    if args.quick:
+        cfg = dict(grid=(32, 32), steps=5, points=6, seeds=args.seeds or 2, repeats=args.repeats or 1,
+                   grad_repeats=args.grad_repeats or 3)
+    else:
+        cfg = dict(grid=(64, 64), steps=10, points=14, seeds=args.seeds or 5, repeats=args.repeats or 3,
+                   grad_repeats=args.grad_repeats or 9)
+    cfg.update(tolerance=args.tolerance, max_iter=args.max_iter)
+    control = (5, 5)
+    controls = args.controls or [(3, 3), (5, 5), (8, 8)]
+    if min(cfg["repeats"], cfg["grad_repeats"], cfg["seeds"]) < 1:
+        parser.error("--seeds, --repeats and --grad-repeats must be >= 1")
+
+    info = machine()
+    info["loadavg_start"] = os.getloadavg()
+    print(f"bench_keyframes: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
+          f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}, load average "
+          f"{' '.join(f'{x:.2f}' for x in info['loadavg_start'])}" + (" [--quick]" if args.quick else ""), flush=True)
+    print(f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {cfg['steps']} steps, {cfg['points']} points in a "
+          f"{FRAME[1]}x{FRAME[0]} px frame, control {control[0]}x{control[1]} "
+          f"({2 * cfg['steps'] * control[0] * control[1]} parameters), tolerance {cfg['tolerance']:g} px, "
+          f"max_iter {cfg['max_iter']}", flush=True)
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    t_start = time.perf_counter()
+
+    log("  instances ...")
+    instances = [flow_instance(s, cfg["points"], cfg["grid"], cfg["steps"]) for s in range(cfg["seeds"])]
+    instances.append(random_instance(1000, cfg["points"]))
+    print("\n" + report_instances(instances), flush=True)
+
+    # warm-up: one small fit per dtype (kernels, caches)
+    for dtype in DTYPES.values():
+        fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8,
+                      steps=2, control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+
+    # 1. the fits, interleaved over instances and dtypes
+    runs: dict[tuple[str, str], list[FitRun]] = {}
+    fits: dict[tuple[str, tuple[int, int]], Any] = {}
+    for rep in range(cfg["repeats"]):
+        for inst in instances:
+            for dname, dtype in DTYPES.items():
+                log(f"  fit {inst.name}, {dname}, repeat {rep + 1}/{cfg['repeats']} ...")
+                run, fit = run_fit(inst, dtype, cfg, control)
+                runs.setdefault((inst.name, dname), []).append(run)
+                if inst is instances[0]:
+                    fits[(dname, control)] = fit
+    fit_rows = [summarise_fits(inst, dname, control, cfg["steps"], runs[(inst.name, dname)])
+                for inst in instances for dname in DTYPES]
+    text_f, targets_f = report_fits(fit_rows, cfg["tolerance"])
+    print("\n" + text_f, flush=True)
+
+    # 3. parameter count (float64, the library's default), interleaved; its fits also feed measurement 2
+    sweep: dict[tuple[int, int], list[FitRun]] = {c: [] for c in controls}
+    for rep in range(cfg["repeats"]):
+        for c in controls:
+            log(f"  fit {instances[0].name}, float64, control {c[0]}x{c[1]}, repeat {rep + 1}/{cfg['repeats']} ...")
+            run, fit = run_fit(instances[0], torch.float64, cfg, c)
+            sweep[c].append(run)
+            fits.setdefault(("float64", c), fit)
+    sweep_rows = [summarise_fits(instances[0], "float64", c, cfg["steps"], sweep[c]) for c in controls]
+
+    # 2. gradient over forward, at every fitted forces of the first instance
+    log("  gradient / forward ...")
+    grad_rows = time_gradient(instances[0], fits, cfg["steps"], cfg["grad_repeats"])
+    grad_rows.sort(key=lambda r: (r.dtype, r.parameters))
+    text_g, targets_g = report_gradient(grad_rows, control)
+    print("\n" + text_g, flush=True)
+    text_c, targets_c = report_controls(sweep_rows, grad_rows)
+    print("\n" + text_c, flush=True)
+
+    # 4. memory, each dtype in its own process
+    mem_runs = []
+    for dname in DTYPES:
+        log(f"  memory: {dname} ...")
+        mem_runs.append(run_child({"threads": args.threads, "dtype": dname, "instance": asdict(instances[0]),
+                                   "grid": cfg["grid"], "steps": cfg["steps"], "control": control,
+                                   "max_iter": cfg["max_iter"], "tolerance": cfg["tolerance"]}))
+    print("\n" + report_memory(mem_runs))
+    total = time.perf_counter() - t_start
+    info["loadavg_end"] = os.getloadavg()
+    print(f"\ntotal {total:.0f} s, load average at the end {' '.join(f'{x:.2f}' for x in info['loadavg_end'])}")
+
+    if args.json:
+        result = {"machine": info, "args": {k: v for k, v in vars(args).items() if k != "_child"}, "config": cfg,
+                  "instances": [asdict(i) for i in instances], "fits": [asdict(r) for r in fit_rows],
+                  "fit_runs": {f"{k[0]} / {k[1]}": [asdict(r) for r in v] for k, v in runs.items()},
+                  "gradient": [asdict(r) for r in grad_rows], "controls": [asdict(r) for r in sweep_rows],
+                  "memory": mem_runs,
+                  "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
+                  "total_s": total}
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(result, f, indent=2)
+        os.replace(tmp, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

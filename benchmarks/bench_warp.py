@@ -1,0 +1,348 @@
+"""Benchmark of the warp layer as a real-time animation loop: frames per second and where each frame's time goes.
+
+The set-up is indirect control: a few oscillating :class:`~torchfluidwarp.forces.Brushes` stir a 64x64 fluid
+that warps an RGB float32 image, without grad (``torch.no_grad()``). One animation frame is one fluid step, one
+advance of the backward coordinate map at the image's resolution, and one resampling of the source image
+through that map. Everything goes through the public API:
+
+* **end to end**: :meth:`FluidWarp.iter_frames` consumed frame by frame (it rolls the fluid out first, then
+  advances the map and resamples one frame per ``next``). Frames per second = ``T`` new frames over the wall
+  time of the whole loop (frame 0, the input itself, is not counted).
+* **the split** (ms per frame):
+
+  (a) fluid step: :meth:`FluidWarp.rollout` over ``T`` steps (brush forces included), divided by ``T``;
+  (b) map advance: each ``next`` of :func:`iter_backward_maps` over the roll-out's velocities (the back-trace
+      displacement at the image's resolution, then the composition ``g_{t+1}(x) = g_t(x - d_t(x))``);
+  (c) resampling: the image sampled through each map, timed around that call alone, in the same loop as (b).
+      ``iter_frames`` calls the private ``_warp_image``, which skips the input checks of the public
+      :func:`warp_image` (its finiteness checks read the whole image and map every call). So (c) times
+      ``_warp_image``, as the loop runs it, and the public :func:`warp_image` is timed on the same maps too.
+
+  Of (b), the back-trace displacement alone (the private ``torchfluidwarp.warp._displacement``, called once per
+  step on the same velocities) is timed separately; the rest of (b) is the composition.
+
+Target (from the issue): at least 60 frames per second end to end for a 600x600 image on a 64x64 fluid.
+
+Each repeat runs (a), (b) + (c) and the end-to-end loop back to back, for every thread count in turn, so that
+other load on the machine affects all alike; each figure is the median over the repeats. A last, untimed pass
+under ``torch.profiler`` lists the operators of one end-to-end loop per image size. Run
+``python benchmarks/bench_warp.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp.forces import Brushes
+from torchfluidwarp.warp import FluidWarp, identity_map, iter_backward_maps, warp_image
+
+SEED = 1234
+FLUID = (64, 64)
+TARGET_SIZE = (600, 600)
+TARGET_FPS = 60.0
+# brush strength in fluid cells per time unit^2, turned into pixels for each image so that every image sees
+# the same flow (peak velocity about 0.5 cells per step, a visible but gentle swirl)
+BRUSH_CELLS = 0.15
+BRUSH_FREQUENCY = 0.05  # oscillations per time unit: a period of 20 steps
+
+
+def make_brushes(size: tuple[int, int]) -> Brushes:
+    """Three oscillating brushes placed at fixed fractions of the image (same flow in cells for any size)."""
+    H, W = size
+    centers = [[0.30 * W, 0.35 * H], [0.70 * W, 0.55 * H], [0.45 * W, 0.80 * H]]
+    directions = [[1.0, 0.3], [-0.2, 1.0], [1.0, -1.0]]
+    return Brushes(centers, directions, radius=0.12 * min(H, W), amplitude=BRUSH_CELLS * H / FLUID[0],
+                   frequency=BRUSH_FREQUENCY, phase=[0.0, 2.1, 4.2])
+
+
+def make_image(size: tuple[int, int]) -> Tensor:
+    """A smooth random RGB float32 image ``(1, 3, H, W)`` in ``[0, 1]`` (content does not change the cost)."""
+    gen = torch.Generator().manual_seed(SEED)
+    coarse = torch.rand(1, 3, 16, 16, generator=gen)
+    return torch.nn.functional.interpolate(coarse, size=size, mode="bilinear", align_corners=False)
+
+
+# ----------------------------------------------------------------------------------------------- timing
+
+
+@dataclass
+class Sample:
+    """One repeat at one size and thread count: seconds for the ``T`` frames of each piece."""
+
+    fluid_s: float
+    maps_s: float
+    resample_s: float
+    public_resample_s: float
+    displacement_s: float
+    end_to_end_s: float
+
+
+def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> Sample:
+    from torchfluidwarp.warp import _displacement, _warp_image  # private: what iter_frames runs
+
+    size = (image.shape[-2], image.shape[-1])
+    T = warp.steps
+    with torch.no_grad():
+        # (a) the fluid alone
+        t0 = time.perf_counter()
+        vel = warp.rollout(brushes, size).velocities
+        fluid = time.perf_counter() - t0
+        # (b) and (c) in one loop, each timed around its own call; map 0 is the identity and, as in
+        # iter_frames, is computed but not shown, so it is not counted
+        maps_t = resample_t = public_t = 0.0
+        gen = iter_backward_maps(vel, size, warp.dt)
+        next(gen)
+        for _ in range(T):
+            t0 = time.perf_counter()
+            m = next(gen)
+            t1 = time.perf_counter()
+            _warp_image(image, m, warp.mode)
+            t2 = time.perf_counter()
+            warp_image(image, m, warp.mode)
+            t3 = time.perf_counter()
+            maps_t += t1 - t0
+            resample_t += t2 - t1
+            public_t += t3 - t2
+        # the back-trace displacement inside (b), once per step
+        t0 = time.perf_counter()
+        for t in range(T):
+            _displacement(vel[:, t], size, warp.dt)
+        disp = time.perf_counter() - t0
+        # end to end
+        t0 = time.perf_counter()
+        n = 0
+        for _frame in warp.iter_frames(image, brushes):
+            n += 1
+        e2e = time.perf_counter() - t0
+    if n != T + 1:
+        raise RuntimeError(f"iter_frames yielded {n} frames, expected {T + 1}")
+    return Sample(fluid, maps_t, resample_t, public_t, disp, e2e)
+
+
+@dataclass
+class Row:
+    """Medians at one image size and thread count (ms per frame unless named otherwise)."""
+
+    height: int
+    width: int
+    threads: int
+    steps: int
+    repeats: int
+    fluid_ms: float
+    maps_ms: float
+    displacement_ms: float
+    compose_ms: float
+    resample_ms: float
+    public_resample_ms: float
+    sum_ms: float
+    end_to_end_ms: float
+    fps: float
+    max_displacement_px: float
+
+
+def summarise(size: tuple[int, int], threads: int, steps: int, samples: list[Sample], max_disp: float) -> Row:
+    med = lambda name: statistics.median(getattr(s, name) for s in samples) / steps * 1e3  # noqa: E731
+    fluid, maps, resample, public, disp, e2e = (
+        med(k) for k in ("fluid_s", "maps_s", "resample_s", "public_resample_s", "displacement_s", "end_to_end_s"))
+    return Row(height=size[0], width=size[1], threads=threads, steps=steps, repeats=len(samples), fluid_ms=fluid,
+               maps_ms=maps, displacement_ms=disp, compose_ms=maps - disp, resample_ms=resample,
+               public_resample_ms=public,
+               sum_ms=fluid + maps + resample, end_to_end_ms=e2e, fps=1e3 / e2e, max_displacement_px=max_disp)
+
+
+def max_displacement(warp: FluidWarp, brushes: Brushes, size: tuple[int, int]) -> float:
+    """Largest distance, in pixels, between a pixel and where the last frame reads it from."""
+    with torch.no_grad():
+        vel = warp.rollout(brushes, size).velocities
+        (last,) = iter_backward_maps(vel, size, warp.dt, times=[warp.steps])
+    return float((last - identity_map(size)).norm(dim=-1).max())
+
+
+def profile_ops(warp: FluidWarp, brushes: Brushes, image: Tensor, threads: int, top: int) -> list[dict[str, Any]]:
+    """Operators of one end-to-end loop by self CPU time (untimed pass under ``torch.profiler``)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    torch.set_num_threads(threads)
+    with torch.no_grad(), profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _frame in warp.iter_frames(image, brushes):
+            pass
+    events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
+    total = sum(e.self_cpu_time_total for e in events)
+    return [{"op": e.key, "calls": e.count, "self_ms_per_frame": e.self_cpu_time_total / 1e3 / warp.steps,
+             "share": e.self_cpu_time_total / total} for e in events[:top]]
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on."""
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {
+        "cpu": model, "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
+        "platform": platform.platform(), "date": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
+
+
+def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[str, dict[str, Any]]:
+    out = [f"Warp animation loop, {FLUID[0]}x{FLUID[1]} fluid, RGB float32, no grad; median ms per frame "
+           "(a) fluid step, (b) map advance = back-trace displacement + composition, (c) resampling as iter_frames "
+           "runs it (_warp_image); 'warp_image' = the public function on the same maps, input checks included"]
+    out.append(table(
+        ["image", "threads", "frames", "reps", "(a) fluid", "(b) map", "(b) disp", "(b) compose", "(c) resample",
+         "a+b+c", "end to end", "fps", "warp_image", "max disp px"],
+        [[f"{r.width}x{r.height}", str(r.threads), str(r.steps), str(r.repeats), f"{r.fluid_ms:.2f}",
+          f"{r.maps_ms:.2f}", f"{r.displacement_ms:.2f}", f"{r.compose_ms:.2f}", f"{r.resample_ms:.2f}",
+          f"{r.sum_ms:.2f}", f"{r.end_to_end_ms:.2f}", f"{r.fps:.1f}", f"{r.public_resample_ms:.2f}",
+          f"{r.max_displacement_px:.1f}"]
+         for r in rows],
+    ))
+    out.append("\nShare of the end-to-end frame time (each piece over the end-to-end median)")
+    out.append(table(
+        ["image", "threads", "(a) fluid", "(b) map", "(c) resample", "a+b+c / end to end", "largest"],
+        [[f"{r.width}x{r.height}", str(r.threads), f"{r.fluid_ms / r.end_to_end_ms:.0%}",
+          f"{r.maps_ms / r.end_to_end_ms:.0%}", f"{r.resample_ms / r.end_to_end_ms:.0%}",
+          f"{r.sum_ms / r.end_to_end_ms:.2f}",
+          max([("(a) fluid", r.fluid_ms), ("(b) map", r.maps_ms), ("(c) resample", r.resample_ms)],
+              key=lambda kv: kv[1])[0]] for r in rows],
+    ))
+    threads = sorted({r.threads for r in rows})
+    if len(threads) > 1:
+        t0 = threads[0]
+        out.append(f"\nSpeed-up over {t0} thread(s) (median end-to-end ms per frame, same run)")
+        sp_rows = []
+        for r in rows:
+            if r.threads == t0:
+                continue
+            base = next(b for b in rows if (b.height, b.width, b.threads) == (r.height, r.width, t0))
+            sp_rows.append([f"{r.width}x{r.height}", str(r.threads), f"{base.end_to_end_ms / r.end_to_end_ms:.2f}",
+                            f"{base.fluid_ms / r.fluid_ms:.2f}", f"{base.maps_ms / r.maps_ms:.2f}",
+                            f"{base.resample_ms / r.resample_ms:.2f}"])
+        out.append(table(["image", "threads", "end to end", "(a) fluid", "(b) map", "(c) resample"], sp_rows))
+    out.append(f"\nTarget: >= {TARGET_FPS:g} frames per second end to end at {TARGET_SIZE[1]}x{TARGET_SIZE[0]} "
+               f"(i.e. <= {1e3 / TARGET_FPS:.2f} ms per frame)")
+    targets = []
+    t_rows = []
+    for r in rows:
+        if (r.height, r.width) != TARGET_SIZE:
+            continue
+        met = r.fps >= TARGET_FPS
+        pieces = {"fluid": r.fluid_ms, "map": r.maps_ms, "resample": r.resample_ms}
+        top = max(pieces, key=pieces.__getitem__)
+        targets.append({"threads": r.threads, "fps": r.fps, "met": met, "dominant": top,
+                        "dominant_ms": pieces[top], "needed_speedup": TARGET_FPS / r.fps})
+        t_rows.append([str(r.threads), f"{r.fps:.1f}", f"{r.end_to_end_ms:.2f}", f"{TARGET_FPS / r.fps:.2f}x",
+                       f"{top} ({pieces[top]:.2f} ms)", verdict(met)])
+    if t_rows:
+        out.append(table(["threads", "fps", "ms/frame", "speed-up needed", "largest piece", "target"], t_rows))
+    for label, ops in profiles.items():
+        out.append(f"\nOperators of one end-to-end loop, {label} (torch.profiler, untimed pass; self CPU ms per frame)")
+        out.append(table(["op", "calls", "ms/frame", "share"],
+                         [[o["op"], str(o["calls"]), f"{o['self_ms_per_frame']:.2f}", f"{o['share']:.0%}"]
+                          for o in ops]))
+    return "\n".join(out), {"fps_600": targets}
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def parse_threads(text: str) -> list[int]:
+    try:
+        values = [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--threads must be a comma-separated list of integers, got {text!r}")
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"--threads must list integers >= 1, got {text!r}")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="smoke mode: small images, few frames and repeats")
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--threads", type=parse_threads, default=[1],
+                        help="torch CPU threads, or a comma-separated list measured in turn in every repeat, e.g. "
+                             "1,2 (default 1: on a small shared machine, multi-threaded kernels stall for a "
+                             "scheduler slice whenever another process holds a core)")
+    parser.add_argument("--frames", type=int, help="fluid steps T per loop (default 30; --quick 6)")
+    parser.add_argument("--repeats", type=int, help="interleaved repeats (default 5; --quick 2)")
+    args = parser.parse_args(argv)
+    frames = args.frames or (6 if args.quick else 30)
+    repeats = args.repeats or (2 if args.quick else 5)
+    if frames < 1 or repeats < 1:
+        parser.error(f"--frames and --repeats must be >= 1, got {frames} and {repeats}")
+    sizes = [(120, 120), (108, 192)] if args.quick else [TARGET_SIZE, (1080, 1920)]
+
+    info = machine()
+    info["threads"] = args.threads
+    info["loadavg_start"] = os.getloadavg()
+    print(f"bench_warp: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with thread(s) "
+          f"{','.join(map(str, args.threads))}, Python {info['python']}, {info['date']}, load average "
+          f"{' '.join(f'{x:.2f}' for x in info['loadavg_start'])}" + (" [--quick]" if args.quick else ""), flush=True)
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+
+    t_start = time.perf_counter()
+    rows: list[Row] = []
+    profiles: dict[str, list[dict[str, Any]]] = {}
+    for size in sizes:
+        warp = FluidWarp(FLUID, steps=frames, dt=1.0)
+        brushes, image = make_brushes(size), make_image(size)
+        torch.set_num_threads(args.threads[0])
+        one_repeat(warp, brushes, image)  # warm-up: geometry caches, kernels, allocator
+        max_disp = max_displacement(warp, brushes, size)
+        samples: dict[int, list[Sample]] = {n: [] for n in args.threads}
+        for rep in range(repeats):
+            for n in args.threads:
+                log(f"  {size[1]}x{size[0]}: repeat {rep + 1}/{repeats}, {n} thread(s) ...")
+                torch.set_num_threads(n)
+                samples[n].append(one_repeat(warp, brushes, image))
+        rows += [summarise(size, n, frames, samples[n], max_disp) for n in args.threads]
+        profiles[f"{size[1]}x{size[0]}, {args.threads[0]} thread(s)"] = profile_ops(warp, brushes, image,
+                                                                                  args.threads[0], top=10)
+    text, targets = report(rows, profiles)
+    print("\n" + text)
+    total = time.perf_counter() - t_start
+    info["loadavg_end"] = os.getloadavg()
+    print(f"\ntotal {total:.0f} s, load average at the end {' '.join(f'{x:.2f}' for x in info['loadavg_end'])}")
+
+    if args.json:
+        result = {"machine": info, "args": vars(args), "fluid": FLUID, "brush_cells": BRUSH_CELLS,
+                  "brush_frequency": BRUSH_FREQUENCY, "rows": [asdict(r) for r in rows], "profiles": profiles,
+                  "targets": targets, "total_s": total}
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(result, f, indent=2)
+        os.replace(tmp, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,343 @@
+"""The ``torchfluidwarp`` command line: a thin layer over the public API.
+
+Subcommands:
+
+* ``animate``: warp a photo with oscillating brushes and viscosity regions (the paper's indirect control) and
+  write a GIF, an MP4 or a folder of PNG frames. The settings come from options or a JSON file (its format is
+  in :mod:`torchfluidwarp.animate_config` and in ``torchfluidwarp animate --help``).
+* ``demo``, ``morph``, ``studio``: placeholders until :mod:`torchfluidwarp.morph` and
+  :mod:`torchfluidwarp.studio` exist; they exit with status 2 and say so.
+
+Exit status: 0 on success, 2 for bad input (a missing or unreadable image, a bad option or config, an existing
+output without ``--overwrite``, MP4 without imageio-ffmpeg), with a one-line message on stderr; 130 when
+interrupted. Outputs are written atomically, so a failed or interrupted run leaves nothing half-written.
+
+Example:
+    >>> build_parser().parse_args(["animate", "cat.png", "-o", "cat.gif", "--grid", "32"]).grid
+    [32]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import importlib.util
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import NoReturn
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from torchfluidwarp._version import __version__
+from torchfluidwarp.animate_config import (
+    AnimationConfig,
+    BrushSpec,
+    RegionSpec,
+    auto_grid,
+    brush_from_values,
+    build_forces,
+    build_viscosity,
+    load_config,
+    region_from_values,
+)
+from torchfluidwarp.forces import Brushes
+from torchfluidwarp.io import FFMPEG_HINT, read_image, write_animation
+from torchfluidwarp.warp import FluidWarp
+
+__all__ = ["build_parser", "main"]
+
+PROG = "torchfluidwarp"
+EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
+
+ANIMATE_EPILOG = """\
+config file (--config), every key optional, unknown keys are an error:
+  {"brushes": [{"position": [x, y], "direction": [dx, dy], "radius": r,
+                "frequency": f, "amplitude": a, "phase": p}],
+   "viscosity": {"base": 0.0,
+                 "regions": [{"position": [x, y], "radius": r, "value": v}],
+                 "mask": "stiff.png", "stiff": 5.0, "soft": 0.0},
+   "grid": [64, 64], "steps": 60, "dt": 1.0, "fps": 20}
+
+  Positions and radii are pixels of the input image (x right, y down, pixel centres at
+  integers). amplitude: peak acceleration in px/time^2 (an oscillating brush moves the
+  image by about amplitude / (2 pi frequency)^2 px); frequency: cycles per time unit
+  (0 = steady push); phase: radians. A brush needs position, direction, radius and
+  amplitude. Viscosity (fluid cells^2 per time unit) is base + a Gaussian bump per
+  region + soft..stiff from a gray mask image (1 = stiff, same size as the image,
+  path relative to the JSON file). Options given on the command line replace the
+  file's values (--brush replaces all its brushes, --stiff all its regions).
+
+examples:
+  torchfluidwarp animate cat.png -o cat.gif --brush 282,408,1,1,40,0.05,0.6
+  torchfluidwarp animate face.jpg -o out.mp4 --config laugh.json --steps 80
+"""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line on stderr (exit status 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``torchfluidwarp`` argument parser, with one subparser per subcommand.
+
+    Each subparser stores its handler as ``handler`` (a function ``(argparse.Namespace) -> int`` returning the
+    exit status), so a subcommand is added or replaced by one ``_add_*`` function and one ``_cmd_*`` function.
+    """
+    parser = _Parser(prog=PROG, description="Warp and morph images with a simulated 2-D incompressible fluid.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    _add_animate(commands)
+    _add_demo(commands)
+    _add_morph(commands)
+    _add_studio(commands)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line.
+
+    Args:
+        argv: the arguments after the program name (default ``sys.argv[1:]``).
+
+    Returns:
+        The exit status: 0 on success, 2 for bad input (a one-line message on stderr), 130 when interrupted.
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version and usage errors: return their status instead of exiting
+        return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_BAD_INPUT)
+    try:
+        return args.handler(args)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _fail(command: str, message: object) -> int:
+    text = str(message).strip().splitlines()
+    print(f"{PROG} {command}: error: {text[0] if text else type(message).__name__}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+# ----------------------------------------------------------------------------------------------- animate
+
+
+def _numbers(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _brush(text: str) -> BrushSpec:
+    try:
+        return brush_from_values(_numbers(text), "brush")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
+
+
+def _region(text: str) -> RegionSpec:
+    try:
+        return region_from_values(_numbers(text), "region")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
+
+
+def _bounded(kind: Callable[[str], float], minimum: float, strict: bool) -> Callable[[str], float]:
+    bound = f"> {minimum:g}" if strict else f">= {minimum:g}"
+
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'} {bound}, "
+                                             f"got {text!r}") from None
+        if not (value > minimum if strict else value >= minimum) or value != value or value == float("inf"):
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in some messages
+    return parse
+
+
+def _add_animate(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser(
+        "animate", help="animate a photo with oscillating brushes (GIF, MP4 or PNG frames)",
+        description="Animate a photo: oscillating Gaussian brushes stir a 2-D incompressible fluid that carries "
+                    "the image's texture coordinates; viscosity regions keep parts of it rigid.",
+        epilog=ANIMATE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("image", metavar="IMAGE", help="the photo to animate (PNG, JPEG, ...)")
+    p.add_argument("-o", "--output", metavar="OUT", required=True,
+                   help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/' or "
+                        "without suffix)")
+    p.add_argument("--config", metavar="JSON", help="animation settings file (format below)")
+    p.add_argument("--brush", metavar="X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE]", type=_brush, action="append",
+                   help="an oscillating brush: centre (px), push direction, Gaussian radius (px), frequency "
+                        "(cycles per time unit, 0 = steady), amplitude (px/time^2), phase (radians); repeatable")
+    p.add_argument("--stiff", metavar="X,Y,RADIUS,VALUE", type=_region, action="append",
+                   help="a viscosity region: centre (px), radius (px), added viscosity (cells^2/time); repeatable")
+    p.add_argument("--viscosity", metavar="BASE", type=_bounded(float, 0.0, strict=False),
+                   help="background viscosity (cells^2/time, default 0)")
+    p.add_argument("--grid", metavar="N", nargs="+", type=_bounded(int, 2, strict=False),
+                   help="fluid grid: 'H W' cells, or N for N x N (default: 64 cells along the image's longer side)")
+    p.add_argument("--steps", type=_bounded(int, 1, strict=False), help="fluid steps; frames = steps + 1 "
+                   "(default 60)")
+    p.add_argument("--dt", type=_bounded(float, 0.0, strict=True), help="time step in time units (default 1.0)")
+    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), help="output frames per second (default 20)")
+    p.add_argument("--max-size", metavar="PX", type=_bounded(int, 0, strict=False), default=800,
+                   help="downscale the photo so its longer side is at most PX pixels, for speed (0 = keep; "
+                        "default 800); brush positions stay in the original's pixels")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(handler=_cmd_animate)
+
+
+def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig:
+    """The file's settings with the command line's on top."""
+    changes: dict[str, object] = {}
+    if args.brush:
+        changes["brushes"] = tuple(args.brush)
+    viscosity = config.viscosity
+    if args.stiff:
+        viscosity = dataclasses.replace(viscosity, regions=tuple(args.stiff))
+    if args.viscosity is not None:
+        viscosity = dataclasses.replace(viscosity, base=args.viscosity)
+    changes["viscosity"] = viscosity
+    for name in ("steps", "dt", "fps"):
+        if getattr(args, name) is not None:
+            changes[name] = getattr(args, name)
+    return dataclasses.replace(config, **changes)
+
+
+def _grid(args: argparse.Namespace, config: AnimationConfig, size: tuple[int, int]) -> tuple[int, int]:
+    if args.grid is None:
+        return config.grid or auto_grid(size)
+    if len(args.grid) == 1:
+        return (args.grid[0], args.grid[0])
+    if len(args.grid) == 2:
+        return (args.grid[0], args.grid[1])
+    raise ValueError(f"--grid takes 1 or 2 integers (N, or H W), got {len(args.grid)}: {args.grid}")
+
+
+def _check_output(path: str, overwrite: bool) -> None:
+    """Fail before rendering on what :func:`~torchfluidwarp.io.write_animation` would refuse after it."""
+    target = Path(path)
+    folder = path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
+    if not folder and target.suffix.lower() not in (".gif", ".mp4"):
+        raise ValueError(f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4 or a folder ending in '/'")
+    if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise ValueError(FFMPEG_HINT)
+    exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
+    if exists and not overwrite:
+        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
+
+
+def _fit(image: Tensor, max_size: int) -> Tensor:
+    """Downscale ``(1, C, H, W)`` so that its longer side is at most ``max_size`` (0 = keep)."""
+    H, W = image.shape[-2:]
+    if max_size == 0 or max(H, W) <= max_size:
+        return image
+    scale = max_size / max(H, W)
+    size = (max(2, round(H * scale)), max(2, round(W * scale)))
+    return F.interpolate(image, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
+
+
+def _render(warp: FluidWarp, image: Tensor, forces: Brushes, *, quiet: bool) -> Tensor:
+    """All ``steps + 1`` frames ``(T + 1, C, H, W)``, with a progress bar on an interactive stderr."""
+    from tqdm.auto import tqdm
+
+    frames = torch.empty(warp.steps + 1, *image.shape[1:], dtype=image.dtype)
+    bar = tqdm(total=warp.steps + 1, unit="frame", desc="animate", leave=False,
+               disable=quiet or not sys.stderr.isatty())
+    with torch.no_grad(), bar:
+        for t, frame in enumerate(warp.iter_frames(image, forces)):
+            frames[t] = frame[0]
+            bar.update()
+    return frames
+
+
+def _cmd_animate(args: argparse.Namespace) -> int:
+    try:
+        config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
+        if not config.brushes:
+            raise ValueError("nothing to animate: give at least one --brush (or \"brushes\" in --config)")
+        _check_output(args.output, args.overwrite)
+        original = read_image(args.image)
+        image = _fit(original, args.max_size)
+        size = (image.shape[-2], image.shape[-1])
+        config = config.rescaled(size[1] / original.shape[-1], size[0] / original.shape[-2])
+        grid = _grid(args, config, size)
+        viscosity = build_viscosity(config, grid, size, mask_size=tuple(original.shape[-2:]))
+        warp = FluidWarp(grid, config.steps, config.dt, viscosity)
+        frames = _render(warp, image, build_forces(config), quiet=args.quiet)
+        path = write_animation(args.output, frames, fps=config.fps, overwrite=args.overwrite)
+    except (ValueError, TypeError, OSError) as exc:  # FileExistsError and unwritable outputs are OSErrors
+        return _fail("animate", exc)
+    print(path)  # even with --quiet: it is the command's result, for scripts
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------------- demo, morph, studio (placeholders)
+
+
+def _optional(module: str, command: str) -> ModuleType | None:
+    """Import a subpackage that may not exist yet; say so (one line on stderr) when it does not."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        print(f"{PROG} {command}: not available yet ({module} is not installed)", file=sys.stderr)
+        return None
+
+
+def _not_wired(command: str) -> int:
+    print(f"{PROG} {command}: not available yet", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _add_demo(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser("demo", help="write a demo animation into the current folder (not available yet)",
+                            description="Write a demo animation of the bundled samples into the current folder.")
+    p.set_defaults(handler=_cmd_demo)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    if _optional("torchfluidwarp.morph", "demo") is None:
+        return EXIT_BAD_INPUT
+    return _not_wired("demo")
+
+
+def _add_morph(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser("morph", help="morph one face into another (not available yet)",
+                            description="Morph one image into another with keyframe-controlled fluid forces.")
+    p.set_defaults(handler=_cmd_morph)
+
+
+def _cmd_morph(args: argparse.Namespace) -> int:
+    if _optional("torchfluidwarp.morph", "morph") is None:
+        return EXIT_BAD_INPUT
+    return _not_wired("morph")
+
+
+def _add_studio(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser("studio", help="interactive web studio (not available yet)",
+                            description="Start the interactive web studio.")
+    p.set_defaults(handler=_cmd_studio)
+
+
+def _cmd_studio(args: argparse.Namespace) -> int:
+    if _optional("torchfluidwarp.studio", "studio") is None:
+        return EXIT_BAD_INPUT
+    return _not_wired("studio")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
