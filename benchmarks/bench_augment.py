@@ -210,7 +210,8 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     if args.quick:
         args.repeats, args.draws = 3, 4
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {platform.processor() or platform.machine()}")
+    machine = platform.processor() or platform.machine()
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {machine}")
     start = time.perf_counter()
     results = {
         "date": datetime.date.today().isoformat(),

@@ -194,6 +194,7 @@ class FitRun:
     """One fit (one repeat)."""
 
     seconds: float
+    cpu_seconds: float
     evaluations: int
     mean_error: float
     max_error: float
@@ -204,9 +205,11 @@ class FitRun:
 
 def run_fit(inst: Instance, dtype: torch.dtype, cfg: dict[str, Any], control: tuple[int, int]) -> tuple[FitRun, Any]:
     src, tgt = inst.tensors(dtype)
+    cpu0 = time.process_time()
     fit = fit_keyframes(src, tgt, image_size=FRAME, grid=cfg["grid"], steps=cfg["steps"], control=control,
                         max_iter=cfg["max_iter"], tolerance=cfg["tolerance"], dtype=dtype, progress=False)
-    run = FitRun(seconds=fit.seconds, evaluations=fit.evaluations, mean_error=float(fit.error.mean()),
+    cpu = time.process_time() - cpu0
+    run = FitRun(seconds=fit.seconds, cpu_seconds=cpu, evaluations=fit.evaluations, mean_error=float(fit.error.mean()),
                  max_error=float(fit.error.max()), converged=fit.converged, reached=fit.reached,
                  final_loss=fit.loss_history[-1] if fit.loss_history else math.nan)
     return run, fit
@@ -223,8 +226,10 @@ class FitRow:
     parameters: int
     repeats: int
     seconds: float
+    cpu_seconds: float
     evaluations: int
     ms_per_evaluation: float
+    cpu_ms_per_evaluation: float
     mean_error: float
     max_error: float
     converged: bool
@@ -238,10 +243,12 @@ def summarise_fits(inst: Instance, dtype: str, control: tuple[int, int], steps: 
     same = all((r.evaluations, r.mean_error, r.max_error, r.reached) ==
                (first.evaluations, first.mean_error, first.max_error, first.reached) for r in runs)
     secs = statistics.median(r.seconds for r in runs)
+    cpu = statistics.median(r.cpu_seconds for r in runs)
     evals = int(statistics.median(r.evaluations for r in runs))
     return FitRow(instance=inst.name, kind=inst.kind, dtype=dtype, control=control,
-                  parameters=2 * steps * control[0] * control[1], repeats=len(runs), seconds=secs, evaluations=evals,
-                  ms_per_evaluation=secs / max(evals, 1) * 1e3, mean_error=first.mean_error,
+                  parameters=2 * steps * control[0] * control[1], repeats=len(runs), seconds=secs, cpu_seconds=cpu,
+                  evaluations=evals, ms_per_evaluation=secs / max(evals, 1) * 1e3,
+                  cpu_ms_per_evaluation=cpu / max(evals, 1) * 1e3, mean_error=first.mean_error,
                   max_error=first.max_error, converged=first.converged, reached=first.reached, deterministic=same,
                   seconds_all=[r.seconds for r in runs])
 
@@ -258,6 +265,9 @@ class GradRow:
     forward_ms: float
     gradient_ms: float
     ratio: float
+    forward_cpu_ms: float
+    gradient_cpu_ms: float
+    ratio_cpu: float
 
 
 def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int
@@ -284,17 +294,20 @@ def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], 
         cases.append((dtype_name, control, forward, gradient, [], []))
     for _ in range(repeats):
         for _dt, _c, forward, gradient, f_times, g_times in cases:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             forward()
-            f_times.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.process_time()
             gradient()
-            g_times.append(time.perf_counter() - t0)
+            t2, c2 = time.perf_counter(), time.process_time()
+            f_times.append((t1 - t0, c1 - c0))
+            g_times.append((t2 - t1, c2 - c1))
     rows = []
     for dtype_name, control, _f, _g, f_times, g_times in cases:
-        f, g = statistics.median(f_times) * 1e3, statistics.median(g_times) * 1e3
+        f, g = (statistics.median(t[0] for t in x) * 1e3 for x in (f_times, g_times))
+        fc, gc_ = (statistics.median(t[1] for t in x) * 1e3 for x in (f_times, g_times))
         rows.append(GradRow(dtype=dtype_name, control=control, parameters=2 * steps * control[0] * control[1],
-                            repeats=repeats, forward_ms=f, gradient_ms=g, ratio=g / f))
+                            repeats=repeats, forward_ms=f, gradient_ms=g, ratio=g / f, forward_cpu_ms=fc,
+                            gradient_cpu_ms=gc_, ratio_cpu=gc_ / fc))
     return rows
 
 
@@ -327,9 +340,12 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     torch.set_num_threads(spec["threads"])
     dtype = DTYPES[spec["dtype"]]
     inst = Instance(**spec["instance"])
-    # warm-up on a tiny problem loads every code path (autograd, L-BFGS, FFT and BLAS kernels)
-    fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8, steps=2,
-                  control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+    # warm-up on a tiny problem loads every code path (autograd, L-BFGS, FFT and BLAS kernels); timed, as the
+    # one-time cost of the first fit in a process (fit.seconds starts after the optimiser is built)
+    t0 = time.perf_counter()
+    tiny = fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8,
+                         steps=2, control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+    first_call_s, first_fit_s = time.perf_counter() - t0, tiny.seconds
     src, tgt = inst.tensors(dtype)
     gc.collect()
     hwm_reset = _reset_peak()
@@ -341,7 +357,8 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in spec.items() if k != "instance"}, "instance": inst.name,
             "peak_measure": "VmHWM" if hwm_reset else "VmHWM (not reset: includes the warm-up)",
             "baseline_rss_mib": base / 1024, "peak_rss_mib": peak / 1024, "peak_rss_growth_mib": (peak - base) / 1024,
-            "evaluations": fit.evaluations, "seconds": fit.seconds, "reached": fit.reached}
+            "evaluations": fit.evaluations, "seconds": fit.seconds, "reached": fit.reached,
+            "first_call_wall_s": first_call_s, "first_call_fit_seconds": first_fit_s}
 
 
 def run_child(spec: dict[str, Any]) -> dict[str, Any]:
@@ -397,12 +414,13 @@ def report_instances(instances: list[Instance]) -> str:
 
 
 def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, Any]]:
-    head = ["instance", "dtype", "evals", "fit s", "ms/eval", "mean err px", "max err px", "converged", "reached",
-            "same each rep", "mean < 0.05", "< 3 s"]
+    head = ["instance", "dtype", "evals", "fit s", "CPU s", "ms/eval", "CPU ms/eval", "mean err px", "max err px",
+            "converged", "reached", "same each rep", "mean < 0.05", "< 3 s"]
 
     def cells(r: FitRow, with_target: bool) -> list[str]:
-        c = [r.instance, r.dtype, str(r.evaluations), f"{r.seconds:.2f}", f"{r.ms_per_evaluation:.1f}",
-             f"{r.mean_error:.4f}", f"{r.max_error:.4f}", yes(r.converged), yes(r.reached), yes(r.deterministic)]
+        c = [r.instance, r.dtype, str(r.evaluations), f"{r.seconds:.2f}", f"{r.cpu_seconds:.2f}",
+             f"{r.ms_per_evaluation:.1f}", f"{r.cpu_ms_per_evaluation:.1f}", f"{r.mean_error:.4f}",
+             f"{r.max_error:.4f}", yes(r.converged), yes(r.reached), yes(r.deterministic)]
         if with_target:
             c += [verdict(r.mean_error < TARGET_MEAN_PX), verdict(r.seconds < TARGET_SECONDS)]
         else:
@@ -411,15 +429,17 @@ def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, An
 
     flow = [r for r in rows if r.kind == "flow"]
     rand = [r for r in rows if r.kind != "flow"]
-    out = [f"Fits, control {flow[0].control} ({flow[0].parameters} parameters), tolerance {tolerance:g} px "
-           f"(stop when every point is within it); fit s = median over {flow[0].repeats} repeats"]
+    out = [f"Fits, control {flow[0].control[0]}x{flow[0].control[1]} ({flow[0].parameters} parameters), tolerance "
+           f"{tolerance:g} px (stop when every point is within it); fit s = wall time (KeyframeFit.seconds), "
+           f"CPU s = this process's CPU time around the call, both medians over {flow[0].repeats} repeats"]
     out.append("\nReachable instances (targets made by a flow)")
     out.append(table(head, [cells(r, True) for r in flow]))
     if rand:
         out.append("\nRandom-direction instance (may be partly unreachable; no target)")
         out.append(table(head, [cells(r, False) for r in rand]))
     targets: dict[str, Any] = {}
-    out.append("\nSummary over the reachable instances")
+    out.append("\nSummary over the reachable instances (the 3 s target is judged on wall time; CPU time, with 1 "
+               "thread, estimates the wall time on a core of its own)")
     s_rows = []
     for dtype in DTYPES:
         rs = [r for r in flow if r.dtype == dtype]
@@ -427,31 +447,42 @@ def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, An
             continue
         acc = all(r.mean_error < TARGET_MEAN_PX for r in rs)
         fast = all(r.seconds < TARGET_SECONDS for r in rs)
+        fast_cpu = all(r.cpu_seconds < TARGET_SECONDS for r in rs)
         med_s = statistics.median(r.seconds for r in rs)
-        targets[dtype] = {"mean_error_met": acc, "time_met": fast, "median_seconds": med_s,
-                          "max_seconds": max(r.seconds for r in rs), "worst_mean_error": max(r.mean_error for r in rs),
+        med_c = statistics.median(r.cpu_seconds for r in rs)
+        targets[dtype] = {"mean_error_met": acc, "time_met": fast, "time_met_by_cpu": fast_cpu, "median_seconds": med_s,
+                          "max_seconds": max(r.seconds for r in rs), "median_cpu_seconds": med_c,
+                          "max_cpu_seconds": max(r.cpu_seconds for r in rs),
+                          "worst_mean_error": max(r.mean_error for r in rs),
                           "median_evaluations": statistics.median(r.evaluations for r in rs),
-                          "median_ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in rs)}
+                          "median_ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in rs),
+                          "median_cpu_ms_per_evaluation": statistics.median(r.cpu_ms_per_evaluation for r in rs)}
         s_rows.append([dtype, f"{len(rs)}", f"{max(r.mean_error for r in rs):.4f}", verdict(acc),
                        f"{min(r.seconds for r in rs):.2f} / {med_s:.2f} / {max(r.seconds for r in rs):.2f}",
-                       f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)}", verdict(fast),
+                       f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast)}",
+                       f"{min(r.cpu_seconds for r in rs):.2f} / {med_c:.2f} / {max(r.cpu_seconds for r in rs):.2f}",
+                       f"{sum(r.cpu_seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast_cpu)}",
                        f"{statistics.median(r.evaluations for r in rs):g}",
                        f"{statistics.median(r.ms_per_evaluation for r in rs):.1f}",
+                       f"{statistics.median(r.cpu_ms_per_evaluation for r in rs):.1f}",
                        f"{PAPER_SECONDS / med_s:.0f}x"])
-    out.append(table(["dtype", "instances", "worst mean err", "mean < 0.05 px", "fit s min/median/max", "under 3 s",
-                      "fit < 3 s", "median evals", "median ms/eval", "vs 5 min (quoted)"], s_rows))
+    out.append(table(["dtype", "instances", "worst mean err", "mean < 0.05 px", "fit s min/med/max", "fit < 3 s",
+                      "CPU s min/med/max", "CPU < 3 s", "median evals", "med ms/eval", "med CPU ms/eval",
+                      "vs 5 min (quoted)"], s_rows))
     return "\n".join(out), targets
 
 
 def report_gradient(rows: list[GradRow], control: tuple[int, int]) -> tuple[str, dict[str, Any]]:
     out = ["Cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), "
-           "at the fitted forces of the first flow instance; medians of interleaved repeats"]
+           "at the fitted forces of the first flow instance; medians of interleaved repeats (wall, and CPU time)"]
     out.append(table(["dtype", "control", "params", "reps", "forward ms", "gradient ms", "gradient / forward",
-                      "expected ~1-2x"],
+                      "CPU fwd ms", "CPU grad ms", "CPU grad / fwd", "expected ~1-2x"],
                      [[r.dtype, f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.repeats),
-                       f"{r.forward_ms:.1f}", f"{r.gradient_ms:.1f}", f"{r.ratio:.2f}", verdict(r.ratio <= 2.0)]
+                       f"{r.forward_ms:.1f}", f"{r.gradient_ms:.1f}", f"{r.ratio:.2f}", f"{r.forward_cpu_ms:.1f}",
+                       f"{r.gradient_cpu_ms:.1f}", f"{r.ratio_cpu:.2f}", verdict(r.ratio <= 2.0)]
                       for r in rows]))
-    targets = {r.dtype: {"ratio": r.ratio, "met": r.ratio <= 2.0} for r in rows if r.control == control}
+    targets = {r.dtype: {"ratio": r.ratio, "ratio_cpu": r.ratio_cpu, "met": r.ratio <= 2.0}
+               for r in rows if r.control == control}
     return "\n".join(out), targets
 
 
@@ -459,24 +490,31 @@ def report_controls(fit_rows: list[FitRow], grad_rows: list[GradRow]) -> tuple[s
     out = [f"Parameter count: the same fit ({fit_rows[0].instance}, {fit_rows[0].dtype}) with each control grid, "
            "interleaved in one run; gradient ms from the table above"]
     rows = []
-    base = min(fit_rows, key=lambda r: r.parameters)
-    for r in sorted(fit_rows, key=lambda r: r.parameters):
-        g = next((x for x in grad_rows if x.control == r.control and x.dtype == r.dtype), None)
+    fit_rows = sorted(fit_rows, key=lambda r: r.parameters)
+    grads = {x.control: x for x in grad_rows if x.dtype == fit_rows[0].dtype}
+    base, big = fit_rows[0], fit_rows[-1]
+    for r in fit_rows:
+        g = grads.get(r.control)
         rows.append([f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.evaluations), f"{r.seconds:.2f}",
-                     f"{r.ms_per_evaluation:.1f}", f"{r.ms_per_evaluation / base.ms_per_evaluation:.2f}",
-                     "-" if g is None else f"{g.gradient_ms:.1f}", f"{r.mean_error:.4f}", yes(r.reached)])
-    out.append(table(["control", "params", "evals", "fit s", "ms/eval", "ms/eval vs fewest", "gradient ms",
-                      "mean err px", "reached"], rows))
-    big = max(fit_rows, key=lambda r: r.parameters)
+                     f"{r.ms_per_evaluation:.1f}", f"{r.cpu_ms_per_evaluation:.1f}",
+                     f"{r.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation:.2f}",
+                     "-" if g is None else f"{g.gradient_ms:.1f}", "-" if g is None else f"{g.gradient_cpu_ms:.1f}",
+                     f"{r.mean_error:.4f}", yes(r.reached)])
+    out.append(table(["control", "params", "evals", "fit s", "ms/eval", "CPU ms/eval", "CPU ms/eval vs fewest",
+                      "gradient ms", "CPU gradient ms", "mean err px", "reached"], rows))
     growth = big.ms_per_evaluation / base.ms_per_evaluation
-    g_rows = [x for x in grad_rows if x.dtype == fit_rows[0].dtype]
-    g_growth = (max(g_rows, key=lambda x: x.parameters).gradient_ms / min(g_rows, key=lambda x: x.parameters).gradient_ms
-                if g_rows else math.nan)
-    met = growth <= 1.25 and (math.isnan(g_growth) or g_growth <= 1.25)
-    out.append(f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): ms per "
-               f"evaluation {growth:.2f}x, gradient ms {g_growth:.2f}x (target: does not grow, read as within "
-               f"25%) -> {verdict(met)}")
-    return "\n".join(out), {"ms_per_eval_growth": growth, "gradient_growth": g_growth, "met": met}
+    growth_cpu = big.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation
+    g_growth = g_growth_cpu = math.nan
+    if base.control in grads and big.control in grads:
+        g_growth = grads[big.control].gradient_ms / grads[base.control].gradient_ms
+        g_growth_cpu = grads[big.control].gradient_cpu_ms / grads[base.control].gradient_cpu_ms
+    # judged on CPU time: the claim is about the work per gradient, which wall time on a shared machine blurs
+    met = growth_cpu <= 1.25 and (math.isnan(g_growth_cpu) or g_growth_cpu <= 1.25)
+    out.append(f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): CPU ms "
+               f"per evaluation {growth_cpu:.2f}x (wall {growth:.2f}x), CPU ms per gradient {g_growth_cpu:.2f}x (wall "
+               f"{g_growth:.2f}x). Target: does not grow, read as within 25% in CPU time -> {verdict(met)}")
+    return "\n".join(out), {"ms_per_eval_growth": growth, "cpu_ms_per_eval_growth": growth_cpu,
+                             "gradient_growth": g_growth, "gradient_cpu_growth": g_growth_cpu, "met": met}
 
 
 def report_memory(runs: list[dict[str, Any]]) -> str:
@@ -488,9 +526,14 @@ def report_memory(runs: list[dict[str, Any]]) -> str:
             rows.append([r["dtype"], "FAILED", f"rc {r['returncode']}", "", "", "", ""])
             continue
         rows.append([r["dtype"], r["instance"], f"{r['control'][0]}x{r['control'][1]}", str(r["evaluations"]),
-                     f"{r['baseline_rss_mib']:.1f}", f"{r['peak_rss_mib']:.1f}", f"{r['peak_rss_growth_mib']:.1f}"])
-    out.append(table(["dtype", "instance", "control", "evals", "baseline RSS MiB", "peak RSS MiB",
-                      "peak RSS growth MiB"], rows))
+                     f"{r['seconds']:.2f}", f"{r['baseline_rss_mib']:.1f}", f"{r['peak_rss_mib']:.1f}",
+                     f"{r['peak_rss_growth_mib']:.1f}", f"{r['first_call_wall_s']:.2f}",
+                     f"{r['first_call_fit_seconds']:.2f}"])
+    out.append(table(["dtype", "instance", "control", "evals", "fit s", "baseline RSS MiB", "peak RSS MiB",
+                      "peak RSS growth MiB", "1st call wall s", "1st call fit s"], rows))
+    out.append("1st call = the warm-up, the first fit_keyframes call of the fresh process (a 3-iteration fit on an 8x8 "
+               "fluid): its wall time around the call against its KeyframeFit.seconds, which starts after the "
+               "optimiser is built")
     return "\n".join(out)
 
 

@@ -55,13 +55,15 @@ root_doc = "index"
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "auto_examples/*.ipynb", "auto_examples/*.py",
                     "auto_examples/*.zip"]
 templates_path = ["_templates"]
+highlight_language = "none"  # "::" blocks are usage texts, JSON or shapes; Python blocks say so
 
 # -- autodoc / napoleon ---------------------------------------------------------------------------------
 autosummary_generate = True
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
 autodoc_typehints_format = "short"
-autodoc_preserve_defaults = True
+autodoc_preserve_defaults = False
+autodoc_inherit_docstrings = False  # torch and torchvision docstrings say nothing about our overrides
 autodoc_class_signature = "mixed"
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False

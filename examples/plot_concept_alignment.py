@@ -65,8 +65,8 @@ for title, options in settings.items():
 # * Without pre-alignment the incompressible fluid is asked to move and resize the whole face. It cannot, so
 #   it misses the targets, and the violent flow it tries can move several cells per step: fast enough for
 #   the discrete warp to lose its area preservation, and even fold, in places.
-# * With the similarity pre-alignment the fluid's part is small and gentle, and its determinant stays close
-#   to 1: it only moves features around.
+# * With the similarity pre-alignment the fluid's part is smaller and gentler, and its determinant stays
+#   close to 1 away from the walls: it mostly moves features around.
 # * The compressible fluid may also grow and shrink features (blue and red patches), and fits closest.
 fig, axes = plt.subplots(2, 3, figsize=(11, 7.6), layout="constrained")
 norm = LogNorm(vmin=0.25, vmax=4.0)

@@ -129,7 +129,8 @@ class AnimationConfig:
                                             amplitude=b.amplitude * s) for b in self.brushes)
         regions = tuple(dataclasses.replace(r, position=pos(r.position), radius=r.radius * s)
                         for r in self.viscosity.regions)
-        return dataclasses.replace(self, brushes=brushes, viscosity=dataclasses.replace(self.viscosity, regions=regions))
+        viscosity = dataclasses.replace(self.viscosity, regions=regions)
+        return dataclasses.replace(self, brushes=brushes, viscosity=viscosity)
 
 
 # ----------------------------------------------------------------------------------------------- parsing

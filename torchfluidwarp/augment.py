@@ -243,12 +243,12 @@ def carry_points(params: FluidWarpParams, points: Tensor, size: tuple[int, int] 
     """
     H, W = params.size if size is None else size
     vel = params.velocities
-    p = points.to(vel.dtype)
+    p = points.to(device=vel.device, dtype=vel.dtype)
     lo = torch.tensor([-0.5, -0.5], device=p.device, dtype=p.dtype)
     hi = torch.tensor([W - 0.5, H - 0.5], device=p.device, dtype=p.dtype)
     inside = torch.maximum(torch.minimum(p, hi), lo)
     carried = _carry(vel, inside, (H, W), params.dt)[:, -1]
-    return (carried + (p - inside)).to(points.dtype)
+    return (carried + (p - inside)).to(device=points.device, dtype=points.dtype)
 
 
 def polygon_outline(corners: Tensor, edge_points: int) -> Tensor:
@@ -301,6 +301,7 @@ def carry_boxes(
 
 def _resample(x: Tensor, coords: Tensor, mode: Literal["bilinear", "nearest"]) -> Tensor:
     """Warp ``(B, C, H, W)`` of any dtype: integers are rounded back and clamped to their range."""
+    coords = coords.to(x.device)
     if x.is_floating_point():
         return warp_image(x, coords.to(x.dtype), mode)
     if x.dtype == torch.bool:

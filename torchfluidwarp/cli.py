@@ -5,8 +5,9 @@ Subcommands:
 * ``animate``: warp a photo with oscillating brushes and viscosity regions (the paper's indirect control) and
   write a GIF, an MP4 or a folder of PNG frames. The settings come from options or a JSON file (its format is
   in :mod:`torchfluidwarp.animate_config` and in ``torchfluidwarp animate --help``).
-* ``demo``, ``morph``, ``studio``: placeholders until :mod:`torchfluidwarp.morph` and
-  :mod:`torchfluidwarp.studio` exist; they exit with status 2 and say so.
+* ``morph``: morph image A into image B along corresponding points (:func:`torchfluidwarp.morph.morph`).
+* ``demo``: the morph of the bundled samples (astronaut into cat), written to ``morph.gif``.
+* ``studio``: the local web page (:mod:`torchfluidwarp.studio`, the ``[studio]`` extra).
 
 Exit status: 0 on success, 2 for bad input (a missing or unreadable image, a bad option or config, an existing
 output without ``--overwrite``, MP4 without imageio-ffmpeg), with a one-line message on stderr; 130 when
@@ -26,12 +27,12 @@ import importlib.util
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from types import ModuleType
 from typing import NoReturn
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+from tqdm import tqdm
 
 from torchfluidwarp._version import __version__
 from torchfluidwarp.animate_config import (
@@ -66,14 +67,16 @@ config file (--config), every key optional, unknown keys are an error:
   Positions and radii are pixels of the input image (x right, y down, pixel centres at
   integers). amplitude: peak acceleration in px/time^2 (an oscillating brush moves the
   image by about amplitude / (2 pi frequency)^2 px); frequency: cycles per time unit
-  (0 = steady push); phase: radians. A brush needs position, direction, radius and
-  amplitude. Viscosity (fluid cells^2 per time unit) is base + a Gaussian bump per
+  (0 = steady push); phase: radians. Phase 1.57 (pi/2) swings the image back and forth
+  around where it started; other phases also make it creep along the push. A brush
+  needs position, direction, radius and amplitude. Viscosity (fluid cells^2 per time unit) is base + a Gaussian bump per
   region + soft..stiff from a gray mask image (1 = stiff, same size as the image,
   path relative to the JSON file). Options given on the command line replace the
   file's values (--brush replaces all its brushes, --stiff all its regions).
 
 examples:
-  torchfluidwarp animate cat.png -o cat.gif --brush 282,408,1,1,40,0.05,0.6
+  torchfluidwarp animate cat.png -o cat.gif --brush 282,400,1,1,40,0.05,0.6,1.57 \
+      --stiff 125,190,45,5 --stiff 367,227,45,5
   torchfluidwarp animate face.jpg -o out.mp4 --config laugh.json --steps 80
 """
 
@@ -203,19 +206,19 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
 
 def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig:
     """The file's settings with the command line's on top."""
-    changes: dict[str, object] = {}
-    if args.brush:
-        changes["brushes"] = tuple(args.brush)
     viscosity = config.viscosity
     if args.stiff:
         viscosity = dataclasses.replace(viscosity, regions=tuple(args.stiff))
     if args.viscosity is not None:
         viscosity = dataclasses.replace(viscosity, base=args.viscosity)
-    changes["viscosity"] = viscosity
-    for name in ("steps", "dt", "fps"):
-        if getattr(args, name) is not None:
-            changes[name] = getattr(args, name)
-    return dataclasses.replace(config, **changes)
+    return dataclasses.replace(
+        config,
+        brushes=tuple(args.brush) if args.brush else config.brushes,
+        viscosity=viscosity,
+        steps=config.steps if args.steps is None else args.steps,
+        dt=config.dt if args.dt is None else args.dt,
+        fps=config.fps if args.fps is None else args.fps,
+    )
 
 
 def _grid(args: argparse.Namespace, config: AnimationConfig, size: tuple[int, int]) -> tuple[int, int]:
@@ -253,8 +256,6 @@ def _fit(image: Tensor, max_size: int) -> Tensor:
 
 def _render(warp: FluidWarp, image: Tensor, forces: Brushes, *, quiet: bool) -> Tensor:
     """All ``steps + 1`` frames ``(T + 1, C, H, W)``, with a progress bar on an interactive stderr."""
-    from tqdm.auto import tqdm
-
     frames = torch.empty(warp.steps + 1, *image.shape[1:], dtype=image.dtype)
     bar = tqdm(total=warp.steps + 1, unit="frame", desc="animate", leave=False,
                disable=quiet or not sys.stderr.isatty())
@@ -276,7 +277,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         size = (image.shape[-2], image.shape[-1])
         config = config.rescaled(size[1] / original.shape[-1], size[0] / original.shape[-2])
         grid = _grid(args, config, size)
-        viscosity = build_viscosity(config, grid, size, mask_size=tuple(original.shape[-2:]))
+        viscosity = build_viscosity(config, grid, size, mask_size=(original.shape[-2], original.shape[-1]))
         warp = FluidWarp(grid, config.steps, config.dt, viscosity)
         frames = _render(warp, image, build_forces(config), quiet=args.quiet)
         path = write_animation(args.output, frames, fps=config.fps, overwrite=args.overwrite)
@@ -286,57 +287,121 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-# ---------------------------------------------------------------------- demo, morph, studio (placeholders)
+# ------------------------------------------------------------------------------------------ morph and demo
 
 
-def _optional(module: str, command: str) -> ModuleType | None:
-    """Import a subpackage that may not exist yet; say so (one line on stderr) when it does not."""
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        print(f"{PROG} {command}: not available yet ({module} is not installed)", file=sys.stderr)
-        return None
-
-
-def _not_wired(command: str) -> int:
-    print(f"{PROG} {command}: not available yet", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
-def _add_demo(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("demo", help="write a demo animation into the current folder (not available yet)",
-                            description="Write a demo animation of the bundled samples into the current folder.")
-    p.set_defaults(handler=_cmd_demo)
-
-
-def _cmd_demo(args: argparse.Namespace) -> int:
-    if _optional("torchfluidwarp.morph", "demo") is None:
-        return EXIT_BAD_INPUT
-    return _not_wired("demo")
+def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible: float) -> None:
+    p.add_argument("-o", "--output", metavar="OUT", default=None,
+                   help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/')")
+    p.add_argument("--frames", type=_bounded(int, 2, strict=False), default=frames,
+                   help=f"frames (default {frames})")
+    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), default=15.0,
+                   help="frames per second (default 15)")
+    p.add_argument("--grid", metavar="N", type=_bounded(int, 4, strict=False), default=64,
+                   help="fluid grid N x N cells over the points' region (default 64)")
+    p.add_argument("--steps", type=_bounded(int, 1, strict=False), default=10, help="fluid steps (default 10)")
+    p.add_argument("--control", metavar="K", type=_bounded(int, 2, strict=False), default=8,
+                   help="control points per axis and step of the fitted forces (default 8)")
+    p.add_argument("--align", choices=["similarity", "affine", "none"], default="similarity",
+                   help="global pre-alignment from the points (default similarity)")
+    p.add_argument("--inverse", choices=["flow", "paper"], default="flow",
+                   help="how image B is pulled back: along the same flow (default) or the paper's stepwise fits")
+    p.add_argument("--blend", choices=["linear", "smooth"], default="linear", help="cross-dissolve schedule")
+    p.add_argument("--compressible", metavar="W", type=_bounded(float, 0.0, strict=False), default=compressible,
+                   help="fraction of the divergent flow kept (0 = incompressible, 1 = no projection; "
+                        f"default {compressible:g})")
+    p.add_argument("--max-iter", type=_bounded(int, 1, strict=False), default=150,
+                   help="L-BFGS iterations (default 150)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
 
 def _add_morph(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("morph", help="morph one face into another (not available yet)",
-                            description="Morph one image into another with keyframe-controlled fluid forces.")
+    p = commands.add_parser(
+        "morph", help="morph image A into image B along corresponding points (GIF, MP4 or PNG frames)",
+        description="Morph A into B: fluid forces are fitted (adjoint gradients + L-BFGS) so that A's points reach "
+                    "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
+                    "cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {\"points\": ...}) or CSV, "
+                    "pixels with pixel centres at integers.",
+        epilog="example:\n  torchfluidwarp morph a.png b.png --points-a a.pts --points-b b.pts -o morph.gif "
+               "--frames 30",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("image_a", metavar="A", help="source image")
+    p.add_argument("image_b", metavar="B", help="target image (resized to A's size if needed)")
+    p.add_argument("--points-a", required=True, metavar="FILE", help="A's points (.pts, .json or .csv)")
+    p.add_argument("--points-b", required=True, metavar="FILE", help="B's points, same count and order")
+    _add_morph_options(p, frames=30, compressible=0.0)
     p.set_defaults(handler=_cmd_morph)
 
 
+def _add_demo(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser("demo", help="morph the bundled astronaut into the bundled cat: writes morph.gif",
+                            description="Morph the bundled public-domain samples (a photo of an astronaut into a "
+                                        "photo of a cat, 23 corresponding points each) and write morph.gif.")
+    _add_morph_options(p, frames=30, compressible=0.5)
+    p.set_defaults(handler=_cmd_demo)
+
+
+def _run_morph(command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor,
+               points_b: Tensor) -> int:
+    from torchfluidwarp.morph import morph
+
+    _check_output(args.output, args.overwrite)
+    progress = not args.quiet and sys.stderr.isatty()
+    result = morph(image_a, image_b, points_a, points_b, frames=args.frames, grid=args.grid, steps=args.steps,
+                   control=args.control, align=None if args.align == "none" else args.align, inverse=args.inverse,
+                   blend=args.blend, compressible=args.compressible, max_iter=args.max_iter, progress=progress)
+    path = write_animation(args.output, result.frames, fps=args.fps, overwrite=args.overwrite)
+    if not args.quiet:
+        err = result.fit.error
+        print(f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
+              f"{result.seconds['total']:.1f} s", file=sys.stderr)
+    print(path)
+    return EXIT_OK
+
+
 def _cmd_morph(args: argparse.Namespace) -> int:
-    if _optional("torchfluidwarp.morph", "morph") is None:
-        return EXIT_BAD_INPUT
-    return _not_wired("morph")
+    from torchfluidwarp.io import check_point_counts, read_points
+
+    try:
+        args.output = args.output or "morph.gif"
+        a, b = read_image(args.image_a), read_image(args.image_b)
+        pa, pb = read_points(args.points_a), read_points(args.points_b)
+        check_point_counts(pa, pb, "--points-a", "--points-b")
+        return _run_morph("morph", args, a, b, pa, pb)
+    except (ValueError, TypeError, OSError) as exc:
+        return _fail("morph", exc)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from torchfluidwarp.data import load_sample, load_sample_points
+
+    try:
+        args.output = args.output or "morph.gif"
+        return _run_morph("demo", args, load_sample("astronaut"), load_sample("cat"),
+                          load_sample_points("astronaut"), load_sample_points("cat"))
+    except (ValueError, TypeError, OSError) as exc:
+        return _fail("demo", exc)
+
+
+# ------------------------------------------------------------------------------------------------ studio
 
 
 def _add_studio(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("studio", help="interactive web studio (not available yet)",
-                            description="Start the interactive web studio.")
-    p.set_defaults(handler=_cmd_studio)
+    p = commands.add_parser("studio", help="the interactive web studio: click point pairs, watch the morph",
+                            description="Start the local studio page (127.0.0.1 by default) and open it in the "
+                                        "browser.")
+    try:
+        from torchfluidwarp import studio
+    except ImportError:
+        p.set_defaults(handler=_cmd_studio_missing)
+        return
+    studio.add_arguments(p)
+    p.set_defaults(handler=studio.run)
 
 
-def _cmd_studio(args: argparse.Namespace) -> int:
-    if _optional("torchfluidwarp.studio", "studio") is None:
-        return EXIT_BAD_INPUT
-    return _not_wired("studio")
+def _cmd_studio_missing(args: argparse.Namespace) -> int:
+    return _fail("studio", "the studio needs its extra: pip install 'torchfluidwarp[studio]'")
 
 
 if __name__ == "__main__":

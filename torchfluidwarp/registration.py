@@ -255,26 +255,27 @@ def fit_images(
         p, q = check_points("points[0]", points[0], (H, W), B), check_points("points[1]", points[1], (H, W), B)
         if p.shape[1] != q.shape[1]:
             raise ValueError(f"points must pair up: {p.shape[1]} source points and {q.shape[1]} target points")
-        pts = (p.expand(B, -1, -1).to(dtype), q.expand(B, -1, -1).to(dtype))
+        pts = (p.expand(B, -1, -1).to(src.device, dtype), q.expand(B, -1, -1).to(src.device, dtype))
 
     src = src.expand(B, -1, -1, -1).to(dtype)
     tgt = tgt.expand(B, -1, -1, -1).to(dtype)
     start = time.perf_counter()
     history: list[float] = []
     records: list[LevelFit] = []
-    weight = torch.zeros(B, steps, 2, ky, kx, dtype=dtype)
+    weight = torch.zeros(B, steps, 2, ky, kx, device=src.device, dtype=dtype)
     previous: FluidGrid | None = None
     warp = module = None
     for g, n_iter in zip(grids, iters):
         if previous is not None:  # cells per time^2: forces scale with the grid's resolution
-            ratio = torch.tensor([g.width / previous.width, g.height / previous.height], dtype=dtype)
+            ratio = torch.tensor([g.width / previous.width, g.height / previous.height], device=src.device,
+                                 dtype=dtype)
             weight = weight * ratio.view(1, 1, 2, 1, 1)
         previous = g
         f = max(g.height / fine.height, g.width / fine.width)
         size = (H, W) if g == fine else (max(2, round(H * f)), max(2, round(W * f)))
         visc = viscosity if (g == fine or not isinstance(viscosity, Tensor)) else float(viscosity.mean())
-        warp = FluidWarp(g, steps, dt, visc, image_size=(H, W), compressible=compressible).to(dtype)
-        module = ControlGrid(steps, (ky, kx), batch=B, init=weight).to(dtype)
+        warp = FluidWarp(g, steps, dt, visc, image_size=(H, W), compressible=compressible).to(src.device, dtype)
+        module = ControlGrid(steps, (ky, kx), batch=B, init=weight).to(src.device, dtype)
         s_l, t_l = _resize(src, size), _resize(tgt, size)
         record = _fit_level(warp, module, s_l, t_l, objective, pts, (H, W), point_weight, regularization,
                             n_iter, history, progress, f"fit_images {g.height}x{g.width}")

@@ -4,6 +4,8 @@
   (relative to the repository root) exists / does not exist. Pages use them to link gallery examples and
   pages of modules that other work is still adding, without leaving a broken link when they are absent.
   The page depends on ``PATH``, so an incremental build re-reads it when the file appears or goes.
+* ``.. cli-subcommands:: MODULE FUNC``: the command-line page, one sphinx-argparse section per subcommand,
+  with terminal-formatted epilogs shown verbatim.
 * :func:`gif_scraper`: a sphinx-gallery image scraper that picks up the GIFs an example writes into its
   working directory (the ``examples/`` folder) with :func:`torchfluidwarp.io.write_animation`, moves them
   into the gallery's image folder and shows them on the example's page.
@@ -13,6 +15,9 @@
 
 from __future__ import annotations
 
+import argparse
+import importlib
+import re
 import shutil
 import time
 from pathlib import Path
@@ -53,6 +58,28 @@ class IfMissing(_IfPath):
     want = False
 
 
+_MD_LINK = re.compile(r"\[([^\]]+)\]\((\.\./[^)\s#]+)(#[^)\s]*)?\)")
+
+
+def _outside_links(app: Sphinx, docname: str, source: list[str]) -> None:
+    """Turn Markdown links to repository files outside ``docs/`` into their text and path.
+
+    ``docs/benchmarks.md`` is written for reading on a code host, where ``../benchmarks/README.md`` is a
+    file; the site has no page for it, and MyST would report a missing cross-reference.
+    """
+    if not app.env.doc2path(docname).suffix == ".md":
+        return
+    here = Path(app.env.doc2path(docname)).parent
+
+    def replace(match: re.Match[str]) -> str:
+        target = (here / match.group(2)).resolve()
+        if target.is_relative_to(Path(app.srcdir).resolve()) or not target.exists():
+            return match.group(0)
+        return f"{match.group(1)} (`{target.relative_to(ROOT).as_posix()}` in the repository)"
+
+    source[0] = _MD_LINK.sub(replace, source[0])
+
+
 def reset_example(gallery_conf, fname, when=None):  # noqa: ARG001 - sphinx-gallery's signature
     import torch
 
@@ -77,7 +104,40 @@ def gif_scraper(block, block_vars, gallery_conf):  # noqa: ARG001 - sphinx-galle
     return figure_rst(images, gallery_conf["src_dir"])
 
 
+class CliSubcommands(SphinxDirective):
+    """``.. cli-subcommands:: MODULE FUNC``: one section per subcommand of the parser ``MODULE.FUNC()``.
+
+    Each section is sphinx-argparse's ``.. argparse::`` for that subcommand. An epilog written for the
+    terminal (a parser with ``RawDescriptionHelpFormatter``) is shown as a literal block instead of being
+    parsed as reST, which would mangle its layout and quotes. New subcommands appear without editing the page.
+    """
+
+    required_arguments = 2
+    option_spec = {"prog": directives.unchanged}
+
+    def run(self) -> list[nodes.Node]:
+        module, func = self.arguments
+        parser = getattr(importlib.import_module(module), func)()
+        prog = self.options.get("prog", parser.prog)
+        lines: list[str] = []
+        for action in parser._actions:
+            if not isinstance(action, argparse._SubParsersAction):
+                continue
+            for name, sub in action.choices.items():
+                title = f"``{prog} {name}``"
+                lines += [title, "-" * len(title), "", ".. argparse::", f"   :module: {module}",
+                          f"   :func: {func}", f"   :prog: {prog}", f"   :path: {name}"]
+                raw = issubclass(sub.formatter_class, argparse.RawDescriptionHelpFormatter)
+                if raw and sub.epilog:
+                    lines += ["   :noepilog:", "", ".. code-block:: text", ""]
+                    lines += ["   " + line for line in sub.epilog.splitlines()]
+                lines.append("")
+        return self.parse_text_to_nodes("\n".join(lines), allow_section_headings=True)
+
+
 def setup(app: Sphinx) -> dict[str, object]:
     app.add_directive("if-exists", IfExists)
     app.add_directive("if-missing", IfMissing)
+    app.add_directive("cli-subcommands", CliSubcommands)
+    app.connect("source-read", _outside_links)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
