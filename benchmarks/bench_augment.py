@@ -57,14 +57,18 @@ SETTINGS: dict[str, dict[str, Any]] = {
 }
 
 
-def median_ms(fn: Callable[[], Any], repeats: int, per: int = 1) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
+def interleaved_ms(fns: dict[str, Callable[[], Any]], repeats: int) -> dict[str, float]:
+    """Median wall time (ms) of each callable, after a warm-up, over ``repeats`` rounds that call each in turn
+    (so that load from other processes falls on all of them alike)."""
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for fn in fns.values():
         fn()
-        times.append(time.perf_counter() - t)
-    return 1e3 * statistics.median(times) / per
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t)
+    return {name: 1e3 * statistics.median(ts) for name, ts in times.items()}
 
 
 def photo(size: int, batch: int = 1) -> Tensor:
@@ -86,13 +90,10 @@ def bench_cost(sizes: list[int], batch: int, repeats: int) -> list[dict[str, Any
         elastic = v2.ElasticTransform()
         reps = repeats if n <= 256 else max(3, repeats // 2)
         with torch.no_grad():
-            row = {
-                "size": n,
-                "elastic_ms": median_ms(partial(elastic, image), reps),
-                "ours_single_ms": median_ms(partial(ours, single), reps),
-                "ours_batch_ms": median_ms(partial(ours, many), max(2, reps // 2), per=batch),
-                "ours_tv_ms": median_ms(partial(ours_tv, image), reps),
-            }
+            ms = interleaved_ms({"elastic": partial(elastic, image), "single": partial(ours, single),
+                                 "batch": partial(ours, many), "tv": partial(ours_tv, image)}, reps)
+        row = {"size": n, "repeats": reps, "elastic_ms": ms["elastic"], "ours_single_ms": ms["single"],
+               "ours_batch_ms": ms["batch"] / batch, "ours_tv_ms": ms["tv"]}
         row["single_ratio"] = row["ours_single_ms"] / row["elastic_ms"]
         row["batch_ratio"] = row["ours_batch_ms"] / row["elastic_ms"]
         rows.append(row)

@@ -221,6 +221,41 @@ def machine() -> dict[str, Any]:
     }
 
 
+def machine_load() -> dict[str, Any]:
+    """Load average and, where the kernel has it, CPU pressure (PSI ``some avg60``: share of time that some task
+    waited for a CPU): how busy the shared machine was."""
+    out: dict[str, Any] = {"loadavg": os.getloadavg()}
+    try:
+        with open("/proc/pressure/cpu") as f:
+            fields = dict(kv.split("=") for kv in f.readline().split()[1:])
+        out["cpu_pressure_some_avg60"] = float(fields["avg60"])
+    except (OSError, KeyError, ValueError):
+        pass
+    return out
+
+
+def describe_load(load: dict[str, Any]) -> str:
+    text = "load average " + " ".join(f"{x:.2f}" for x in load["loadavg"])
+    if "cpu_pressure_some_avg60" in load:
+        text += f", CPU pressure {load['cpu_pressure_some_avg60']:.0f}% (some, avg60)"
+    return text
+
+
+def source_fingerprint() -> str:
+    """sha256 (12 hex digits) of the installed ``torchfluidwarp`` sources: ties the figures to a code state."""
+    import hashlib
+    import pathlib
+
+    import torchfluidwarp
+
+    root = pathlib.Path(torchfluidwarp.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
 def table(headers: list[str], rows: list[list[str]]) -> str:
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
     line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
@@ -337,10 +372,13 @@ def main(argv: list[str] | None = None) -> int:
 
     info = machine()
     info["threads"] = args.threads
-    info["loadavg_start"] = os.getloadavg()
+    info["load_start"] = machine_load()
+    info["sources_sha256"] = source_fingerprint()
     print(f"bench_warp: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with thread(s) "
-          f"{','.join(map(str, args.threads))}, Python {info['python']}, {info['date']}, load average "
-          f"{' '.join(f'{x:.2f}' for x in info['loadavg_start'])}" + (" [--quick]" if args.quick else ""), flush=True)
+          f"{','.join(map(str, args.threads))}, Python {info['python']}, {info['date']}"
+          + (" [--quick]" if args.quick else ""), flush=True)
+    print(f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
+          flush=True)
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
     t_start = time.perf_counter()
@@ -364,8 +402,12 @@ def main(argv: list[str] | None = None) -> int:
     text, targets = report(rows, profiles)
     print("\n" + text)
     total = time.perf_counter() - t_start
-    info["loadavg_end"] = os.getloadavg()
-    print(f"\ntotal {total:.0f} s, load average at the end {' '.join(f'{x:.2f}' for x in info['loadavg_end'])}")
+    info["load_end"] = machine_load()
+    print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
+    if source_fingerprint() != info["sources_sha256"]:
+        info["sources_changed"] = True
+        print("WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
+              "at the start; any subprocess imported the new code)")
 
     if args.json:
         result = {"machine": info, "args": vars(args), "fluid": FLUID, "brush_cells": BRUSH_CELLS,

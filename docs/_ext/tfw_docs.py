@@ -3,7 +3,8 @@
 * ``.. if-exists:: PATH`` / ``.. if-missing:: PATH``: parse the directive's content only if ``PATH``
   (relative to the repository root) exists / does not exist. Pages use them to link gallery examples and
   pages of modules that other work is still adding, without leaving a broken link when they are absent.
-  The page depends on ``PATH``, so an incremental build re-reads it when the file appears or goes.
+  The page depends on ``PATH``, so an incremental build re-reads it when the file appears or goes. The
+  content cannot hold section titles (they would nest under the current section): keep titles outside.
 * ``.. cli-subcommands:: MODULE FUNC``: the command-line page, one sphinx-argparse section per subcommand,
   with terminal-formatted epilogs shown verbatim.
 * :func:`gif_scraper`: a sphinx-gallery image scraper that picks up the GIFs an example writes into its
@@ -43,7 +44,7 @@ class _IfPath(SphinxDirective):
         self.env.note_dependency(str(path))
         if path.exists() != self.want:
             return []
-        return self.parse_content_to_nodes(allow_section_headings=True)
+        return self.parse_content_to_nodes()
 
 
 class IfExists(_IfPath):

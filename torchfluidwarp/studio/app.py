@@ -92,7 +92,10 @@ class StudioConfig:
         save_dir: folder exports may be saved into; ``None`` means exports are downloads only.
         max_upload: largest request body in bytes.
         preview_frames: frames of a morph preview (the slider's positions).
-        preview_iter: L-BFGS iterations of a warm-started preview fit (three times as many when cold).
+        preview_size: longer side in pixels at which morph previews are rendered (0 = image A's size).
+        preview_iter: L-BFGS iterations of a warm-started preview fit (five times as many when cold): a moved
+            point needs few iterations from the previous forces, and the next edit refines further.
+        preview_tolerance: pixels; a preview fit stops once every point is this close (exports use 0.05).
         export_iter: L-BFGS iterations of an export's fit.
         animate_preview_size: longer side in pixels of the animate preview.
         animate_export_size: longer side in pixels of an animate export (0 = the photo's size).
@@ -103,7 +106,9 @@ class StudioConfig:
     save_dir: Path | None = None
     max_upload: int = MAX_UPLOAD
     preview_frames: int = 9
-    preview_iter: int = 30
+    preview_size: int = 320
+    preview_iter: int = 10
+    preview_tolerance: float = 0.25
     export_iter: int = 200
     animate_preview_size: int = 320
     animate_export_size: int = 800
@@ -387,6 +392,15 @@ def _resize(image: Tensor, longest: int) -> Tensor:
     return F.interpolate(image, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
 
 
+def _rescale(points: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
+    """``points`` ``(M, 2)`` in the pixels of ``image`` ``(1, C, H, W)`` as pixels of an image of ``size`` ``(H', W')``
+    covering the same picture (pixel centres at integers: ``x' = (x + 0.5) W' / W - 0.5``)."""
+    H, W = image.shape[-2:]
+    scale = torch.tensor([size[1] / W, size[0] / H], dtype=points.dtype)
+    hi = torch.tensor([size[1] - 0.5, size[0] - 0.5], dtype=points.dtype)
+    return torch.minimum(((points + 0.5) * scale - 0.5).clamp(min=-0.5), hi)  # round-off stays inside
+
+
 def _download(data: bytes, name: str, media: str) -> Response:
     safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(name).name) or "export"
     return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{safe}"',
@@ -512,8 +526,10 @@ def create_app(
         if pa.shape[0] != pb.shape[0]:
             raise BadInput(f"points_a has {pa.shape[0]} points but points_b has {pb.shape[0]}")
         for key, p in (("a", pa), ("b", pb)):
+            if not p.numel():
+                continue
             H, W = image(key).shape[-2:]
-            if p.numel() and bool(((p < -0.5) | (p > torch.tensor([W - 0.5, H - 0.5], dtype=p.dtype))).any()):
+            if bool(((p < -0.5) | (p > torch.tensor([W - 0.5, H - 0.5], dtype=p.dtype))).any()):
                 raise BadInput(f"a point of image {key.upper()} lies outside its {W}x{H} pixels")
         return pa, pb
 
@@ -595,16 +611,22 @@ def create_app(
         ticket = worker.ticket("morph")
 
         def job() -> MorphResult:
+            # the fit costs the same at any resolution; the inverse maps and the frames cost per pixel, so the
+            # preview is rendered at about the pane's size
+            small_a = _resize(a, config.preview_size)
+            size = (small_a.shape[-2], small_a.shape[-1])
+            small_b = F.interpolate(b, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
             start = warm(key)
-            iters = config.preview_iter if start is not None else 3 * config.preview_iter
-            return morph(a[0], b[0], pa.float(), pb.float(), frames=config.preview_frames, max_iter=iters,
+            iters = config.preview_iter if start is not None else 5 * config.preview_iter
+            return morph(small_a[0], small_b[0], _rescale(pa, a, size).float(), _rescale(pb, b, size).float(),
+                         frames=config.preview_frames, max_iter=iters, tolerance=config.preview_tolerance,
                          warm_start=start, progress=False, **settings)
 
         gen, res = await anyio.to_thread.run_sync(lambda: worker.run("morph", job, ticket))
         keep_fit(key, res.fit)
         with state.lock:
             state.morph_gen, state.morph_result = gen, res
-        err = res.fit.error[0]
+        err = res.fit.error[0] * (a.shape[-1] / res.frames.shape[-1])  # in A's pixels
         return JSONResponse({
             "generation": gen,
             "frames": int(res.frames.shape[0]),
@@ -615,7 +637,7 @@ def create_app(
             "alignment": proposal(pa, pb, settings["align"]),
             "seconds": {k: round(v, 4) for k, v in res.seconds.items()},
             "server_seconds": round(time.perf_counter() - t0, 4),
-            "size": [int(res.frames.shape[-1]), int(res.frames.shape[-2])],
+            "size": [int(res.frames.shape[-1]), int(res.frames.shape[-2])],  # trajectories are in these pixels
         })
 
     async def morph_frame(request: Request) -> Response:

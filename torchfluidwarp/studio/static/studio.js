@@ -177,6 +177,7 @@
     saveDir: false,
     lastLatency: null,                    // seconds from a preview request to its frame on screen
     previews: 0,                          // previews drawn (for tests)
+    autoRefine: true,                     // keep refining the fit while the points stay put
     animPreviews: 0,
   };
   window.studio = app;
@@ -367,9 +368,14 @@
 
   // --------------------------------------------------------------------------------------- preview
 
+  // A preview fit runs a few warm-started iterations only, so that an edit shows within about a second;
+  // while the points stay put, the fit goes on from there in further short rounds (superseded by any edit).
+  const REFINE_ROUNDS = 6, REFINE_DELAY = 500, GOOD_ENOUGH = 0.5; // rounds, ms, pixels
   let previewTimer = 0;
-  function schedulePreview(delay = 150) {
+  let refineRounds = 0;
+  function schedulePreview(delay = 150, refine = false) {
     clearTimeout(previewTimer);
+    if (!refine) refineRounds = 0;
     previewTimer = setTimeout(requestPreview, delay);
   }
 
@@ -397,6 +403,11 @@
       app.lastLatency = (performance.now() - t0) / 1000;
       app.previews += 1;
       status(`preview ${app.lastLatency.toFixed(2)} s (fit ${meta.seconds.fit.toFixed(2)} s) · mean error ${meta.mean_error.toFixed(2)} px`);
+      const worst = Math.max(...meta.error);
+      if (app.autoRefine && worst > GOOD_ENOUGH && refineRounds < REFINE_ROUNDS && !morph.drag) {
+        refineRounds += 1;
+        schedulePreview(REFINE_DELAY, true);
+      }
     } catch (err) {
       if (seq === morph.seq) status('');
       report(err);
@@ -519,6 +530,8 @@
     drag: null,
     frames: [], playing: true, frame: 0, timer: 0, seq: 0, meta: null,
   };
+  app.morph = morph;
+  app.anim = anim;
   const animHistory = new History(() => ({ brushes: anim.brushes, regions: anim.regions }),
     (v) => { anim.brushes = v.brushes; anim.regions = v.regions; anim.selected = -1; animChanged(); });
 
@@ -561,13 +574,17 @@
       ctx.setLineDash([4 * s, 3 * s]);
       ctx.beginPath(); ctx.arc(cx, cy, b.radius * k, 0, 2 * Math.PI); ctx.stroke();
       ctx.setLineDash([]);
-      ctx.beginPath(); ctx.moveTo(cx, cy); ctx.lineTo(tx, ty); ctx.stroke();
-      const ang = Math.atan2(ty - cy, tx - cx), h = 8 * s;
-      ctx.beginPath();
-      ctx.moveTo(tx, ty);
-      ctx.lineTo(tx - h * Math.cos(ang - 0.5), ty - h * Math.sin(ang - 0.5));
-      ctx.lineTo(tx - h * Math.cos(ang + 0.5), ty - h * Math.sin(ang + 0.5));
-      ctx.closePath(); ctx.fillStyle = colour(i); ctx.fill();
+      const ang = Math.atan2(ty - cy, tx - cx), h = 9 * s;
+      const arrow = () => {
+        ctx.beginPath(); ctx.moveTo(cx, cy); ctx.lineTo(tx, ty);
+        ctx.moveTo(tx - h * Math.cos(ang - 0.5), ty - h * Math.sin(ang - 0.5));
+        ctx.lineTo(tx, ty);
+        ctx.lineTo(tx - h * Math.cos(ang + 0.5), ty - h * Math.sin(ang + 0.5));
+        ctx.stroke();
+      };
+      ctx.lineCap = 'round'; ctx.lineJoin = 'round';
+      ctx.strokeStyle = 'rgba(255, 255, 255, 0.9)'; ctx.lineWidth = 5 * s; arrow(); // a halo: visible on any photo
+      ctx.strokeStyle = colour(i); ctx.lineWidth = 2.5 * s; arrow();
       drawMarker(pane, b.position, i, { selected: i === anim.selected });
     });
   }
