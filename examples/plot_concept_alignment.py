@@ -54,7 +54,8 @@ for title, options in settings.items():
     error = result.fit.error[0].detach()
     print(f"{title}: point error mean {float(error.mean()):.2f} px, max {float(error.max()):.2f} px; "
           f"fastest flow {float(rollout.velocities.abs().max()):.1f} cells per step; "
-          f"fluid det in [{float(det.min()):.2f}, {float(det.max()):.2f}], folded {float((det <= 0).float().mean()):.2%}")
+          f"fluid det in [{float(det.min()):.2f}, {float(det.max()):.2f}], "
+          f"folded {float((det <= 0).float().mean()):.2%}")
 
 # %%
 # Middle frames and the fluid's area change

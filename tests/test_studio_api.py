@@ -191,6 +191,7 @@ def test_bad_morph_requests(client, bad):
     assert r.json()["error"] and "\n" not in r.json()["error"]
 
 
+@pytest.mark.slow
 def test_morph_preview_frames_and_warm_start(client):
     body = {"points_a": PA, "points_b": PB, "settings": FAST}
     r = client.post("/api/morph/preview", json=body, headers=AUTH)

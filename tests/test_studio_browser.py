@@ -209,6 +209,7 @@ def test_animate_brush_preview(browser, studio, tmp_path):
         context.close()
 
 
+@pytest.mark.slow
 def test_screenshots(browser, tmp_path):
     """Both modes on the bundled samples (downscaled so the fit is quick), saved into docs/_static."""
     from torchfluidwarp.data import load_sample, load_sample_points

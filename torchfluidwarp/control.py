@@ -225,6 +225,7 @@ def fit_keyframes(
             loss = loss + regularization * sum((p**2).sum() for p in params)
         return loss, paths
 
+    @torch.enable_grad()  # fitting works also when called under no_grad
     def closure() -> Tensor:
         nonlocal best_loss, best_state
         optimizer.zero_grad()

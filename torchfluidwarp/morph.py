@@ -170,6 +170,48 @@ def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], 
     return [out[float(s)] for s in times]
 
 
+def _render(a: Tensor, b: Tensor, fit: KeyframeFit, M: Tensor, center: Tensor, box: tuple[int, int, int, int],
+            size: tuple[int, int], roi: tuple[int, int], steps: int, n: int, inverse: InverseMethod, blend: Blend,
+            align: AlignKind | None, fit_kwargs: dict[str, Any]
+            ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
+    """Render the frames of a fitted morph (see :func:`morph`)."""
+    times = torch.linspace(0, steps, n, dtype=torch.float64)
+    time_list = [float(s) for s in times]
+    time_list[-1] = float(steps)
+    velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
+    g = _embed(backward_maps(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(0)  # (1, N, H, W, 2)
+    if inverse == "flow":
+        k_maps = list(_embed(maps_to_end(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(1))
+    else:
+        small_kwargs = {**fit_kwargs, "progress": False}
+        k_maps = list(_embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size)
+                      .unsqueeze(1))
+    t_inv = time.perf_counter()
+
+    weights = _blend_weights(times, steps, blend)
+    ident = identity_map(size, dtype=torch.float64)
+    out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
+    for k, s in enumerate(time_list):
+        Mk = interpolate_alignment(M, s / steps, center)
+        z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype)  # (1, H, W, 2) in the fluid frame
+        if align in (None, "none"):
+            map_a, k_at = g[:, k], k_maps[k]
+        else:
+            map_a, k_at = _sample_map(g[:, k], z), _sample_map(k_maps[k], z)
+        map_b = apply_alignment(M, k_at.double()).to(a.dtype)
+        fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
+        wk = float(weights[k])
+        out.append(torch.lerp(fa, fb, wk))
+        fwd.append(fa)
+        bwd.append(fb)
+        maps_a.append(map_a)
+        maps_b.append(map_b)
+    frames_t = torch.cat(out)
+    # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
+    frames_t[0], frames_t[-1] = a[0], b[0]
+    return frames_t, torch.cat(fwd), torch.cat(bwd), torch.cat(maps_a), torch.cat(maps_b), times, t_inv
+
+
 def morph(
     image_a: Tensor,
     image_b: Tensor,
@@ -253,47 +295,16 @@ def morph(
                         forces=None if warm_start is None else warm_start.forces, **fit_kwargs)
     t_fit = time.perf_counter()
 
-    times = torch.linspace(0, steps, n, dtype=torch.float64)
-    time_list = [float(s) for s in times]
-    time_list[-1] = float(steps)
-    velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
-    g = _embed(backward_maps(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(0)  # (1, N, H, W, 2)
-    if inverse == "flow":
-        k_maps = list(_embed(maps_to_end(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(1))
-    else:
-        small_kwargs = {**fit_kwargs, "progress": False}
-        k_maps = list(_embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size)
-                      .unsqueeze(1))
-    t_inv = time.perf_counter()
-
-    weights = _blend_weights(times, steps, blend)
-    ident = identity_map(size, dtype=torch.float64)
-    out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
-    for k, s in enumerate(time_list):
-        Mk = interpolate_alignment(M, s / steps, center)
-        z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype)  # (1, H, W, 2) in the fluid frame
-        if align in (None, "none"):
-            map_a, k_at = g[:, k], k_maps[k]
-        else:
-            map_a, k_at = _sample_map(g[:, k], z), _sample_map(k_maps[k], z)
-        map_b = apply_alignment(M, k_at.double()).to(a.dtype)
-        fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
-        wk = float(weights[k])
-        out.append(torch.lerp(fa, fb, wk))
-        fwd.append(fa)
-        bwd.append(fb)
-        maps_a.append(map_a)
-        maps_b.append(map_b)
-    frames_t = torch.cat(out)
-    # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-    frames_t[0], frames_t[-1] = a[0], b[0]
+    with torch.no_grad():  # the fit is done: rendering needs no graph
+        result = _render(a, b, fit, M, center, box, size, roi, steps, n, inverse, blend, align, fit_kwargs)
+    frames_t, fwd, bwd, maps_a, maps_b, times, t_inv = result
     t_render = time.perf_counter()
 
     traj = torch.stack([apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[:, t] + offset)
                         for t in range(steps + 1)], dim=1)
     fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=(traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1))
     return MorphResult(
-        frames=frames_t, forward_frames=torch.cat(fwd), backward_frames=torch.cat(bwd), maps=torch.cat(maps_a),
-        maps_b=torch.cat(maps_b), fit=fit, alignment=M, times=times,
+        frames=frames_t, forward_frames=fwd, backward_frames=bwd, maps=maps_a, maps_b=maps_b, fit=fit, alignment=M,
+        times=times,
         seconds={"fit": t_fit - t0, "inverse": t_inv - t_fit, "render": t_render - t_inv, "total": t_render - t0},
     )

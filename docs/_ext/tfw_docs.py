@@ -23,7 +23,7 @@ import shutil
 import time
 from pathlib import Path
 
-from docutils import nodes  # noqa: F401 - for the type hints
+from docutils import nodes
 from docutils.parsers.rst import directives
 from sphinx.application import Sphinx
 from sphinx.util.docutils import SphinxDirective
@@ -36,7 +36,6 @@ class _IfPath(SphinxDirective):
     has_content = True
     required_arguments = 1
     final_argument_whitespace = False
-    option_spec = {"any": directives.unchanged}
     want: bool = True
 
     def run(self) -> list[nodes.Node]:

@@ -1,0 +1,571 @@
+"""Benchmark of morphing: the fluid morph against a thin-plate-spline morph, on the bundled face pair.
+
+The pair is the bundled astronaut (a photograph of a human face) and cat (a photograph of a cat's face), both
+512 x 512, with their 23 corresponding points (:func:`torchfluidwarp.data.load_sample_points`). Everything runs
+in float32 on CPU, in one process, so every figure below comes from the same run:
+
+1. **Fluid morph** (:func:`torchfluidwarp.morph.morph`, default settings otherwise) with ``inverse="flow"`` and
+   ``inverse="paper"``, each with ``compressible=False`` and ``compressible=0.5`` (the setting recommended for
+   this pair). For each:
+
+   * **end error**: ``fit.error.mean()``, the mean distance in pixels between A's points carried to the last
+     frame and B's points (pixels of the last frame, i.e. of image B);
+   * **folded fraction**: the fraction of pixels, over all frames, where the Jacobian determinant of A's
+     backward map (``jacobian_determinant(result.maps)``) is ``<= 0``; then the same counted only over pixels
+     whose map source lies inside A's image; and the same for B's maps (``result.maps_b``);
+   * **middle-frame misalignment**: at frame ``N // 2``, where A's landmark ``i`` appears in the frame (the
+     point ``y_i`` with ``maps[mid](y_i) = a_i``, found by Newton's method on the bilinearly read map, started
+     from ``fit.trajectories`` interpolated linearly between fluid steps to the frame's fluid time), and where
+     that frame reads image B there: ``|maps_b[mid](y_i) - b_i|``, in B's pixels. "ghost px" is the same gap
+     in the frame's own pixels: the distance between ``y_i`` and the point ``z_i`` with
+     ``maps_b[mid](z_i) = b_i`` (where B's landmark appears). "traj gap" checks the maps against the point
+     trajectories: ``|y_i - trajectory_i(s_mid)|``;
+   * **time** of the whole ``N``-frame morph (wall clock around the call) and its split as ``result.seconds``
+     reports it (fit, inverse, render), medians over ``--repeats`` repeats; the fit's objective evaluations.
+
+2. **Thin-plate-spline morph** with kornia, on the same pair: for frame ``k`` (``u = k / (N - 1)``) the points
+   ``p_k = (1 - u) a + u b``; A is warped from ``a`` to ``p_k`` and B from ``b`` to ``p_k`` with
+   ``kornia.geometry.transform.get_tps_transform(p_k, a)`` and ``warp_image_tps(A, a, ...)`` (points in the
+   normalised ``align_corners=False`` frame, as kornia's Convention block requires; ``padding_mode="border"``
+   to match the fluid morph, which reads the edge pixels beyond the image), then cross-dissolved linearly. The
+   same figures as for the fluid: the end error (where A's points land in the last frame, against B's points;
+   and the spline evaluated exactly at B's points against A's points, zero by construction up to round-off),
+   the folded fractions of the TPS backward maps (evaluated with ``warp_points_tps`` on the pixel grid, the
+   same arithmetic that ``warp_image_tps`` samples through), the middle-frame misalignment and the time.
+
+3. With ``--images DIR`` the middle frames of the fluid morphs with ``compressible=0.5`` (``flow`` and
+   ``paper``) and of the TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png``
+   and ``morph_mid_tps.png``.
+
+The fluid morphs run under ``torch.no_grad()``: :func:`morph` fits its forces inside L-BFGS's closure, which
+turns grad on by itself, so the result is the same, but a plain call returns frames that still carry an autograd
+graph (checked and reported below on a tiny call), and with ``inverse="paper"`` that graph chains through all
+the one-step fits. Repeats are interleaved over the configurations so that other load on the machine affects
+them alike. Run ``python benchmarks/bench_morph.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from kornia.geometry.transform import get_tps_transform, warp_image_tps, warp_points_tps
+from torch import Tensor
+
+import torchfluidwarp
+from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.io import write_image
+from torchfluidwarp.morph import MorphResult, morph
+from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
+
+SAMPLE_A, SAMPLE_B = "astronaut", "cat"
+FLUID_CONFIGS: list[tuple[str, bool | float]] = [("flow", False), ("paper", False), ("flow", 0.5), ("paper", 0.5)]
+IMAGE_COMPRESSIBLE = 0.5  # the setting recommended for this pair: its middle frames are the ones saved
+TIME_TARGET_S = 10.0
+
+# ----------------------------------------------------------------------------------------------- inputs
+
+
+def load_pair(size: int | None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The bundled pair ``(1, 3, H, W)`` x 2 and their points ``(M, 2)`` x 2, optionally resized to ``size``."""
+    a, b = load_sample(SAMPLE_A), load_sample(SAMPLE_B)
+    pa, pb = load_sample_points(SAMPLE_A), load_sample_points(SAMPLE_B)
+    if size is not None and size != a.shape[-1]:
+        scale = size / a.shape[-1]
+        a, b = (F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False, antialias=True)
+                for x in (a, b))
+        pa, pb = ((p + 0.5) * scale - 0.5 for p in (pa, pb))  # pixel centres stay at integers
+    return a, b, pa, pb
+
+
+# ----------------------------------------------------------------------------------------------- maps
+
+
+def read_map(maps: Tensor, points: Tensor) -> Tensor:
+    """A coordinate map ``(1, H, W, 2)`` read bilinearly at ``points`` ``(M, 2)`` (pixels): ``(M, 2)`` float64."""
+    img = maps.permute(0, 3, 1, 2)  # (1, 2, H, W): the map as a 2-channel image
+    out = warp_image(img, points.to(img.dtype).view(1, 1, -1, 2))  # (1, 2, 1, M)
+    return out[0, :, 0].T.double()
+
+
+def invert_map_at(maps: Tensor, targets: Tensor, init: Tensor, iters: int = 30) -> tuple[Tensor, Tensor]:
+    """Points ``y`` ``(M, 2)`` with ``maps(y) = targets`` by Newton's method from ``init``; and ``|maps(y) - targets|``.
+
+    The Jacobian is a central difference of the bilinearly read map over half a pixel; a step is capped at 16 px.
+    """
+    y = init.double().clone()
+    h = 0.5
+    ex, ey = torch.tensor([h, 0.0], dtype=torch.float64), torch.tensor([0.0, h], dtype=torch.float64)
+    for _ in range(iters):
+        r = read_map(maps, y) - targets  # (M, 2)
+        jx = (read_map(maps, y + ex) - read_map(maps, y - ex)) / (2 * h)
+        jy = (read_map(maps, y + ey) - read_map(maps, y - ey)) / (2 * h)
+        jac = torch.stack([jx, jy], dim=-1)  # (M, 2, 2): columns d/dx, d/dy
+        ok = torch.linalg.det(jac).abs() > 1e-9
+        step = torch.zeros_like(y)
+        step[ok] = torch.linalg.solve(jac[ok], r[ok].unsqueeze(-1)).squeeze(-1)
+        norm = step.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+        y = y - step * (16.0 / norm).clamp(max=1.0)
+    return y, (read_map(maps, y) - targets).norm(dim=-1)
+
+
+@dataclass
+class FoldStats:
+    """Jacobian determinants ``<= 0`` of a stack of backward maps ``(N, H, W, 2)``."""
+
+    fraction: float  # over all pixels of all frames
+    fraction_inside: float  # over the pixels whose map source lies inside the source image
+    worst_frame_fraction: float
+    worst_frame: int
+    frames_with_folds: int
+    min_det: float
+
+
+def fold_stats(maps: Tensor) -> FoldStats:
+    H, W = maps.shape[1:3]
+    det = jacobian_determinant(maps)  # (N, H, W)
+    folded = det <= 0
+    x, y = maps[..., 0], maps[..., 1]
+    inside = (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5)
+    per_frame = folded.flatten(1).double().mean(1)
+    return FoldStats(
+        fraction=float(folded.double().mean()),
+        fraction_inside=float((folded & inside).sum() / inside.sum().clamp(min=1)),
+        worst_frame_fraction=float(per_frame.max()), worst_frame=int(per_frame.argmax()),
+        frames_with_folds=int((per_frame > 0).sum()), min_det=float(det.min()),
+    )
+
+
+@dataclass
+class Landmarks:
+    """Where the landmarks are at the middle and last frames."""
+
+    mid_frame: int
+    mid_u: float  # the frame's position in the morph, k / (N - 1)
+    mid_misalign_b_px: float  # mean |maps_b[mid](y_i) - b_i|, B's pixels
+    mid_misalign_b_px_max: float
+    mid_ghost_px: float  # mean |y_i - z_i|, frame pixels
+    end_error_px: float  # mean distance of A's points in the last frame to B's points
+    end_error_px_max: float
+    inversion_residual_px: float  # max |maps(y) - target| after Newton, for the points above
+    traj_gap_px: float | None = None  # fluid only: mean |y_i - trajectory_i(s_mid)|
+    exact_end_px: float | None = None  # TPS only: max |T_A,last(b_i) - a_i|, the spline evaluated at B's points
+
+
+def landmarks(maps: Tensor, maps_b: Tensor, pa: Tensor, pb: Tensor, init_mid: Tensor, init_end: Tensor,
+              mid: int) -> Landmarks:
+    """The middle-frame misalignment and the last-frame error of a morph, from its maps ``(N, H, W, 2)``."""
+    pa, pb = pa.double(), pb.double()
+    n = maps.shape[0]
+    y, ry = invert_map_at(maps[mid : mid + 1], pa, init_mid)  # where A's landmarks appear in the middle frame
+    z, rz = invert_map_at(maps_b[mid : mid + 1], pb, y)  # where B's landmarks appear in it
+    gap_b = (read_map(maps_b[mid : mid + 1], y) - pb).norm(dim=-1)
+    y_end, r_end = invert_map_at(maps[n - 1 :], pa, init_end)
+    end = (y_end - pb).norm(dim=-1)
+    return Landmarks(
+        mid_frame=mid, mid_u=mid / (n - 1), mid_misalign_b_px=float(gap_b.mean()),
+        mid_misalign_b_px_max=float(gap_b.max()), mid_ghost_px=float((y - z).norm(dim=-1).mean()),
+        end_error_px=float(end.mean()), end_error_px_max=float(end.max()),
+        inversion_residual_px=float(torch.cat([ry, rz, r_end]).max()),
+    )
+
+
+# ----------------------------------------------------------------------------------------------- fluid
+
+
+@dataclass
+class FluidRow:
+    """One fluid configuration."""
+
+    inverse: str
+    compressible: bool | float
+    fit_error_px: float  # fit.error.mean()
+    fit_error_px_max: float
+    fit_evaluations: int
+    fit_message: str
+    folds_a: FoldStats
+    folds_b: FoldStats
+    marks: Landmarks
+    seconds: dict[str, float] = field(default_factory=dict)  # medians: wall, fit, inverse, render, total
+    seconds_all: dict[str, list[float]] = field(default_factory=dict)
+    fit_ms_per_evaluation: float = 0.0
+    peak_rss_growth_mib: float = 0.0
+    deterministic: bool = True  # every repeat gave the same end error
+
+
+def trajectory_at(traj: Tensor, s: float) -> Tensor:
+    """Trajectories ``(1, T + 1, M, 2)`` at fluid time ``s`` (steps), linear between steps: ``(M, 2)``."""
+    T = traj.shape[1] - 1
+    lo = min(int(s), T - 1)
+    w = s - lo
+    return ((1 - w) * traj[0, lo] + w * traj[0, lo + 1]).double()
+
+
+def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Tensor, pb: Tensor) -> FluidRow:
+    n = res.frames.shape[0]
+    mid = n // 2
+    traj = res.fit.trajectories  # (1, T + 1, M, 2), frame pixels
+    s_mid = float(res.times[mid])
+    init_mid = trajectory_at(traj, s_mid)
+    marks = landmarks(res.maps, res.maps_b, pa, pb, init_mid, traj[0, -1].double(), mid)
+    y, _ = invert_map_at(res.maps[mid : mid + 1], pa.double(), init_mid)
+    marks.traj_gap_px = float((y - init_mid).norm(dim=-1).mean())
+    return FluidRow(
+        inverse=inverse, compressible=compressible, fit_error_px=float(res.fit.error.mean()),
+        fit_error_px_max=float(res.fit.error.max()), fit_evaluations=res.fit.evaluations,
+        fit_message=res.fit.message, folds_a=fold_stats(res.maps), folds_b=fold_stats(res.maps_b), marks=marks,
+    )
+
+
+def run_fluid(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, inverse: str, compressible: bool | float,
+              frames: int, max_iter: int) -> tuple[MorphResult, float]:
+    t0 = time.perf_counter()
+    with torch.no_grad():  # see the module doc: same result, no graph kept on the outputs
+        res = morph(a, b, pa, pb, frames=frames, inverse=inverse, compressible=compressible,  # type: ignore[arg-type]
+                    max_iter=max_iter, progress=False)
+    return res, time.perf_counter() - t0
+
+
+def graph_probe(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor) -> dict[str, bool]:
+    """Whether a plain ``morph`` call (grad mode on, as a user calls it) returns tensors that carry a graph."""
+    small = 64
+    s = small / a.shape[-1]
+    a2, b2 = (F.interpolate(x, size=(small, small), mode="bilinear", align_corners=False, antialias=True)
+              for x in (a, b))
+    res = morph(a2, b2, (pa + 0.5) * s - 0.5, (pb + 0.5) * s - 0.5, frames=2, max_iter=1, progress=False)
+    return {"frames": res.frames.requires_grad, "maps": res.maps.requires_grad,
+            "maps_b": res.maps_b.requires_grad}
+
+
+# ----------------------------------------------------------------------------------------------- TPS
+
+
+def to_norm(points: Tensor, size: tuple[int, int]) -> Tensor:
+    """Pixels (centres at integers) to kornia's normalised ``align_corners=False`` frame: ``(2x + 1) / W - 1``."""
+    H, W = size
+    scale = torch.tensor([2.0 / W, 2.0 / H], dtype=points.dtype)
+    return points * scale + scale / 2 - 1
+
+
+def from_norm(points: Tensor, size: tuple[int, int]) -> Tensor:
+    H, W = size
+    scale = torch.tensor([W / 2.0, H / 2.0], dtype=points.dtype)
+    return (points + 1) * scale - 0.5
+
+
+def tps_morph(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int) -> Tensor:
+    """The TPS morph ``(N, C, H, W)``: the timed path, kornia only."""
+    size = (a.shape[-2], a.shape[-1])
+    na, nb = to_norm(pa, size)[None], to_norm(pb, size)[None]  # (1, M, 2)
+    out = []
+    for k in range(frames):
+        u = k / (frames - 1)
+        nk = (1 - u) * na + u * nb
+        # kornia: weights from get_tps_transform(dst, src) and kernel centres src, for a warp from dst to src
+        kwa, awa = get_tps_transform(nk, na)
+        kwb, awb = get_tps_transform(nk, nb)
+        fa = warp_image_tps(a, na, kwa, awa, align_corners=False, padding_mode="border")
+        fb = warp_image_tps(b, nb, kwb, awb, align_corners=False, padding_mode="border")
+        out.append(torch.lerp(fa, fb, u))
+    res = torch.cat(out)
+    res[0], res[-1] = a[0], b[0]  # as the fluid morph does: the endpoints are the inputs
+    return res
+
+
+def tps_maps(pa: Tensor, pb: Tensor, size: tuple[int, int], frames: int) -> tuple[Tensor, Tensor, float]:
+    """The TPS morph's backward maps of A and B ``(N, H, W, 2)`` in pixels, and ``max |T_A,last(b) - a|`` px."""
+    H, W = size
+    na, nb = to_norm(pa, size)[None], to_norm(pb, size)[None]
+    grid = to_norm(identity_map(size).reshape(1, -1, 2), size)  # (1, H*W, 2)
+    maps_a, maps_b = [], []
+    exact = 0.0
+    for k in range(frames):
+        u = k / (frames - 1)
+        nk = (1 - u) * na + u * nb
+        kwa, awa = get_tps_transform(nk, na)
+        kwb, awb = get_tps_transform(nk, nb)
+        maps_a.append(from_norm(warp_points_tps(grid, na, kwa, awa), size).view(1, H, W, 2))
+        maps_b.append(from_norm(warp_points_tps(grid, nb, kwb, awb), size).view(1, H, W, 2))
+        if k == frames - 1:
+            at_b = from_norm(warp_points_tps(nk, na, kwa, awa), size)[0]
+            exact = float((at_b.double() - pa.double()).norm(dim=-1).max())
+    return torch.cat(maps_a), torch.cat(maps_b), exact
+
+
+@dataclass
+class TpsRow:
+    folds_a: FoldStats
+    folds_b: FoldStats
+    marks: Landmarks
+    map_check: float  # max |warp_image(A, map) - warp_image_tps(A)| at the middle frame, inside the image
+    seconds: float = 0.0  # median
+    seconds_all: list[float] = field(default_factory=list)
+    peak_rss_growth_mib: float = 0.0
+
+
+def tps_row(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int, res_frames: Tensor) -> TpsRow:
+    size = (a.shape[-2], a.shape[-1])
+    maps_a, maps_b, exact = tps_maps(pa, pb, size, frames)
+    mid = frames // 2
+    u = mid / (frames - 1)
+    pk = (1 - u) * pa.double() + u * pb.double()
+    marks = landmarks(maps_a, maps_b, pa, pb, pk, pb.double(), mid)
+    marks.exact_end_px = exact
+    # the maps are what warp_image_tps samples through: re-render the middle frame from them
+    again = torch.lerp(warp_image(a, maps_a[mid : mid + 1]), warp_image(b, maps_b[mid : mid + 1]), u)
+    check = float((again - res_frames[mid : mid + 1]).abs().max())
+    return TpsRow(folds_a=fold_stats(maps_a), folds_b=fold_stats(maps_b), marks=marks, map_check=check)
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+
+
+def _status_kib(name: str) -> float:
+    with open("/proc/self/status") as f:
+        return float(next(line.split()[1] for line in f if line.startswith(name + ":")))
+
+
+def reset_peak() -> float:
+    """Reset ``VmHWM`` to the current RSS (Linux); return the RSS in KiB (0 where unsupported)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return _status_kib("VmRSS")
+    except (OSError, StopIteration):
+        return 0.0
+
+
+def peak_growth_mib(base_kib: float) -> float:
+    try:
+        return (_status_kib("VmHWM") - base_kib) / 1024 if base_kib else float("nan")
+    except (OSError, StopIteration):
+        return float("nan")
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on."""
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    import kornia
+
+    return {
+        "cpu": model, "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(), "torch": torch.__version__, "kornia": kornia.__version__,
+        "torchfluidwarp": torchfluidwarp.__version__, "platform": platform.platform(),
+        "date": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
+
+
+def pct(x: float) -> str:
+    return f"{100 * x:.3f}%"
+
+
+def label(inverse: str, compressible: bool | float) -> str:
+    return f"fluid {inverse}, compr. {compressible if compressible is not False else 'no'}"
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+
+def report(fluid: list[FluidRow], tps: TpsRow, frames: int, size: int, probe: dict[str, bool]
+           ) -> tuple[str, dict[str, Any]]:
+    out = [f"Accuracy ({size}x{size}, {frames} frames; end = last frame, B's pixels; mid = frame "
+           f"{fluid[0].marks.mid_frame} (u = {fluid[0].marks.mid_u:.3f}))"]
+    rows = []
+    for r in fluid:
+        m = r.marks
+        rows.append([label(r.inverse, r.compressible), f"{r.fit_error_px:.3f}", f"{r.fit_error_px_max:.3f}",
+                     f"{m.end_error_px:.3f}", f"{m.mid_misalign_b_px:.3f}", f"{m.mid_misalign_b_px_max:.3f}",
+                     f"{m.mid_ghost_px:.3f}", f"{m.traj_gap_px:.3f}", f"{m.inversion_residual_px:.1e}"])
+    m = tps.marks
+    rows.append(["TPS (kornia)", "-", "-", f"{m.end_error_px:.3f}", f"{m.mid_misalign_b_px:.3f}",
+                 f"{m.mid_misalign_b_px_max:.3f}", f"{m.mid_ghost_px:.3f}", "-", f"{m.inversion_residual_px:.1e}"])
+    out.append(table(["method", "fit.error mean", "fit.error max", "end (maps) mean", "mid B-px mean",
+                      "mid B-px max", "mid ghost px", "traj gap px", "Newton res"], rows))
+    out.append(f"TPS spline at B's points vs A's points (exact by construction): max {m.exact_end_px:.2e} px; "
+               f"middle frame re-rendered from the TPS maps vs warp_image_tps: max |diff| {tps.map_check:.2e}")
+
+    out.append("\nFolds: Jacobian determinant <= 0 of the backward maps, over all frames "
+               "(inside = pixels whose map source lies inside the source image)")
+    rows = []
+    for name, fa, fb in [(label(r.inverse, r.compressible), r.folds_a, r.folds_b) for r in fluid] + [
+            ("TPS (kornia)", tps.folds_a, tps.folds_b)]:
+        rows.append([name, pct(fa.fraction), pct(fa.fraction_inside), f"{fa.frames_with_folds}/{frames}",
+                     f"{pct(fa.worst_frame_fraction)} @{fa.worst_frame}", f"{fa.min_det:.3g}",
+                     pct(fb.fraction), pct(fb.fraction_inside), f"{fb.min_det:.3g}"])
+    out.append(table(["method", "A folded", "A folded inside", "A frames", "A worst frame", "A min det",
+                      "B folded", "B folded inside", "B min det"], rows))
+
+    out.append("\nTime of a whole morph (median s; fluid split as result.seconds reports it)")
+    rows = []
+    for r in fluid:
+        s = r.seconds
+        rows.append([label(r.inverse, r.compressible), f"{s['wall']:.2f}", f"{s['fit']:.2f}", f"{s['inverse']:.2f}",
+                     f"{s['render']:.2f}", str(r.fit_evaluations), f"{r.fit_ms_per_evaluation:.0f}",
+                     f"{r.peak_rss_growth_mib:.0f}", " ".join(f"{x:.1f}" for x in r.seconds_all["wall"])])
+    rows.append(["TPS (kornia)", f"{tps.seconds:.2f}", "-", "-", f"{tps.seconds:.2f}", "-", "-",
+                 f"{tps.peak_rss_growth_mib:.0f}", " ".join(f"{x:.1f}" for x in tps.seconds_all)])
+    out.append(table(["method", "total s", "fit s", "inverse s", "render s", "fit evals", "ms/eval",
+                      "peak RSS +MiB", "all repeats s"], rows))
+    base = next(r for r in fluid if r.inverse == "flow" and r.compressible is False).seconds["wall"]
+    out.append("ratios to 'fluid flow, compr. no': " + ", ".join(
+        f"{label(r.inverse, r.compressible)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:])
+        + f", TPS {tps.seconds / base:.3f}x")
+    for r in fluid:
+        out.append(f"  {label(r.inverse, r.compressible)}: {r.fit_message}"
+                   + ("" if r.deterministic else " [repeats differed]"))
+    out.append(f"plain morph() call (grad mode on) returns tensors with requires_grad: {probe}")
+
+    targets: dict[str, Any] = {}
+    out.append("")
+    for r in fluid:
+        if r.inverse != "flow":
+            continue
+        met = r.seconds["wall"] < TIME_TARGET_S
+        targets[f"time_flow_{r.compressible}"] = {"seconds": r.seconds["wall"], "met": met}
+        out.append(f"{label(r.inverse, r.compressible)}: {frames}-frame {size}x{size} morph {r.seconds['wall']:.1f} s "
+                   f"(target: < {TIME_TARGET_S:g} s) -> {verdict(met)}")
+    for r in fluid:
+        met = r.folds_a.fraction == 0
+        targets[f"folds_{r.inverse}_{r.compressible}"] = {"fraction": r.folds_a.fraction,
+                                                          "fraction_inside": r.folds_a.fraction_inside, "met": met}
+        out.append(f"{label(r.inverse, r.compressible)}: folded fraction of A's maps {pct(r.folds_a.fraction)} "
+                   f"(inside A's image {pct(r.folds_a.fraction_inside)}) (target: 0) -> {verdict(met)}")
+    folds = tps.folds_a.fraction > 0 or tps.folds_b.fraction > 0
+    targets["tps_folds"] = {"fraction_a": tps.folds_a.fraction, "fraction_b": tps.folds_b.fraction, "folds": folds}
+    out.append(f"TPS: folded fraction A {pct(tps.folds_a.fraction)}, B {pct(tps.folds_b.fraction)} "
+               f"(expected: folds on large motions) -> {'folds seen' if folds else 'no folds seen'}")
+    return "\n".join(out), targets
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke mode: the pair at 128x128, 6 frames, 15 fit iterations, 1 repeat")
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--images", metavar="DIR", help="write the middle frames as PNGs into DIR")
+    parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; 1 with --quick)")
+    parser.add_argument("--frames", type=int, default=None, help="frames per morph (default 30; 6 with --quick)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1, as bench_fluid.py: on a small shared machine, "
+                             "multi-threaded calls stall whenever another process holds a core)")
+    args = parser.parse_args(argv)
+    size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, 200)
+    frames = args.frames if args.frames is not None else frames
+    repeats = args.repeats if args.repeats is not None else repeats
+    for name, value, low in [("--repeats", repeats, 1), ("--frames", frames, 3), ("--threads", args.threads, 1)]:
+        if value < low:
+            parser.error(f"{name} must be >= {low}, got {value}")
+
+    torch.set_num_threads(args.threads)
+    a, b, pa, pb = load_pair(size)
+    size = a.shape[-1]
+    info = machine()
+    load_before = os.getloadavg()
+    print(f"bench_morph: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
+          f"{info['torch_threads']} thread(s), kornia {info['kornia']}, Python {info['python']}, {info['date']}"
+          + (" [--quick]" if args.quick else ""), flush=True)
+    print(f"pair: {SAMPLE_A} -> {SAMPLE_B}, {size}x{size}, {pa.shape[0]} points; {frames} frames, "
+          f"{repeats} repeat(s); load average before: {' '.join(f'{x:.2f}' for x in load_before)}", flush=True)
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+
+    t_start = time.perf_counter()
+    probe = graph_probe(a, b, pa, pb)
+    tps_frames = tps_morph(a, b, pa, pb, 3)  # warm-up
+    times: dict[Any, dict[str, list[float]]] = {cfg: {} for cfg in FLUID_CONFIGS}
+    tps_times: list[float] = []
+    rows: dict[Any, FluidRow] = {}
+    tps: TpsRow | None = None
+    mids: dict[str, Tensor] = {}
+    for rep in range(repeats):
+        for inverse, compressible in FLUID_CONFIGS:
+            log(f"  repeat {rep + 1}/{repeats}: {label(inverse, compressible)} ...")
+            base = reset_peak()
+            res, wall = run_fluid(a, b, pa, pb, inverse, compressible, frames, max_iter)
+            growth = peak_growth_mib(base)
+            cfg = (inverse, compressible)
+            for k, v in {"wall": wall, **res.seconds}.items():
+                times[cfg].setdefault(k, []).append(v)
+            if rep == 0:
+                row = fluid_row(res, inverse, compressible, pa, pb)
+                row.peak_rss_growth_mib = growth
+                rows[cfg] = row
+                if compressible == IMAGE_COMPRESSIBLE:
+                    mids[f"morph_mid_fluid_{inverse}.png"] = res.frames[frames // 2].clone()
+            elif abs(float(res.fit.error.mean()) - rows[cfg].fit_error_px) > 0:
+                rows[cfg].deterministic = False
+            del res
+        log(f"  repeat {rep + 1}/{repeats}: TPS ...")
+        base = reset_peak()
+        t0 = time.perf_counter()
+        tps_frames = tps_morph(a, b, pa, pb, frames)
+        tps_times.append(time.perf_counter() - t0)
+        if rep == 0:
+            growth = peak_growth_mib(base)
+            tps = tps_row(a, b, pa, pb, frames, tps_frames)
+            tps.peak_rss_growth_mib = growth
+            mids["morph_mid_tps.png"] = tps_frames[frames // 2].clone()
+    assert tps is not None
+    tps.seconds_all, tps.seconds = tps_times, statistics.median(tps_times)
+    fluid = []
+    for cfg in FLUID_CONFIGS:
+        row = rows[cfg]
+        row.seconds_all = times[cfg]
+        row.seconds = {k: statistics.median(v) for k, v in times[cfg].items()}
+        row.fit_ms_per_evaluation = row.seconds["fit"] / max(row.fit_evaluations, 1) * 1e3
+        fluid.append(row)
+
+    text, targets = report(fluid, tps, frames, size, probe)
+    print("\n" + text)
+    load_after = os.getloadavg()
+    total = time.perf_counter() - t_start
+    print(f"\nload average after: {' '.join(f'{x:.2f}' for x in load_after)}; total {total:.0f} s")
+
+    if args.images:
+        folder = Path(args.images)
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, image in mids.items():
+            print(f"wrote {write_image(folder / name, image)}")
+    if args.json:
+        result = {"machine": info, "args": vars(args), "size": size, "frames": frames, "repeats": repeats,
+                  "max_iter": max_iter, "load_before": load_before, "load_after": load_after,
+                  "graph_probe": probe, "fluid": [asdict(r) for r in fluid], "tps": asdict(tps),
+                  "targets": targets, "total_s": total}
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(result, f, indent=2)
+        os.replace(tmp, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
