@@ -72,8 +72,9 @@ def interleaved_ms(fns: dict[str, Callable[[], Any]], repeats: int) -> dict[str,
 
 
 def photo(size: int, batch: int = 1) -> Tensor:
-    img = F.interpolate(load_sample("astronaut"), size=(size, size), mode="bilinear", antialias=True,
-                        align_corners=False)
+    img = F.interpolate(
+        load_sample("astronaut"), size=(size, size), mode="bilinear", antialias=True, align_corners=False
+    )
     return img.expand(batch, -1, -1, -1).contiguous()
 
 
@@ -90,17 +91,33 @@ def bench_cost(sizes: list[int], batch: int, repeats: int) -> list[dict[str, Any
         elastic = v2.ElasticTransform()
         reps = repeats if n <= 256 else max(3, repeats // 2)
         with torch.no_grad():
-            ms = interleaved_ms({"elastic": partial(elastic, image), "single": partial(ours, single),
-                                 "batch": partial(ours, many), "tv": partial(ours_tv, image)}, reps)
-        row = {"size": n, "repeats": reps, "elastic_ms": ms["elastic"], "ours_single_ms": ms["single"],
-               "ours_batch_ms": ms["batch"] / batch, "ours_tv_ms": ms["tv"]}
+            ms = interleaved_ms(
+                {
+                    "elastic": partial(elastic, image),
+                    "single": partial(ours, single),
+                    "batch": partial(ours, many),
+                    "tv": partial(ours_tv, image),
+                },
+                reps,
+            )
+        row = {
+            "size": n,
+            "repeats": reps,
+            "elastic_ms": ms["elastic"],
+            "ours_single_ms": ms["single"],
+            "ours_batch_ms": ms["batch"] / batch,
+            "ours_tv_ms": ms["tv"],
+        }
         row["single_ratio"] = row["ours_single_ms"] / row["elastic_ms"]
         row["batch_ratio"] = row["ours_batch_ms"] / row["elastic_ms"]
         rows.append(row)
-        print(f"{n}x{n}: ElasticTransform {row['elastic_ms']:.1f} ms/image; RandomFluidWarp single "
-              f"{row['ours_single_ms']:.1f} ms ({row['single_ratio']:.2f}x), batch of {batch} "
-              f"{row['ours_batch_ms']:.1f} ms/image ({row['batch_ratio']:.2f}x), v2 transform "
-              f"{row['ours_tv_ms']:.1f} ms", flush=True)
+        print(
+            f"{n}x{n}: ElasticTransform {row['elastic_ms']:.1f} ms/image; RandomFluidWarp single "
+            f"{row['ours_single_ms']:.1f} ms ({row['single_ratio']:.2f}x), batch of {batch} "
+            f"{row['ours_batch_ms']:.1f} ms/image ({row['batch_ratio']:.2f}x), v2 transform "
+            f"{row['ours_tv_ms']:.1f} ms",
+            flush=True,
+        )
     return rows
 
 
@@ -129,26 +146,53 @@ def bench_folds(n: int, draws: int) -> list[dict[str, Any]]:
     torch.manual_seed(SEED)  # ElasticTransform draws from torch's global RNG
     unit = {s: map_stats(elastic_maps(1.0, s, n, draws))[0] for s in (5.0, 15.0)}  # mean px per unit alpha
     mean, folded, det = map_stats(elastic_maps(50.0, 5.0, n, draws))
-    rows.append({"method": "ElasticTransform", "setting": "defaults: alpha 50, sigma 5", "mean_disp": mean,
-                 "folded": folded, "min_det": det, "retried": None})
+    rows.append(
+        {
+            "method": "ElasticTransform",
+            "setting": "defaults: alpha 50, sigma 5",
+            "mean_disp": mean,
+            "folded": folded,
+            "min_det": det,
+            "retried": None,
+        }
+    )
     for name, kw in SETTINGS.items():
         aug = RandomFluidWarp(generator=torch.Generator().manual_seed(SEED), **kw)
         params = aug.make_params(draws, (n, n))
         mean, folded, det = map_stats(fluid_warp_map(params))
         retried = float((params.force_scale < 1).double().mean())
         desc = ", ".join(f"{k} {v}" for k, v in kw.items()) or "defaults"
-        rows.append({"method": "RandomFluidWarp", "setting": desc, "mean_disp": mean, "folded": folded,
-                     "min_det": det, "retried": retried})
+        rows.append(
+            {
+                "method": "RandomFluidWarp",
+                "setting": desc,
+                "mean_disp": mean,
+                "folded": folded,
+                "min_det": det,
+                "retried": retried,
+            }
+        )
         target = mean
         for sigma in (5.0, 15.0):
             alpha = target / unit[sigma]
             m, f, d = map_stats(elastic_maps(alpha, sigma, n, draws))
-            rows.append({"method": "ElasticTransform", "setting": f"alpha {alpha:.1f}, sigma {sigma:g} (matches "
-                         f"'{name}')", "mean_disp": m, "folded": f, "min_det": d, "retried": None})
+            rows.append(
+                {
+                    "method": "ElasticTransform",
+                    "setting": f"alpha {alpha:.1f}, sigma {sigma:g} (matches '{name}')",
+                    "mean_disp": m,
+                    "folded": f,
+                    "min_det": d,
+                    "retried": None,
+                }
+            )
     for r in rows:
         extra = "" if r["retried"] is None else f", re-rolled at half force: {r['retried']:.1%} of samples"
-        print(f"{r['method']:17s} {r['setting']:62s} mean displacement {r['mean_disp']:6.2f} px, folded "
-              f"{r['folded']:.4%}, min det {r['min_det']:.3f}{extra}", flush=True)
+        print(
+            f"{r['method']:17s} {r['setting']:62s} mean displacement {r['mean_disp']:6.2f} px, folded "
+            f"{r['folded']:.4%}, min det {r['min_det']:.3f}{extra}",
+            flush=True,
+        )
     return rows
 
 
@@ -164,8 +208,9 @@ def registration_pair(n: int = 128) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         c = torch.tensor([66.0, 44.0], dtype=p.dtype) * n / 128
         d = p - c
         angle = math.radians(18.0) * torch.exp(-(d**2).sum(-1) / (2 * (22.0 * n / 128) ** 2))
-        rot = torch.stack([d[..., 0] * angle.cos() - d[..., 1] * angle.sin(),
-                           d[..., 0] * angle.sin() + d[..., 1] * angle.cos()], -1)
+        rot = torch.stack(
+            [d[..., 0] * angle.cos() - d[..., 1] * angle.sin(), d[..., 0] * angle.sin() + d[..., 1] * angle.cos()], -1
+        )
         shear = 2.0 * torch.stack([torch.sin(2 * math.pi * p[..., 1] / n), torch.sin(2 * math.pi * p[..., 0] / n)], -1)
         return c + rot + shear
 
@@ -179,29 +224,35 @@ def registration_pair(n: int = 128) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 def bench_registration(max_iter: tuple[int, ...]) -> dict[str, Any]:
     src, tgt, marks, truth = registration_pair()
     torch.optim.LBFGS([torch.zeros(1, requires_grad=True)])  # the first LBFGS in a process imports torch._dynamo
-    fit = fit_images(src, tgt, loss="ncc", grid=32, levels=(8, 16, 32), steps=8, control=(5, 5), max_iter=max_iter,
-                     progress=False)
+    fit = fit_images(
+        src, tgt, loss="ncc", grid=32, levels=(8, 16, 32), steps=8, control=(5, 5), max_iter=max_iter, progress=False
+    )
     with torch.no_grad():
         carried = fit.warp.advect_points(marks[None], fit.forces, tuple(src.shape[-2:]))[0, -1]
     row = {
-        "initial_loss": fit.initial_loss, "final_loss": fit.final_loss, "seconds": fit.seconds,
-        "evaluations": fit.evaluations, "min_det": float(fit.min_det.min()),
+        "initial_loss": fit.initial_loss,
+        "final_loss": fit.final_loss,
+        "seconds": fit.seconds,
+        "evaluations": fit.evaluations,
+        "min_det": float(fit.min_det.min()),
         "landmarks_before": float((marks - truth).norm(dim=-1).mean()),
         "landmarks_after": float((carried - truth).norm(dim=-1).mean()),
         "landmarks_after_max": float((carried - truth).norm(dim=-1).max()),
         "max_iter": list(max_iter),
     }
-    print(f"fit_images: 1 - NCC {row['initial_loss']:.4f} -> {row['final_loss']:.4f} "
-          f"({row['final_loss'] / row['initial_loss']:.1%}) in {row['seconds']:.1f} s, {row['evaluations']} "
-          f"evaluations, min det {row['min_det']:.3f}; landmark error {row['landmarks_before']:.2f} -> "
-          f"{row['landmarks_after']:.2f} px mean ({row['landmarks_after_max']:.2f} px max)", flush=True)
+    print(
+        f"fit_images: 1 - NCC {row['initial_loss']:.4f} -> {row['final_loss']:.4f} "
+        f"({row['final_loss'] / row['initial_loss']:.1%}) in {row['seconds']:.1f} s, {row['evaluations']} "
+        f"evaluations, min det {row['min_det']:.3f}; landmark error {row['landmarks_before']:.2f} -> "
+        f"{row['landmarks_after']:.2f} px mean ({row['landmarks_after_max']:.2f} px max)",
+        flush=True,
+    )
     return row
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1: see docs/benchmarks.md)")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1: see docs/benchmarks.md)")
     parser.add_argument("--batch", type=int, default=8, help="batch size of the batched RandomFluidWarp timing")
     parser.add_argument("--repeats", type=int, default=10, help="timing repeats at 224 (half at 512)")
     parser.add_argument("--draws", type=int, default=32, help="draws per setting for the fold statistics")

@@ -143,9 +143,14 @@ def time_grid(n: int, steps: int, viscosity: float, repeats: int) -> ScalingRow:
     fb_ms = statistics.median(fb) / steps * 1e3
     cells = n * n
     return ScalingRow(
-        grid=n, viscosity=viscosity, steps=steps, repeats=repeats,
-        forward_ms_per_step=f_ms, forward_backward_ms_per_step=fb_ms,
-        forward_ns_per_cell_step=f_ms * 1e6 / cells, forward_backward_ns_per_cell_step=fb_ms * 1e6 / cells,
+        grid=n,
+        viscosity=viscosity,
+        steps=steps,
+        repeats=repeats,
+        forward_ms_per_step=f_ms,
+        forward_backward_ms_per_step=fb_ms,
+        forward_ns_per_cell_step=f_ms * 1e6 / cells,
+        forward_backward_ns_per_cell_step=fb_ms * 1e6 / cells,
         backward_over_forward=fb_ms / f_ms,
         viscosity_iters_per_step=statistics.mean(i for i, _ in out.iterations),
         pressure_iters_per_step=statistics.mean(p for _, p in out.iterations),
@@ -251,9 +256,14 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
             grow_gib, elapsed = stop.args
             per_step_gib, per_step_s = grow_gib / done, elapsed / done
             fit = min(spec["mem_budget_gib"] / per_step_gib, spec["time_budget_s"] / (1.5 * per_step_s))
-            result.update(aborted=True, steps_done=done, rss_growth_gib_at_abort=grow_gib,
-                          forward_s_at_abort=elapsed, saved_gib_at_abort=saved_bytes / 2**30,
-                          steps_that_fit=max(1, int(math.floor(fit))))
+            result.update(
+                aborted=True,
+                steps_done=done,
+                rss_growth_gib_at_abort=grow_gib,
+                forward_s_at_abort=elapsed,
+                saved_gib_at_abort=saved_bytes / 2**30,
+                steps_that_fit=max(1, int(math.floor(fit))),
+            )
             return result
         t_fwd = time.perf_counter() - t_start
         t0 = time.perf_counter()
@@ -263,9 +273,11 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
         maxrss_growth_mib=(_maxrss_kib() - base_maxrss) / 1024,
         peak_measure="VmHWM" if hwm_reset else "ru_maxrss",
         peak_rss_growth_mib=((_status_kib("VmHWM") - base_now) if hwm_reset else (_maxrss_kib() - base_maxrss)) / 1024,
-        baseline_rss_mib=base_now / 1024, baseline_maxrss_mib=base_maxrss / 1024,
+        baseline_rss_mib=base_now / 1024,
+        baseline_maxrss_mib=base_maxrss / 1024,
         saved_for_backward_mib=saved_bytes / 2**20,
-        forward_s=t_fwd, backward_s=t_bwd,
+        forward_s=t_fwd,
+        backward_s=t_bwd,
         viscosity_iters_per_step=statistics.mean(i for i, _ in out.iterations),
         pressure_iters_per_step=statistics.mean(p for _, p in out.iterations),
         convergence_warnings=sum(issubclass(w.category, ConvergenceWarning) for w in caught),
@@ -276,8 +288,9 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
 
 def run_child(spec: dict[str, Any]) -> dict[str, Any]:
     """Run :func:`memory_child` in a fresh interpreter, so that its ``ru_maxrss`` is its own."""
-    proc = subprocess.run([sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)], capture_output=True, text=True
+    )
     if proc.returncode != 0:
         return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -287,11 +300,25 @@ def _ratio(a: float, b: float) -> float:
     return a / b if b > 0 else math.inf
 
 
-def memory_benchmark(n: int, steps: int, rtol: float, tight_factor: float, threads: int, mem_budget_gib: float,
-                     time_budget_s: float, unrolled_max_iter: int, log: Any) -> dict[str, Any]:
+def memory_benchmark(
+    n: int,
+    steps: int,
+    rtol: float,
+    tight_factor: float,
+    threads: int,
+    mem_budget_gib: float,
+    time_budget_s: float,
+    unrolled_max_iter: int,
+    log: Any,
+) -> dict[str, Any]:
     """Measurement 3: the adjoint against unrolled CG, and the adjoint at a tighter tolerance."""
-    base = dict(grid=n, threads=threads, mem_budget_gib=mem_budget_gib, time_budget_s=time_budget_s,
-                unrolled_max_iter=unrolled_max_iter)
+    base = dict(
+        grid=n,
+        threads=threads,
+        mem_budget_gib=mem_budget_gib,
+        time_budget_s=time_budget_s,
+        unrolled_max_iter=unrolled_max_iter,
+    )
     runs: dict[str, Any] = {}
     log(f"  memory: adjoint, {steps} steps, rtol {rtol:g} ...")
     runs["adjoint"] = run_child({**base, "steps": steps, "rtol": rtol, "backward": "implicit"})
@@ -308,8 +335,13 @@ def memory_benchmark(n: int, steps: int, rtol: float, tight_factor: float, threa
         unrolled = run_child({**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled"})
     runs["unrolled"] = unrolled
     adjoint_cmp = runs.get("adjoint_short", runs["adjoint"])
-    summary: dict[str, Any] = {"grid": n, "requested_steps": steps, "compared_steps": compare_steps, "rtol": rtol,
-                               "tight_rtol": rtol / tight_factor}
+    summary: dict[str, Any] = {
+        "grid": n,
+        "requested_steps": steps,
+        "compared_steps": compare_steps,
+        "rtol": rtol,
+        "tight_rtol": rtol / tight_factor,
+    }
     ok = not any(r.get("failed") for r in (adjoint_cmp, unrolled, runs["adjoint"], runs["adjoint_tight"]))
     if ok:
         tight, loose = runs["adjoint_tight"], runs["adjoint"]
@@ -334,8 +366,12 @@ def machine() -> dict[str, Any]:
     except (OSError, StopIteration):
         pass
     return {
-        "cpu": model, "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(), "torch": torch.__version__, "platform": platform.platform(),
+        "cpu": model,
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 
@@ -352,15 +388,41 @@ def verdict(ok: bool) -> str:
 
 def report_scaling(rows: list[ScalingRow], overhead_grid: int) -> tuple[str, dict[str, Any]]:
     out = ["Scaling (float32, CPU; median ms per step; iterations = CG iterations per step, forward)"]
-    out.append(table(
-        ["grid", "visc", "steps", "reps", "fwd ms/step", "fwd+bwd ms/step", "fwd ns/cell", "f+b ns/cell",
-         "f+b / fwd", "visc it", "pres it", "warn"],
-        [[f"{r.grid}^2", f"{r.viscosity:g}", str(r.steps), str(r.repeats), f"{r.forward_ms_per_step:.2f}",
-          f"{r.forward_backward_ms_per_step:.2f}", f"{r.forward_ns_per_cell_step:.1f}",
-          f"{r.forward_backward_ns_per_cell_step:.1f}", f"{r.backward_over_forward:.2f}",
-          f"{r.viscosity_iters_per_step:g}", f"{r.pressure_iters_per_step:g}", str(r.convergence_warnings)]
-         for r in rows],
-    ))
+    out.append(
+        table(
+            [
+                "grid",
+                "visc",
+                "steps",
+                "reps",
+                "fwd ms/step",
+                "fwd+bwd ms/step",
+                "fwd ns/cell",
+                "f+b ns/cell",
+                "f+b / fwd",
+                "visc it",
+                "pres it",
+                "warn",
+            ],
+            [
+                [
+                    f"{r.grid}^2",
+                    f"{r.viscosity:g}",
+                    str(r.steps),
+                    str(r.repeats),
+                    f"{r.forward_ms_per_step:.2f}",
+                    f"{r.forward_backward_ms_per_step:.2f}",
+                    f"{r.forward_ns_per_cell_step:.1f}",
+                    f"{r.forward_backward_ns_per_cell_step:.1f}",
+                    f"{r.backward_over_forward:.2f}",
+                    f"{r.viscosity_iters_per_step:g}",
+                    f"{r.pressure_iters_per_step:g}",
+                    str(r.convergence_warnings),
+                ]
+                for r in rows
+            ],
+        )
+    )
     grids = sorted({r.grid for r in rows})
     big, mid = grids[-1], grids[-2]
     targets: dict[str, Any] = {"per_cell": [], "overhead": []}
@@ -369,8 +431,10 @@ def report_scaling(rows: list[ScalingRow], overhead_grid: int) -> tuple[str, dic
     for mu in sorted({r.viscosity for r in rows}):
         rb = next(r for r in rows if r.grid == big and r.viscosity == mu)
         rm = next(r for r in rows if r.grid == mid and r.viscosity == mu)
-        for what, a, b in [("forward", rb.forward_ns_per_cell_step, rm.forward_ns_per_cell_step),
-                           ("fwd+bwd", rb.forward_backward_ns_per_cell_step, rm.forward_backward_ns_per_cell_step)]:
+        for what, a, b in [
+            ("forward", rb.forward_ns_per_cell_step, rm.forward_ns_per_cell_step),
+            ("fwd+bwd", rb.forward_backward_ns_per_cell_step, rm.forward_backward_ns_per_cell_step),
+        ]:
             ratio = a / b
             targets["per_cell"].append({"viscosity": mu, "pass": what, "ratio": ratio, "met": ratio <= 2.0})
             ratio_rows.append([f"{mu:g}", what, f"{a:.1f}", f"{b:.1f}", f"{ratio:.2f}", verdict(ratio <= 2.0)])
@@ -380,11 +444,19 @@ def report_scaling(rows: list[ScalingRow], overhead_grid: int) -> tuple[str, dic
     for r in rows:
         if r.grid == overhead_grid:
             met = r.backward_over_forward <= 3.0
-            targets["overhead"].append({"viscosity": r.viscosity, "steps": r.steps,
-                                        "ratio": r.backward_over_forward, "met": met})
-            oh_rows.append([f"{r.viscosity:g}", str(r.steps), f"{r.forward_ms_per_step * r.steps:.1f}",
-                            f"{r.forward_backward_ms_per_step * r.steps:.1f}", f"{r.backward_over_forward:.2f}",
-                            verdict(met)])
+            targets["overhead"].append(
+                {"viscosity": r.viscosity, "steps": r.steps, "ratio": r.backward_over_forward, "met": met}
+            )
+            oh_rows.append(
+                [
+                    f"{r.viscosity:g}",
+                    str(r.steps),
+                    f"{r.forward_ms_per_step * r.steps:.1f}",
+                    f"{r.forward_backward_ms_per_step * r.steps:.1f}",
+                    f"{r.backward_over_forward:.2f}",
+                    verdict(met),
+                ]
+            )
     out.append(table(["visc", "steps", "fwd ms", "fwd+bwd ms", "ratio", "target"], oh_rows))
     return "\n".join(out), targets
 
@@ -402,40 +474,84 @@ def report_memory(mem: dict[str, Any]) -> tuple[str, dict[str, Any]]:
             f"{s['compared_steps']} steps; the tolerance check runs on {s['requested_steps']} steps."
         )
     measure = {r.get("peak_measure") for r in runs.values() if "peak_measure" in r}
-    out.append(f"peak RSS +MiB = {'/'.join(sorted(measure))} after the backward minus RSS at the baseline; "
-               "ru_maxrss +MiB = the same with ru_maxrss (floored by the parent's RSS at launch, see the module doc)")
+    out.append(
+        f"peak RSS +MiB = {'/'.join(sorted(measure))} after the backward minus RSS at the baseline; "
+        "ru_maxrss +MiB = the same with ru_maxrss (floored by the parent's RSS at launch, see the module doc)"
+    )
     rows = []
-    order = [("adjoint_short", "adjoint (implicit)"), ("unrolled", "unrolled plain CG"),
-             ("adjoint", "adjoint (implicit)"), ("adjoint_tight", "adjoint (implicit)")]
+    order = [
+        ("adjoint_short", "adjoint (implicit)"),
+        ("unrolled", "unrolled plain CG"),
+        ("adjoint", "adjoint (implicit)"),
+        ("adjoint_tight", "adjoint (implicit)"),
+    ]
     for key, label in order:
         r = runs.get(key)
         if r is None:
             continue
         if r.get("failed"):
-            rows.append([label, str(r["steps"]), f"{r['rtol']:g}", "FAILED", f"rc {r['returncode']}",
-                         "", "", "", "", "", ""])
+            rows.append(
+                [label, str(r["steps"]), f"{r['rtol']:g}", "FAILED", f"rc {r['returncode']}", "", "", "", "", "", ""]
+            )
             continue
-        rows.append([label, str(r["steps"]), f"{r['rtol']:g}", f"{r['peak_rss_growth_mib']:.1f}",
-                     f"{r['maxrss_growth_mib']:.1f}", f"{r['saved_for_backward_mib']:.1f}", f"{r['forward_s']:.1f}",
-                     f"{r['backward_s']:.1f}",
-                     f"{r['viscosity_iters_per_step']:.1f}", f"{r['pressure_iters_per_step']:.1f}",
-                     str(r["convergence_warnings"])])
-    out.append(table(["config", "steps", "rtol", "peak RSS +MiB", "ru_maxrss +MiB", "saved MiB", "fwd s", "bwd s",
-                      "visc it", "pres it", "warn"], rows))
+        rows.append(
+            [
+                label,
+                str(r["steps"]),
+                f"{r['rtol']:g}",
+                f"{r['peak_rss_growth_mib']:.1f}",
+                f"{r['maxrss_growth_mib']:.1f}",
+                f"{r['saved_for_backward_mib']:.1f}",
+                f"{r['forward_s']:.1f}",
+                f"{r['backward_s']:.1f}",
+                f"{r['viscosity_iters_per_step']:.1f}",
+                f"{r['pressure_iters_per_step']:.1f}",
+                str(r["convergence_warnings"]),
+            ]
+        )
+    out.append(
+        table(
+            [
+                "config",
+                "steps",
+                "rtol",
+                "peak RSS +MiB",
+                "ru_maxrss +MiB",
+                "saved MiB",
+                "fwd s",
+                "bwd s",
+                "visc it",
+                "pres it",
+                "warn",
+            ],
+            rows,
+        )
+    )
     targets: dict[str, Any] = {}
     if "rss_ratio" in s:
         met = s["rss_ratio"] >= 10 and s["saved_ratio"] >= 10
-        targets["adjoint_vs_unrolled"] = {"rss_ratio": s["rss_ratio"], "saved_ratio": s["saved_ratio"], "met": met,
-                                          "steps": s["compared_steps"]}
-        out.append(f"\nunrolled / adjoint on {s['compared_steps']} steps: peak RSS growth {s['rss_ratio']:.1f}x, "
-                   f"saved for backward {s['saved_ratio']:.1f}x (target: >= 10x) -> {verdict(met)}")
+        targets["adjoint_vs_unrolled"] = {
+            "rss_ratio": s["rss_ratio"],
+            "saved_ratio": s["saved_ratio"],
+            "met": met,
+            "steps": s["compared_steps"],
+        }
+        out.append(
+            f"\nunrolled / adjoint on {s['compared_steps']} steps: peak RSS growth {s['rss_ratio']:.1f}x, "
+            f"saved for backward {s['saved_ratio']:.1f}x (target: >= 10x) -> {verdict(met)}"
+        )
         # "unchanged": within 10% on RSS (allocator noise) and within 1% on the deterministic saved bytes
         met_t = abs(s["tight_rss_ratio"] - 1) <= 0.10 and abs(s["tight_saved_ratio"] - 1) <= 0.01
-        targets["tight_tolerance"] = {"rss_ratio": s["tight_rss_ratio"], "saved_ratio": s["tight_saved_ratio"],
-                                      "met": met_t}
-        out.append(f"adjoint rtol {s['tight_rtol']:g} / rtol {s['rtol']:g} on {s['requested_steps']} steps: peak RSS "
-                   f"growth {s['tight_rss_ratio']:.2f}x, saved {s['tight_saved_ratio']:.2f}x (target: unchanged, "
-                   f"within 10% RSS / 1% saved) -> {verdict(met_t)}")
+        targets["tight_tolerance"] = {
+            "rss_ratio": s["tight_rss_ratio"],
+            "saved_ratio": s["tight_saved_ratio"],
+            "met": met_t,
+        }
+        out.append(
+            f"adjoint rtol {s['tight_rtol']:g} / rtol {s['rtol']:g} on {s['requested_steps']} steps: peak RSS "
+            f"growth {s['tight_rss_ratio']:.2f}x, saved {s['tight_saved_ratio']:.2f}x (target: unchanged, "
+            f"within 10% RSS / 1% saved) -> {verdict(met_t)}"
+        )
     else:
         out.append("a memory run failed; see the JSON for its stderr")
     return "\n".join(out), targets
@@ -445,17 +561,30 @@ def report_memory(mem: dict[str, Any]) -> tuple[str, dict[str, Any]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--quick", action="store_true", help="smoke mode: small grids, few steps and repeats")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1: on a small shared machine, multi-threaded BLAS calls "
-                             "stall for a scheduler slice whenever another process holds a core)")
-    parser.add_argument("--mem-budget-gib", type=float, default=8.0,
-                        help="projected peak RSS growth above which the unrolled memory run is shortened")
-    parser.add_argument("--time-budget-s", type=float, default=150.0,
-                        help="projected run time above which the unrolled memory run is shortened")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: on a small shared machine, multi-threaded BLAS calls "
+        "stall for a scheduler slice whenever another process holds a core)",
+    )
+    parser.add_argument(
+        "--mem-budget-gib",
+        type=float,
+        default=8.0,
+        help="projected peak RSS growth above which the unrolled memory run is shortened",
+    )
+    parser.add_argument(
+        "--time-budget-s",
+        type=float,
+        default=150.0,
+        help="projected run time above which the unrolled memory run is shortened",
+    )
     parser.add_argument("--_child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -470,12 +599,17 @@ def main(argv: list[str] | None = None) -> int:
         overhead_grid, mem = 16, dict(n=32, steps=6, mem_budget_gib=1.0, time_budget_s=20.0)
     else:
         plan = [(64, 10, 7), (256, 5, 5), (1024, 3, 3)]
-        overhead_grid, mem = 64, dict(n=256, steps=50, mem_budget_gib=args.mem_budget_gib,
-                                      time_budget_s=args.time_budget_s)
+        overhead_grid, mem = (
+            64,
+            dict(n=256, steps=50, mem_budget_gib=args.mem_budget_gib, time_budget_s=args.time_budget_s),
+        )
     info = machine()
-    print(f"bench_fluid: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
-          f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
-          + (" [--quick]" if args.quick else ""), flush=True)
+    print(
+        f"bench_fluid: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
+        f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
+        + (" [--quick]" if args.quick else ""),
+        flush=True,
+    )
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
     t0 = time.perf_counter()
@@ -487,18 +621,31 @@ def main(argv: list[str] | None = None) -> int:
     text_s, targets_s = report_scaling(rows, overhead_grid)
     print("\n" + text_s, flush=True)
 
-    memory = memory_benchmark(mem["n"], mem["steps"], rtol=1e-5, tight_factor=100.0, threads=args.threads,
-                              mem_budget_gib=mem["mem_budget_gib"], time_budget_s=mem["time_budget_s"],
-                              unrolled_max_iter=2000, log=log)
+    memory = memory_benchmark(
+        mem["n"],
+        mem["steps"],
+        rtol=1e-5,
+        tight_factor=100.0,
+        threads=args.threads,
+        mem_budget_gib=mem["mem_budget_gib"],
+        time_budget_s=mem["time_budget_s"],
+        unrolled_max_iter=2000,
+        log=log,
+    )
     text_m, targets_m = report_memory(memory)
     print("\n" + text_m)
     total = time.perf_counter() - t0
     print(f"\ntotal {total:.0f} s")
 
     if args.json:
-        result = {"machine": info, "args": {k: v for k, v in vars(args).items() if k != "_child"},
-                  "scaling": [asdict(r) for r in rows], "memory": memory,
-                  "targets": {**targets_s, **targets_m}, "total_s": total}
+        result = {
+            "machine": info,
+            "args": {k: v for k, v in vars(args).items() if k != "_child"},
+            "scaling": [asdict(r) for r in rows],
+            "memory": memory,
+            "targets": {**targets_s, **targets_m},
+            "total_s": total,
+        }
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
             json.dump(result, f, indent=2)

@@ -57,7 +57,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp.control import fit_keyframes, keyframe_loss
-from torchfluidwarp.forces import Brushes, ControlGrid
+from torchfluidwarp.forces import Brushes
 from torchfluidwarp.warp import FluidWarp
 
 FRAME = (64, 64)  # image size, pixels

@@ -56,7 +56,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
@@ -147,38 +147,63 @@ def fold_stats(maps: Tensor) -> FoldStats:
     )
 
 
+INVERT_OK_PX = 0.1  # a landmark is located in a frame when the map at the found point is this close to it
+
+
 @dataclass
 class Landmarks:
-    """Where the landmarks are at the middle and last frames."""
+    """Where the landmarks are at the middle and last frames, located in the frames through the maps.
+
+    Means and maxima are over the landmarks that Newton's method located (map residual <= ``INVERT_OK_PX``
+    source pixels); a landmark carried out of the frame, for instance, cannot be located there.
+    """
 
     mid_frame: int
     mid_u: float  # the frame's position in the morph, k / (N - 1)
+    mid_located: int  # landmarks of A located in the middle frame (of M)
     mid_misalign_b_px: float  # mean |maps_b[mid](y_i) - b_i|, B's pixels
     mid_misalign_b_px_max: float
+    ghost_located: int  # landmarks of both A and B located in the middle frame
     mid_ghost_px: float  # mean |y_i - z_i|, frame pixels
-    end_error_px: float  # mean distance of A's points in the last frame to B's points
+    end_located: int
+    end_error_px: float  # mean distance of A's landmarks, as the last frame's map shows them, to B's points
     end_error_px_max: float
-    inversion_residual_px: float  # max |maps(y) - target| after Newton, for the points above
-    traj_gap_px: float | None = None  # fluid only: mean |y_i - trajectory_i(s_mid)|
+    traj_gap_mid_px: float | None = None  # fluid only: mean |y_i - trajectory_i(s_mid)| (linear in time)
+    traj_gap_end_px: float | None = None  # fluid only: mean |y_i - trajectory_i(T)| at the last frame
+    traj_gap_end_px_max: float | None = None
     exact_end_px: float | None = None  # TPS only: max |T_A,last(b_i) - a_i|, the spline evaluated at B's points
 
 
+def _masked(values: Tensor, ok: Tensor) -> tuple[float, float]:
+    if not bool(ok.any()):
+        return float("nan"), float("nan")
+    return float(values[ok].mean()), float(values[ok].max())
+
+
 def landmarks(maps: Tensor, maps_b: Tensor, pa: Tensor, pb: Tensor, init_mid: Tensor, init_end: Tensor,
-              mid: int) -> Landmarks:
-    """The middle-frame misalignment and the last-frame error of a morph, from its maps ``(N, H, W, 2)``."""
+              mid: int) -> tuple[Landmarks, tuple[Tensor, Tensor], tuple[Tensor, Tensor]]:
+    """The middle-frame misalignment and the last-frame error of a morph, from its maps ``(N, H, W, 2)``.
+
+    Also returns where A's landmarks appear in the middle and in the last frame, each as ``(M, 2)`` points and
+    an ``(M,)`` mask of those located.
+    """
     pa, pb = pa.double(), pb.double()
     n = maps.shape[0]
     y, ry = invert_map_at(maps[mid : mid + 1], pa, init_mid)  # where A's landmarks appear in the middle frame
     z, rz = invert_map_at(maps_b[mid : mid + 1], pb, y)  # where B's landmarks appear in it
+    ok_y, ok_z = ry <= INVERT_OK_PX, rz <= INVERT_OK_PX
     gap_b = (read_map(maps_b[mid : mid + 1], y) - pb).norm(dim=-1)
     y_end, r_end = invert_map_at(maps[n - 1 :], pa, init_end)
-    end = (y_end - pb).norm(dim=-1)
-    return Landmarks(
-        mid_frame=mid, mid_u=mid / (n - 1), mid_misalign_b_px=float(gap_b.mean()),
-        mid_misalign_b_px_max=float(gap_b.max()), mid_ghost_px=float((y - z).norm(dim=-1).mean()),
-        end_error_px=float(end.mean()), end_error_px_max=float(end.max()),
-        inversion_residual_px=float(torch.cat([ry, rz, r_end]).max()),
+    ok_end = r_end <= INVERT_OK_PX
+    mis, mis_max = _masked(gap_b, ok_y)
+    ghost, _ = _masked((y - z).norm(dim=-1), ok_y & ok_z)
+    end, end_max = _masked((y_end - pb).norm(dim=-1), ok_end)
+    marks = Landmarks(
+        mid_frame=mid, mid_u=mid / (n - 1), mid_located=int(ok_y.sum()), mid_misalign_b_px=mis,
+        mid_misalign_b_px_max=mis_max, ghost_located=int((ok_y & ok_z).sum()), mid_ghost_px=ghost,
+        end_located=int(ok_end.sum()), end_error_px=end, end_error_px_max=end_max,
     )
+    return marks, (y, ok_y), (y_end, ok_end)
 
 
 # ----------------------------------------------------------------------------------------------- fluid
@@ -216,11 +241,11 @@ def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Te
     n = res.frames.shape[0]
     mid = n // 2
     traj = res.fit.trajectories  # (1, T + 1, M, 2), frame pixels
-    s_mid = float(res.times[mid])
-    init_mid = trajectory_at(traj, s_mid)
-    marks = landmarks(res.maps, res.maps_b, pa, pb, init_mid, traj[0, -1].double(), mid)
-    y, _ = invert_map_at(res.maps[mid : mid + 1], pa.double(), init_mid)
-    marks.traj_gap_px = float((y - init_mid).norm(dim=-1).mean())
+    init_mid = trajectory_at(traj, float(res.times[mid]))
+    end = traj[0, -1].double()
+    marks, (y_mid, ok_mid), (y_end, ok_end) = landmarks(res.maps, res.maps_b, pa, pb, init_mid, end, mid)
+    marks.traj_gap_mid_px, _ = _masked((y_mid - init_mid).norm(dim=-1), ok_mid)
+    marks.traj_gap_end_px, marks.traj_gap_end_px_max = _masked((y_end - end).norm(dim=-1), ok_end)
     return FluidRow(
         inverse=inverse, compressible=compressible, fit_error_px=float(res.fit.error.mean()),
         fit_error_px_max=float(res.fit.error.max()), fit_evaluations=res.fit.evaluations,
@@ -250,6 +275,9 @@ def graph_probe(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor) -> dict[str, bool]
 
 # ----------------------------------------------------------------------------------------------- TPS
 
+TpsKind = Literal["kornia", "standard"]
+TPS_KINDS: tuple[TpsKind, ...] = ("kornia", "standard")
+
 
 def to_norm(points: Tensor, size: tuple[int, int]) -> Tensor:
     """Pixels (centres at integers) to kornia's normalised ``align_corners=False`` frame: ``(2x + 1) / W - 1``."""
@@ -264,68 +292,98 @@ def from_norm(points: Tensor, size: tuple[int, int]) -> Tensor:
     return (points + 1) * scale - 0.5
 
 
-def tps_morph(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int) -> Tensor:
-    """The TPS morph ``(N, C, H, W)``: the timed path, kornia only."""
+def standard_tps(dst: Tensor, src: Tensor) -> tuple[Tensor, Tensor]:
+    """Textbook TPS weights for ``f(y) = a_0 + A y + sum_j w_j U(|y - dst_j|)`` with ``f(dst_i) = src_i``.
+
+    ``U(r) = r^2 log r``; the symmetric system ``[K P; P^T 0] [w; a] = [src; 0]`` with ``K_ij = U(|dst_i - dst_j|)``
+    is solved in float64. Same layout as kornia's weights ``(1, M, 2)`` and ``(1, 3, 2)``, with the kernel
+    centres at ``dst``, so kornia's ``warp_points_tps``/``warp_image_tps`` evaluate it unchanged.
+    """
+    d, s = dst.double(), src.double()
+    m = d.shape[1]
+    r2 = (d[:, :, None] - d[:, None]).pow(2).sum(-1)  # (1, M, M)
+    k = torch.where(r2 > 0, 0.5 * r2 * r2.clamp(min=1e-300).log(), torch.zeros_like(r2))
+    p = torch.cat([torch.ones_like(d[..., :1]), d], dim=-1)  # (1, M, 3)
+    lhs = torch.cat([torch.cat([k, p], -1), torch.cat([p.transpose(1, 2), d.new_zeros(1, 3, 3)], -1)], 1)
+    w = torch.linalg.solve(lhs, torch.cat([s, d.new_zeros(1, 3, 2)], 1))
+    return w[:, :m].to(dst.dtype), w[:, m:].to(dst.dtype)
+
+
+def tps_spline(kind: TpsKind, dst: Tensor, src: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Kernel centres, kernel weights and affine weights of a backward TPS map from ``dst`` to ``src`` (normalised).
+
+    ``"kornia"`` is kornia's documented composition for ``warp_image_tps``: ``get_tps_transform(dst, src)`` with
+    the kernel centres at ``src``; ``"standard"`` is :func:`standard_tps`, centres at ``dst``.
+    """
+    if kind == "kornia":
+        kw, aw = get_tps_transform(dst, src)
+        return src, kw, aw
+    kw, aw = standard_tps(dst, src)
+    return dst, kw, aw
+
+
+def tps_morph(kind: TpsKind, a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int) -> Tensor:
+    """The TPS morph ``(N, C, H, W)``: the timed path; kornia renders every frame."""
     size = (a.shape[-2], a.shape[-1])
     na, nb = to_norm(pa, size)[None], to_norm(pb, size)[None]  # (1, M, 2)
     out = []
     for k in range(frames):
         u = k / (frames - 1)
         nk = (1 - u) * na + u * nb
-        # kornia: weights from get_tps_transform(dst, src) and kernel centres src, for a warp from dst to src
-        kwa, awa = get_tps_transform(nk, na)
-        kwb, awb = get_tps_transform(nk, nb)
-        fa = warp_image_tps(a, na, kwa, awa, align_corners=False, padding_mode="border")
-        fb = warp_image_tps(b, nb, kwb, awb, align_corners=False, padding_mode="border")
+        fa = warp_image_tps(a, *tps_spline(kind, nk, na), align_corners=False, padding_mode="border")
+        fb = warp_image_tps(b, *tps_spline(kind, nk, nb), align_corners=False, padding_mode="border")
         out.append(torch.lerp(fa, fb, u))
     res = torch.cat(out)
     res[0], res[-1] = a[0], b[0]  # as the fluid morph does: the endpoints are the inputs
     return res
 
 
-def tps_maps(pa: Tensor, pb: Tensor, size: tuple[int, int], frames: int) -> tuple[Tensor, Tensor, float]:
+def tps_maps(kind: TpsKind, pa: Tensor, pb: Tensor, size: tuple[int, int], frames: int
+             ) -> tuple[Tensor, Tensor, float]:
     """The TPS morph's backward maps of A and B ``(N, H, W, 2)`` in pixels, and ``max |T_A,last(b) - a|`` px."""
     H, W = size
     na, nb = to_norm(pa, size)[None], to_norm(pb, size)[None]
-    grid = to_norm(identity_map(size).reshape(1, -1, 2), size)  # (1, H*W, 2)
+    grid = to_norm(identity_map(size).reshape(1, -1, 2), size)  # (1, H*W, 2): what warp_image_tps evaluates
     maps_a, maps_b = [], []
-    exact = 0.0
+    exact = float("nan")
     for k in range(frames):
         u = k / (frames - 1)
         nk = (1 - u) * na + u * nb
-        kwa, awa = get_tps_transform(nk, na)
-        kwb, awb = get_tps_transform(nk, nb)
-        maps_a.append(from_norm(warp_points_tps(grid, na, kwa, awa), size).view(1, H, W, 2))
-        maps_b.append(from_norm(warp_points_tps(grid, nb, kwb, awb), size).view(1, H, W, 2))
+        spline_a, spline_b = tps_spline(kind, nk, na), tps_spline(kind, nk, nb)
+        maps_a.append(from_norm(warp_points_tps(grid, *spline_a), size).view(1, H, W, 2))
+        maps_b.append(from_norm(warp_points_tps(grid, *spline_b), size).view(1, H, W, 2))
         if k == frames - 1:
-            at_b = from_norm(warp_points_tps(nk, na, kwa, awa), size)[0]
+            at_b = from_norm(warp_points_tps(nk, *spline_a), size)[0]
             exact = float((at_b.double() - pa.double()).norm(dim=-1).max())
     return torch.cat(maps_a), torch.cat(maps_b), exact
 
 
 @dataclass
 class TpsRow:
+    """One TPS variant."""
+
+    kind: str
     folds_a: FoldStats
     folds_b: FoldStats
     marks: Landmarks
-    map_check: float  # max |warp_image(A, map) - warp_image_tps(A)| at the middle frame, inside the image
+    map_check: float  # max |frame re-rendered through the maps - warp_image_tps frame| at the middle frame
     seconds: float = 0.0  # median
     seconds_all: list[float] = field(default_factory=list)
     peak_rss_growth_mib: float = 0.0
 
 
-def tps_row(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int, res_frames: Tensor) -> TpsRow:
+def tps_row(kind: TpsKind, a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames: int, res_frames: Tensor) -> TpsRow:
     size = (a.shape[-2], a.shape[-1])
-    maps_a, maps_b, exact = tps_maps(pa, pb, size, frames)
+    maps_a, maps_b, exact = tps_maps(kind, pa, pb, size, frames)
     mid = frames // 2
     u = mid / (frames - 1)
     pk = (1 - u) * pa.double() + u * pb.double()
-    marks = landmarks(maps_a, maps_b, pa, pb, pk, pb.double(), mid)
+    marks, _, _ = landmarks(maps_a, maps_b, pa, pb, pk, pb.double(), mid)
     marks.exact_end_px = exact
     # the maps are what warp_image_tps samples through: re-render the middle frame from them
     again = torch.lerp(warp_image(a, maps_a[mid : mid + 1]), warp_image(b, maps_b[mid : mid + 1]), u)
     check = float((again - res_frames[mid : mid + 1]).abs().max())
-    return TpsRow(folds_a=fold_stats(maps_a), folds_b=fold_stats(maps_b), marks=marks, map_check=check)
+    return TpsRow(kind=kind, folds_a=fold_stats(maps_a), folds_b=fold_stats(maps_b), marks=marks, map_check=check)
 
 
 # ----------------------------------------------------------------------------------------------- helpers

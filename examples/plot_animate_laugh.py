@@ -43,17 +43,19 @@ groups = {  # name: (landmark, phase)
     "left cheek": (15, math.pi),
     "right cheek": (16, math.pi),
 }
-forces = SumForces(*[
-    Brushes(
-        centers=points[index][None],  # (1, 2) pixels
-        directions=[[0.0, -1.0]],
-        radius=12.0,  # pixels
-        amplitude=4.5,  # pixels per time unit^2: a swing of a few pixels at this frequency
-        frequency=frequency,
-        phase=math.pi / 2 + phase,  # a cosine push: the velocity averages to zero
-    )
-    for index, phase in groups.values()
-])
+forces = SumForces(
+    *[
+        Brushes(
+            centers=points[index][None],  # (1, 2) pixels
+            directions=[[0.0, -1.0]],
+            radius=12.0,  # pixels
+            amplitude=4.5,  # pixels per time unit^2: a swing of a few pixels at this frequency
+            frequency=frequency,
+            phase=math.pi / 2 + phase,  # a cosine push: the velocity averages to zero
+        )
+        for index, phase in groups.values()
+    ]
+)
 # A uniform viscosity (cells^2 per time unit) damps the swirls between laughs.
 warp = FluidWarp(grid=(64, 64), steps=steps, dt=1.0, viscosity=2.0)
 

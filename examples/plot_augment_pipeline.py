@@ -38,8 +38,12 @@ points = (load_sample_points("astronaut") + 0.5) * N / 512 - 0.5  # (23, 2) pixe
 
 def box_around(idx, pad):
     p = points[idx]
-    return [float(p[:, 0].min()) - pad, float(p[:, 1].min()) - pad, float(p[:, 0].max()) + pad + 1,
-            float(p[:, 1].max()) + pad + 1]
+    return [
+        float(p[:, 0].min()) - pad,
+        float(p[:, 1].min()) - pad,
+        float(p[:, 0].max()) + pad + 1,
+        float(p[:, 1].max()) + pad + 1,
+    ]
 
 
 yy, xx = torch.meshgrid(torch.arange(N), torch.arange(N), indexing="ij")
@@ -47,8 +51,11 @@ nose = points[7]
 sample = {
     "image": tv_tensors.Image((photo[0] * 255).round().to(torch.uint8)),
     "mask": tv_tensors.Mask(((xx - nose[0]) ** 2 + (yy - nose[1]) ** 2 < 28.0**2).to(torch.uint8)),
-    "boxes": tv_tensors.BoundingBoxes([box_around([0, 1, 2], 4), box_around([3, 4, 5], 4),
-                                       box_around([10, 11, 12, 13], 4)], format="XYXY", canvas_size=(N, N)),
+    "boxes": tv_tensors.BoundingBoxes(
+        [box_around([0, 1, 2], 4), box_around([3, 4, 5], 4), box_around([10, 11, 12, 13], 4)],
+        format="XYXY",
+        canvas_size=(N, N),
+    ),
     "keypoints": tv_tensors.KeyPoints(points, canvas_size=(N, N)),
     "label": "astronaut",
 }
@@ -59,12 +66,20 @@ sample = {
 # A flip, the fluid warp and a dtype conversion: torchvision's own transforms and ours share one
 # ``v2.Compose``. Strength is the brushes' peak acceleration in pixels per time unit^2; the settings stay
 # within the bound that keeps every warp fold-free (``RandomFluidWarp`` refuses stronger ones).
-augment = v2.Compose([
-    v2.RandomHorizontalFlip(p=0.5),
-    RandomFluidWarp(count=(2, 4), strength=(0.4, 0.7), radius=(24.0, 48.0), steps=(6, 8), grid=32,
-                    generator=torch.Generator().manual_seed(3)),
-    v2.ToDtype(torch.float32, scale=True),
-])
+augment = v2.Compose(
+    [
+        v2.RandomHorizontalFlip(p=0.5),
+        RandomFluidWarp(
+            count=(2, 4),
+            strength=(0.4, 0.7),
+            radius=(24.0, 48.0),
+            steps=(6, 8),
+            grid=32,
+            generator=torch.Generator().manual_seed(3),
+        ),
+        v2.ToDtype(torch.float32, scale=True),
+    ]
+)
 print(augment)
 start = time.perf_counter()
 draws = [augment(sample) for _ in range(3)]
@@ -72,6 +87,7 @@ print(f"3 draws in {time.perf_counter() - start:.2f} s")
 for d in draws:
     kinds = {k: type(v).__name__ for k, v in d.items()}
     print(kinds, "mask values:", d["mask"].unique().tolist(), "canvas:", d["boxes"].canvas_size)
+
 
 # %%
 # Before and after

@@ -72,8 +72,10 @@ for k in sizes:
     n_params.append(forces.weight.numel())
     t_forward.append(timed(forward_only))
     t_gradient.append(timed(forward_backward))
-    print(f"{k:2d} x {k:<2d} control points per step: {n_params[-1]:5d} parameters, "
-          f"forward {1e3 * t_forward[-1]:6.1f} ms, forward + backward {1e3 * t_gradient[-1]:6.1f} ms")
+    print(
+        f"{k:2d} x {k:<2d} control points per step: {n_params[-1]:5d} parameters, "
+        f"forward {1e3 * t_forward[-1]:6.1f} ms, forward + backward {1e3 * t_gradient[-1]:6.1f} ms"
+    )
 
 # %%
 # Is the gradient right?
@@ -100,13 +102,24 @@ print(f"directional derivative: adjoint {adjoint:.6f}, finite difference {(plus 
 fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
 ax.plot(n_params, [1e3 * t for t in t_gradient], "o-", label="adjoint: forward + backward")
 ax.plot(n_params, [1e3 * t for t in t_forward], "s--", label="forward only")
-ax.plot(n_params, [1e3 * (p + 1) * t for p, t in zip(n_params, t_forward)], ":", color="0.4",
-        label="finite differences, estimated: (parameters + 1) forwards")
+ax.plot(
+    n_params,
+    [1e3 * (p + 1) * t for p, t in zip(n_params, t_forward)],
+    ":",
+    color="0.4",
+    label="finite differences, estimated: (parameters + 1) forwards",
+)
 for p, k in zip(n_params, sizes):
-    ax.annotate(f"{k}x{k}", (p, 1e3 * t_gradient[sizes.index(k)]), (0, 8), textcoords="offset points",
-                ha="center", fontsize=8)
-ax.set(xscale="log", yscale="log", xlabel="number of force parameters (2 x K x K x 10 steps)",
-       ylabel="time per evaluation (ms)", title="One gradient of a keyframe objective, 64 x 64 fluid, 10 steps")
+    ax.annotate(
+        f"{k}x{k}", (p, 1e3 * t_gradient[sizes.index(k)]), (0, 8), textcoords="offset points", ha="center", fontsize=8
+    )
+ax.set(
+    xscale="log",
+    yscale="log",
+    xlabel="number of force parameters (2 x K x K x 10 steps)",
+    ylabel="time per evaluation (ms)",
+    title="One gradient of a keyframe objective, 64 x 64 fluid, 10 steps",
+)
 ax.set_xticks(n_params, [str(p) for p in n_params], minor=False)
 ax.set_xticks([], minor=True)
 ax.grid(True, which="both", alpha=0.3)

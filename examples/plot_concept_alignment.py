@@ -44,18 +44,31 @@ settings = {
 }
 results = {}
 for title, options in settings.items():
-    result = morph(images["astronaut"], images["cat"], points["astronaut"], points["cat"], frames=3,
-                   grid=(32, 32), steps=10, max_iter=40, tolerance=0.25, progress=False, **options)
+    result = morph(
+        images["astronaut"],
+        images["cat"],
+        points["astronaut"],
+        points["cat"],
+        frames=3,
+        grid=(32, 32),
+        steps=10,
+        max_iter=40,
+        tolerance=0.25,
+        progress=False,
+        **options,
+    )
     with torch.no_grad():  # the fluid's own part, without the pre-alignment
         rollout = result.fit.warp.rollout(result.fit.forces, (S, S))
         fluid_map = result.fit.warp.maps(result.fit.forces)[:, -1]  # (1, S, S, 2) pixels
     det = jacobian_determinant(fluid_map)[0].float()
     results[title] = (result, det)
     error = result.fit.error[0].detach()
-    print(f"{title}: point error mean {float(error.mean()):.2f} px, max {float(error.max()):.2f} px; "
-          f"fastest flow {float(rollout.velocities.abs().max()):.1f} cells per step; "
-          f"fluid det in [{float(det.min()):.2f}, {float(det.max()):.2f}], "
-          f"folded {float((det <= 0).float().mean()):.2%}")
+    print(
+        f"{title}: point error mean {float(error.mean()):.2f} px, max {float(error.max()):.2f} px; "
+        f"fastest flow {float(rollout.velocities.abs().max()):.1f} cells per step; "
+        f"fluid det in [{float(det.min()):.2f}, {float(det.max()):.2f}], "
+        f"folded {float((det <= 0).float().mean()):.2%}"
+    )
 
 # %%
 # Middle frames and the fluid's area change
@@ -74,8 +87,9 @@ norm = LogNorm(vmin=0.25, vmax=4.0)
 for col, (title, (result, det)) in enumerate(results.items()):
     error = result.fit.error[0].detach()
     axes[0, col].imshow(result.frames[1].detach().permute(1, 2, 0).clamp(0, 1).numpy())
-    axes[0, col].set_title(f"{title}\nerror: mean {float(error.mean()):.1f} px, max {float(error.max()):.1f} px",
-                           fontsize=10)
+    axes[0, col].set_title(
+        f"{title}\nerror: mean {float(error.mean()):.1f} px, max {float(error.max()):.1f} px", fontsize=10
+    )
     im = axes[1, col].imshow(det.clamp(1e-3).numpy(), cmap="RdBu_r", norm=norm)
     axes[1, col].set_title(f"fluid det in [{float(det.min()):.2f}, {float(det.max()):.2f}]", fontsize=10)
 for ax in axes.flat:

@@ -61,10 +61,16 @@ ax_px.plot(centres[:, 0], centres[:, 1], "o", color="tab:blue", ms=5, label="pix
 ax_px.plot(*probe[0].tolist(), "*", color="tab:red", ms=14, label=f"the point {tuple(probe[0].tolist())}")
 ax_px.annotate("(0, 0)", (0, 0), (0.12, 0.3), color="tab:blue")
 ax_px.annotate("corner (-0.5, -0.5)", (-0.5, -0.5), (0.2, -0.2), arrowprops=dict(arrowstyle="->"), fontsize=9)
-ax_px.annotate(f"corner ({W - 0.5}, {H - 0.5})", (W - 0.5, H - 0.5), (W - 2.7, H - 1.45),
-               arrowprops=dict(arrowstyle="->"), fontsize=9)
-ax_px.set(xlim=(-0.5, W - 0.5), ylim=(H - 0.5, -0.5), aspect="equal",
-          title=f"pixels: image[b, c, y, x], H x W = {H} x {W}")
+ax_px.annotate(
+    f"corner ({W - 0.5}, {H - 0.5})",
+    (W - 0.5, H - 0.5),
+    (W - 2.7, H - 1.45),
+    arrowprops=dict(arrowstyle="->"),
+    fontsize=9,
+)
+ax_px.set(
+    xlim=(-0.5, W - 0.5), ylim=(H - 0.5, -0.5), aspect="equal", title=f"pixels: image[b, c, y, x], H x W = {H} x {W}"
+)
 ax_px.set_xlabel("x (pixels), to the right")
 ax_px.set_ylabel("y (pixels), down")
 top = ax_px.secondary_xaxis("top", functions=(lambda x: to_normalised(x, W), lambda u: from_normalised(u, W)))
@@ -91,25 +97,50 @@ ax_cell.plot(cx.flatten(), cy.flatten(), "s", color="tab:green", ms=7, label="ce
 for i in range(h):  # u = vel[:, 0, i, j] sits at (j - 1/2, i)
     for j in range(w + 1):
         free = bool(mask[0, i, j])
-        ax_cell.annotate("", (j - 0.5 + 0.22, i), (j - 0.5 - 0.22, i),
-                         arrowprops=dict(arrowstyle="->", lw=2, color="tab:orange" if free else "0.6"))
-        ax_cell.text(j - 0.5, i + 0.12, f"u[{i},{j}]", ha="center", va="top", fontsize=8,
-                     color="tab:orange" if free else "0.5")
+        ax_cell.annotate(
+            "",
+            (j - 0.5 + 0.22, i),
+            (j - 0.5 - 0.22, i),
+            arrowprops=dict(arrowstyle="->", lw=2, color="tab:orange" if free else "0.6"),
+        )
+        ax_cell.text(
+            j - 0.5, i + 0.12, f"u[{i},{j}]", ha="center", va="top", fontsize=8, color="tab:orange" if free else "0.5"
+        )
 for i in range(h + 1):  # v = vel[:, 1, i, j] sits at (j, i - 1/2)
     for j in range(w):
         free = bool(mask[1, i, j])
-        ax_cell.annotate("", (j, i - 0.5 + 0.22), (j, i - 0.5 - 0.22),
-                         arrowprops=dict(arrowstyle="->", lw=2, color="tab:purple" if free else "0.6"))
-        ax_cell.text(j + 0.06, i - 0.5 - 0.08, f"v[{i},{j}]", ha="left", va="bottom", fontsize=8,
-                     color="tab:purple" if free else "0.5")
-ax_cell.plot(*probe_cells[0].tolist(), "*", color="tab:red", ms=14,
-             label="the same point: ({:.2f}, {:.2f}) cells".format(*probe_cells[0].tolist()))
+        ax_cell.annotate(
+            "",
+            (j, i - 0.5 + 0.22),
+            (j, i - 0.5 - 0.22),
+            arrowprops=dict(arrowstyle="->", lw=2, color="tab:purple" if free else "0.6"),
+        )
+        ax_cell.text(
+            j + 0.06,
+            i - 0.5 - 0.08,
+            f"v[{i},{j}]",
+            ha="left",
+            va="bottom",
+            fontsize=8,
+            color="tab:purple" if free else "0.5",
+        )
+ax_cell.plot(
+    *probe_cells[0].tolist(),
+    "*",
+    color="tab:red",
+    ms=14,
+    label="the same point: ({:.2f}, {:.2f}) cells".format(*probe_cells[0].tolist()),
+)
 ax_cell.plot([], [], color="tab:orange", lw=2, label="u (x-velocity) on vertical faces")
 ax_cell.plot([], [], color="tab:purple", lw=2, label="v (y-velocity) on horizontal faces")
 ax_cell.plot([], [], color="0.6", lw=2, label="on a wall: always 0")
-ax_cell.set(xlim=(-0.75, w - 0.25), ylim=(h - 0.25, -0.75), aspect="equal",
-            title=f"fluid cells: {h} x {w} grid, staggered velocity (B, 2, {h + 1}, {w + 1})\n"
-                  "(dotted: the image's pixel edges)")
+ax_cell.set(
+    xlim=(-0.75, w - 0.25),
+    ylim=(h - 0.25, -0.75),
+    aspect="equal",
+    title=f"fluid cells: {h} x {w} grid, staggered velocity (B, 2, {h + 1}, {w + 1})\n"
+    "(dotted: the image's pixel edges)",
+)
 ax_cell.set_xlabel("x (fluid cells), to the right")
 ax_cell.set_ylabel("y (fluid cells), down")
 ax_cell.legend(loc="upper left", bbox_to_anchor=(0.0, -0.14), ncols=2, fontsize=9, frameon=False)

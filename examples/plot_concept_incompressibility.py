@@ -46,8 +46,17 @@ target = torch.cat([ring(22.0, 8, turn), ring(50.0, 8)])
 # --------------
 # :func:`~torchfluidwarp.control.fit_keyframes` finds forces that carry each source point to its target in 10
 # fluid steps; the fitted warp's last backward map says where each output pixel reads in the source.
-fit = fit_keyframes(source, target, image_size=size, grid=(32, 32), steps=10, control=(5, 5), regularization=1.0,
-                     tolerance=0.1, progress=False)
+fit = fit_keyframes(
+    source,
+    target,
+    image_size=size,
+    grid=(32, 32),
+    steps=10,
+    control=(5, 5),
+    regularization=1.0,
+    tolerance=0.1,
+    progress=False,
+)
 print(fit.message)
 with torch.no_grad():
     fluid_map = fit.warp.maps(fit.forces)[:, -1].float()  # (1, H, W, 2), pixels
@@ -80,9 +89,11 @@ tps_map = ((tps_norm + 1) / scale - 0.5).reshape(1, H, W, 2).float()  # back to 
 # ``<= 0`` where it folds.
 dets = {"fluid warp": jacobian_determinant(fluid_map)[0], "thin-plate spline": jacobian_determinant(tps_map)[0]}
 for name, det in dets.items():
-    print(f"{name:18s} det in [{float(det.min()):.3f}, {float(det.max()):.3f}], "
-          f"within 5% of 1: {float(((det - 1).abs() < 0.05).float().mean()):.1%}, "
-          f"folded: {float((det <= 0).float().mean()):.2%}")
+    print(
+        f"{name:18s} det in [{float(det.min()):.3f}, {float(det.max()):.3f}], "
+        f"within 5% of 1: {float(((det - 1).abs() < 0.05).float().mean()):.1%}, "
+        f"folded: {float((det <= 0).float().mean()):.2%}"
+    )
 
 # %%
 # Side by side
@@ -100,14 +111,15 @@ for col, name in enumerate(maps):
     det = dets[name]
     axes[0, col].imshow(warped.numpy())
     axes[0, col].scatter(*source.T, c="white", **dot, label="sources")
-    axes[0, col].scatter(*target.T, c="tab:red", marker="X", s=40, edgecolors="k", linewidths=0.5,
-                         label="targets")
+    axes[0, col].scatter(*target.T, c="tab:red", marker="X", s=40, edgecolors="k", linewidths=0.5, label="targets")
     axes[0, col].set_title(name)
     im = axes[1, col].imshow(det.numpy(), cmap="RdBu_r", norm=norm)
     if float(det.min()) <= 0:
         axes[1, col].contour(det.numpy(), levels=[0.0], colors="k", linewidths=1.2)
-    axes[1, col].set_title(f"det in [{float(det.min()):.2f}, {float(det.max()):.2f}], "
-                           f"folded {float((det <= 0).float().mean()):.1%}", fontsize=10)
+    axes[1, col].set_title(
+        f"det in [{float(det.min()):.2f}, {float(det.max()):.2f}], folded {float((det <= 0).float().mean()):.1%}",
+        fontsize=10,
+    )
 for ax in axes.flat:
     ax.set_axis_off()
 axes[0, 0].legend(loc="lower left", fontsize=8)

@@ -46,8 +46,9 @@ for i, p, q in zip(index, source, target):
 # -------
 # A 64 x 64 fluid, 10 steps, and a 5 x 5 control grid per step: the paper's 500 parameters. The fit stops
 # once every point is within ``tolerance`` pixels of its target.
-fit = fit_keyframes(source, target, image_size=(size, size), grid=(64, 64), steps=10, control=(5, 5),
-                    tolerance=0.05, progress=False)
+fit = fit_keyframes(
+    source, target, image_size=(size, size), grid=(64, 64), steps=10, control=(5, 5), tolerance=0.05, progress=False
+)
 print(fit.message)
 print(f"{fit.evaluations} objective + gradient evaluations in {fit.seconds:.1f} s")
 
@@ -61,8 +62,10 @@ with torch.no_grad():
 paths = fit.trajectories[0].detach()  # (T + 1, M, 2)
 
 fig, axes = plt.subplots(1, 2, figsize=(11, 6.2), layout="constrained")
-for ax, frame, title in [(axes[0], frames[0], "source, with the fitted trajectories"),
-                         (axes[1], frames[-1], f"frame {len(frames) - 1}: the keyframe")]:
+for ax, frame, title in [
+    (axes[0], frames[0], "source, with the fitted trajectories"),
+    (axes[1], frames[-1], f"frame {len(frames) - 1}: the keyframe"),
+]:
     ax.imshow(frame.permute(1, 2, 0).clamp(0, 1).numpy())
     ax.set_title(title)
     ax.set_axis_off()
@@ -71,8 +74,15 @@ for m in range(paths.shape[1]):
 axes[0].scatter(*source.T, s=30, c="white", edgecolors="k", zorder=3, label="source points")
 for ax in axes:
     ax.scatter(*target.T, s=60, c="tab:red", marker="x", zorder=4, label="targets")
-axes[1].scatter(*fit.points[0].detach().T, s=12, c="yellow", edgecolors="k", linewidths=0.4, zorder=5,
-                label="points carried by the fluid")
+axes[1].scatter(
+    *fit.points[0].detach().T,
+    s=12,
+    c="yellow",
+    edgecolors="k",
+    linewidths=0.4,
+    zorder=5,
+    label="points carried by the fluid",
+)
 axes[0].legend(loc="lower left", fontsize=9)
 axes[1].legend(loc="lower left", fontsize=9)
 plt.show()

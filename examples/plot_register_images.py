@@ -28,8 +28,9 @@ from torchfluidwarp.registration import fit_images
 from torchfluidwarp.warp import identity_map, warp_image
 
 N = 128
-photo = F.interpolate(load_sample("astronaut"), size=(N, N), mode="bilinear", antialias=True,
-                      align_corners=False).double()  # (1, 3, N, N)
+photo = F.interpolate(
+    load_sample("astronaut"), size=(N, N), mode="bilinear", antialias=True, align_corners=False
+).double()  # (1, 3, N, N)
 landmarks = ((load_sample_points("astronaut") + 0.5) * N / 512 - 0.5).double()  # (23, 2) pixels of the N-image
 
 
@@ -38,8 +39,9 @@ def true_backward(p: torch.Tensor) -> torch.Tensor:
     c = torch.tensor([66.0, 44.0], dtype=p.dtype)
     d = p - c
     angle = math.radians(18.0) * torch.exp(-(d**2).sum(-1) / (2 * 22.0**2))
-    rot = torch.stack([d[..., 0] * angle.cos() - d[..., 1] * angle.sin(),
-                       d[..., 0] * angle.sin() + d[..., 1] * angle.cos()], -1)
+    rot = torch.stack(
+        [d[..., 0] * angle.cos() - d[..., 1] * angle.sin(), d[..., 0] * angle.sin() + d[..., 1] * angle.cos()], -1
+    )
     shear = 2.0 * torch.stack([torch.sin(2 * math.pi * p[..., 1] / N), torch.sin(2 * math.pi * p[..., 0] / N)], -1)
     return c + rot + shear
 
@@ -54,29 +56,47 @@ def true_forward(q: torch.Tensor, iterations: int = 50) -> torch.Tensor:
 
 target = 0.8 * warp_image(photo, true_backward(identity_map((N, N), dtype=torch.float64))) + 0.1
 landmarks_target = true_forward(landmarks)
-print(f"landmarks move {float((landmarks_target - landmarks).norm(dim=-1).mean()):.2f} px on average "
-      f"(at most {float((landmarks_target - landmarks).norm(dim=-1).max()):.2f} px)")
+print(
+    f"landmarks move {float((landmarks_target - landmarks).norm(dim=-1).mean()):.2f} px on average "
+    f"(at most {float((landmarks_target - landmarks).norm(dim=-1).max()):.2f} px)"
+)
 
 # %%
 # The fit
 # -------
 # A 32 x 32 fluid at the finest level, after 8 x 8 and 16 x 16 (on 32 x 32 and 64 x 64 images), 8 steps, and a
 # 5 x 5 control grid per step.
-fit = fit_images(photo, target, loss="ncc", grid=32, levels=(8, 16, 32), steps=8, control=(5, 5),
-                 max_iter=(20, 15, 25), progress=False)
+fit = fit_images(
+    photo,
+    target,
+    loss="ncc",
+    grid=32,
+    levels=(8, 16, 32),
+    steps=8,
+    control=(5, 5),
+    max_iter=(20, 15, 25),
+    progress=False,
+)
 print(fit.message)
 for level in fit.levels:
-    print(f"  {level.grid[0]:2d}x{level.grid[1]:<2d} fluid on {level.image_size[0]:3d}px images: loss "
-          f"{level.initial_loss:.4f} -> {level.final_loss:.4f} in {level.evaluations} evaluations, "
-          f"{level.seconds:.1f} s")
+    print(
+        f"  {level.grid[0]:2d}x{level.grid[1]:<2d} fluid on {level.image_size[0]:3d}px images: loss "
+        f"{level.initial_loss:.4f} -> {level.final_loss:.4f} in {level.evaluations} evaluations, "
+        f"{level.seconds:.1f} s"
+    )
 with torch.no_grad():
     carried = fit.warp.advect_points(landmarks[None], fit.forces, (N, N))[0, -1]
 before = (landmarks - landmarks_target).norm(dim=-1)
 after = (carried - landmarks_target).norm(dim=-1)
-print(f"NCC loss {fit.initial_loss:.4f} -> {fit.final_loss:.4f}; min Jacobian determinant "
-      f"{float(fit.min_det.min()):.3f}; {fit.seconds:.1f} s")
-print(f"landmark error {float(before.mean()):.2f} px -> {float(after.mean()):.2f} px (mean), "
-      f"{float(before.max()):.2f} -> {float(after.max()):.2f} px (max)")
+print(
+    f"NCC loss {fit.initial_loss:.4f} -> {fit.final_loss:.4f}; min Jacobian determinant "
+    f"{float(fit.min_det.min()):.3f}; {fit.seconds:.1f} s"
+)
+print(
+    f"landmark error {float(before.mean()):.2f} px -> {float(after.mean()):.2f} px (mean), "
+    f"{float(before.max()):.2f} -> {float(after.max()):.2f} px (max)"
+)
+
 
 # %%
 # Source, target, result
@@ -104,8 +124,10 @@ axes[0, 2].scatter(*landmarks_target.T, s=14, c="tab:red", marker="x", label="tr
 axes[0, 2].scatter(*carried.T, s=10, c="yellow", edgecolors="k", linewidths=0.3, label="carried by the fit")
 axes[0, 2].legend(loc="lower left", fontsize=8)
 vmax = float(matched_difference(photo, target).max())
-for ax, diff, title in [(axes[1, 0], matched_difference(photo, target), "|source - target| (matched)"),
-                        (axes[1, 1], matched_difference(fit.warped.detach(), target), "|warped - target| (matched)")]:
+for ax, diff, title in [
+    (axes[1, 0], matched_difference(photo, target), "|source - target| (matched)"),
+    (axes[1, 1], matched_difference(fit.warped.detach(), target), "|warped - target| (matched)"),
+]:
     ax.imshow(diff.numpy(), cmap="magma", vmin=0, vmax=vmax)
     ax.set_title(title, fontsize=10)
     ax.set_axis_off()

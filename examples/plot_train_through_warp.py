@@ -29,8 +29,7 @@ SIZE, GRID, STEPS, CONTROL = 32, 16, 4, (4, 4)
 ITERATIONS = int(os.environ.get("TORCHFLUIDWARP_EXAMPLE_ITERATIONS", "100"))  # the test suite runs fewer
 torch.manual_seed(0)  # the network's initial weights
 gen = torch.Generator().manual_seed(0)  # the data
-yy, xx = torch.meshgrid(torch.arange(SIZE, dtype=torch.float32), torch.arange(SIZE, dtype=torch.float32),
-                        indexing="ij")
+yy, xx = torch.meshgrid(torch.arange(SIZE, dtype=torch.float32), torch.arange(SIZE, dtype=torch.float32), indexing="ij")
 
 
 def blobs(centres: torch.Tensor, sigma: float = 3.0) -> torch.Tensor:
@@ -55,10 +54,16 @@ class ForceNet(nn.Module):
     def __init__(self) -> None:
         super().__init__()
         self.body = nn.Sequential(
-            nn.Conv2d(3, 16, 3, padding=1), nn.GELU(), nn.MaxPool2d(2),
-            nn.Conv2d(16, 32, 3, padding=1), nn.GELU(), nn.MaxPool2d(2),
-            nn.Conv2d(32, 32, 3, padding=1), nn.GELU(),
-            nn.AdaptiveAvgPool2d(CONTROL), nn.Conv2d(32, STEPS * 2, 1),
+            nn.Conv2d(3, 16, 3, padding=1),
+            nn.GELU(),
+            nn.MaxPool2d(2),
+            nn.Conv2d(16, 32, 3, padding=1),
+            nn.GELU(),
+            nn.MaxPool2d(2),
+            nn.Conv2d(32, 32, 3, padding=1),
+            nn.GELU(),
+            nn.AdaptiveAvgPool2d(CONTROL),
+            nn.Conv2d(32, STEPS * 2, 1),
         )
         coords = torch.stack([xx, yy]) / (SIZE - 1) * 2 - 1
         self.register_buffer("coords", coords[None])

@@ -73,7 +73,7 @@ def test_keypoints_land_on_the_dots_they_marked():
     for b in range(2):
         for p in moved[b]:
             cx, cy = int(p[0].round()), int(p[1].round())
-            win = warped[b, 0, cy - r:cy + r + 1, cx - r:cx + r + 1]
+            win = warped[b, 0, cy - r : cy + r + 1, cx - r : cx + r + 1]
             centroid = torch.stack([(win.sum(0) * (cx + off)).sum(), (win.sum(1) * (cy + off)).sum()]) / win.sum()
             assert (centroid - p).norm() < 0.5, f"dot at {centroid.tolist()}, keypoint at {p.tolist()}"
 
@@ -82,8 +82,9 @@ def test_keypoints_are_advect_points_through_the_same_flow():
     aug = _seeded(0, count=2, strength=0.4, radius=20.0, steps=5, grid=16)
     params = aug.make_params(2, (64, 80))
     pts = torch.tensor([[[10.0, 12.0], [40.0, 30.0], [70.0, 50.0]]]).expand(2, -1, -1)
-    forces = brush_forces(params.centers, params.directions, params.amplitude, params.radius, grid=16,
-                          image_size=(64, 80), steps=5)
+    forces = brush_forces(
+        params.centers, params.directions, params.amplitude, params.radius, grid=16, image_size=(64, 80), steps=5
+    )
     expected = FluidWarp(16, 5).advect_points(pts, forces, (64, 80))[:, -1]
     assert torch.equal(params.force_scale, torch.ones(2))
     torch.testing.assert_close(carry_points(params, pts), expected)
@@ -99,15 +100,31 @@ def test_stacked_brushes_at_the_strongest_setting_do_not_fold(size, grid):
     centers = (0.2 + 0.6 * torch.rand(B, 1, 2, generator=g)).mul(torch.tensor([size[1] - 1.0, size[0] - 1.0]))
     angle = 2 * math.pi * torch.rand(B, 1, generator=g)
     directions = torch.stack([angle.cos(), angle.sin()], -1)
-    forces = brush_forces(centers.expand(B, count, 2), directions.expand(B, count, 2),
-                          torch.full((B, count), strength), torch.full((B, count), radius),
-                          grid=grid, image_size=size, steps=steps)
+    forces = brush_forces(
+        centers.expand(B, count, 2),
+        directions.expand(B, count, 2),
+        torch.full((B, count), strength),
+        torch.full((B, count), radius),
+        grid=grid,
+        image_size=size,
+        steps=steps,
+    )
     with torch.no_grad():
         vel = FluidWarp(grid, steps).rollout(forces, size).velocities
     coarse = raster_map(vel, size, 1.0)
-    params = FluidWarpParams(vel, torch.full((B,), steps), 1.0, centers, directions, torch.zeros(B, count),
-                             torch.full((B, count), radius), torch.ones(B), size, coarse,
-                             min_quad_determinant(coarse, size))
+    params = FluidWarpParams(
+        vel,
+        torch.full((B,), steps),
+        1.0,
+        centers,
+        directions,
+        torch.zeros(B, count),
+        torch.full((B, count), radius),
+        torch.ones(B),
+        size,
+        coarse,
+        min_quad_determinant(coarse, size),
+    )
     maps = fluid_warp_map(params)
     disp = (maps - identity_map(size)).norm(dim=-1)
     assert disp.amax() > 10.0  # a strong push

@@ -85,8 +85,9 @@ def test_one_draw_serves_all_inputs_of_a_call():
 
 @pytest.mark.parametrize("fmt", ["XYWH", "CXCYWH"])
 def test_any_box_format_matches_the_xyxy_result(fmt):
-    boxes = tv_tensors.BoundingBoxes([[6.0, 8.0, 30.0, 40.0], [40.0, 20.0, 74.0, 58.0]], format="XYXY",
-                                     canvas_size=(H, W))
+    boxes = tv_tensors.BoundingBoxes(
+        [[6.0, 8.0, 30.0, 40.0], [40.0, 20.0, 74.0, 58.0]], format="XYXY", canvas_size=(H, W)
+    )
     other = v2.ConvertBoundingBoxFormat(fmt)(boxes)
     image = tv_tensors.Image(torch.zeros(1, H, W))
     _, ref = _warp(2)(image, boxes)
@@ -155,7 +156,9 @@ def test_pickles_and_runs_in_a_dataloader_with_two_workers():
 
 @pytest.mark.slow  # a fresh interpreter imports torch: about 10 s on 2 busy cores
 def test_torchvision_is_imported_only_when_asked_for():
-    code = ("import sys, torchfluidwarp.augment as a; assert 'torchvision' not in sys.modules; "
-            "a.RandomFluidWarpV2; assert 'torchvision' in sys.modules")
+    code = (
+        "import sys, torchfluidwarp.augment as a; assert 'torchvision' not in sys.modules; "
+        "a.RandomFluidWarpV2; assert 'torchvision' in sys.modules"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
     assert torchfluidwarp.augment.RandomFluidWarpV2 is RandomFluidWarp

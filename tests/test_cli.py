@@ -77,10 +77,14 @@ def test_missing_image(tmp_path, capsys):
     [
         ('{"steps": 4,}', ["not valid JSON", "line 1"]),
         ('{"stpes": 4}', ["unknown key 'stpes'"]),
-        ('{"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": 3, "amplitude": 1, "freq": 1}]}',
-         ["brushes[0]", "unknown key 'freq'"]),
-        ('{"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": -3, "amplitude": 1}]}',
-         ["brushes[0].radius", "-3"]),
+        (
+            '{"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": 3, "amplitude": 1, "freq": 1}]}',
+            ["brushes[0]", "unknown key 'freq'"],
+        ),
+        (
+            '{"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": -3, "amplitude": 1}]}',
+            ["brushes[0].radius", "-3"],
+        ),
         ('{"viscosity": {"regions": [{"position": [1], "radius": 3, "value": 1}]}}', ["viscosity.regions[0].position"]),
         ('{"steps": 2.5}', ["steps", "2.5"]),
         ('{"grid": [16]}', ["grid"]),
@@ -100,8 +104,10 @@ def test_bad_brush_exits_2(tmp_path, image, capsys, brush):
     one_line_error(capsys, "--brush")
 
 
-@pytest.mark.parametrize("options", [["--steps", "0"], ["--fps", "-1"], ["--grid", "8", "8", "8"],
-                                     ["--max-size", "x"], ["--viscosity", "-0.5"]])
+@pytest.mark.parametrize(
+    "options",
+    [["--steps", "0"], ["--fps", "-1"], ["--grid", "8", "8", "8"], ["--max-size", "x"], ["--viscosity", "-0.5"]],
+)
 def test_bad_options_exit_2(tmp_path, image, capsys, options):
     assert main(["animate", str(image), "-o", str(tmp_path / "a.gif"), "--brush", BRUSH, *options]) == 2
     one_line_error(capsys)
@@ -118,8 +124,9 @@ def test_mp4_without_ffmpeg_exits_2_before_rendering(tmp_path, image, capsys, mo
     import importlib.util
 
     find_spec = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "imageio_ffmpeg" else
-                        find_spec(name, *a))
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "imageio_ffmpeg" else find_spec(name, *a)
+    )
     assert animate(image, tmp_path / "a.mp4") == 2
     one_line_error(capsys, "imageio-ffmpeg")
     assert list(tmp_path.iterdir()) == [image]
@@ -130,11 +137,23 @@ def test_config_file_and_command_line_override(tmp_path, image):
     mask[:, :, :16] = 1.0
     write_image(tmp_path / "stiff.png", mask)
     config = tmp_path / "forces.json"
-    config.write_text(json.dumps({
-        "brushes": [{"position": [24, 24], "direction": [0, 1], "radius": 8, "frequency": 0.1, "amplitude": 0.8}],
-        "viscosity": {"base": 0.1, "regions": [{"position": [40, 8], "radius": 5, "value": 2}], "mask": "stiff.png"},
-        "grid": [12, 16], "steps": 3, "fps": 5,
-    }))
+    config.write_text(
+        json.dumps(
+            {
+                "brushes": [
+                    {"position": [24, 24], "direction": [0, 1], "radius": 8, "frequency": 0.1, "amplitude": 0.8}
+                ],
+                "viscosity": {
+                    "base": 0.1,
+                    "regions": [{"position": [40, 8], "radius": 5, "value": 2}],
+                    "mask": "stiff.png",
+                },
+                "grid": [12, 16],
+                "steps": 3,
+                "fps": 5,
+            }
+        )
+    )
     out = tmp_path / "anim.gif"
     assert main(["animate", str(image), "-o", str(out), "--config", str(config), "--steps", "4", "--quiet"]) == 0
     assert iio.imread(out, index=None).shape[0] == 5  # --steps beat the file's 3
@@ -156,9 +175,12 @@ def test_max_size_downscales_and_keeps_brushes_in_place(tmp_path, image):
 
 
 def test_brush_values_match_json():
-    assert brush_from_values([1, 2, 0, 1, 5, 0.1, 0.5]) == parse_config(
-        {"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": 5, "frequency": 0.1, "amplitude": 0.5}]}
-    ).brushes[0]
+    assert (
+        brush_from_values([1, 2, 0, 1, 5, 0.1, 0.5])
+        == parse_config(
+            {"brushes": [{"position": [1, 2], "direction": [0, 1], "radius": 5, "frequency": 0.1, "amplitude": 0.5}]}
+        ).brushes[0]
+    )
 
 
 @pytest.mark.parametrize("command", ["animate", "demo", "morph", "studio"])
@@ -174,7 +196,8 @@ def test_help_exits_0(capsys):
 
 
 def test_console_entry_point():
-    done = subprocess.run([sys.executable, "-m", "torchfluidwarp.cli", "--help"], capture_output=True, text=True,
-                          timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "torchfluidwarp.cli", "--help"], capture_output=True, text=True, timeout=120
+    )
     assert done.returncode == 0, done.stderr
     assert "animate" in done.stdout and "morph" in done.stdout

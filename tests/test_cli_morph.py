@@ -22,8 +22,25 @@ def pair(tmp_path, gen):
 def test_morph_writes_the_expected_frames(pair, tmp_path):
     a, b, pa, pb = pair
     out = tmp_path / "m.gif"
-    assert main(["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "-o", str(out),
-                 "--frames", "5", *FAST]) == 0
+    assert (
+        main(
+            [
+                "morph",
+                str(a),
+                str(b),
+                "--points-a",
+                str(pa),
+                "--points-b",
+                str(pb),
+                "-o",
+                str(out),
+                "--frames",
+                "5",
+                *FAST,
+            ]
+        )
+        == 0
+    )
     frames = iio.imread(out, index=None)
     assert frames.shape[0] == 5 and frames.shape[1:3] == (40, 48)
 
@@ -31,8 +48,23 @@ def test_morph_writes_the_expected_frames(pair, tmp_path):
 def test_morph_bad_inputs_exit_2(pair, tmp_path, capsys):
     a, b, pa, pb = pair
     out = str(tmp_path / "m.gif")
-    assert main(["morph", str(tmp_path / "missing.png"), str(b), "--points-a", str(pa), "--points-b", str(pb),
-                 "-o", out, *FAST]) == 2
+    assert (
+        main(
+            [
+                "morph",
+                str(tmp_path / "missing.png"),
+                str(b),
+                "--points-a",
+                str(pa),
+                "--points-b",
+                str(pb),
+                "-o",
+                out,
+                *FAST,
+            ]
+        )
+        == 2
+    )
     bad = tmp_path / "bad.csv"
     write_points(bad, torch.tensor([[1.0, 2.0]]))
     assert main(["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(bad), "-o", out, *FAST]) == 2

@@ -53,8 +53,9 @@ def test_two_keyframes_are_both_met():
     src = _ring(6, (24.0, 24.0), 8.0).float()
     mid = src + torch.tensor([2.0, 0.0])
     end = mid + torch.tensor([0.0, 2.0])
-    fit = fit_keyframes(src, [(3, mid), (6, end)], image_size=(48, 48), grid=24, steps=6, control=(4, 4),
-                        progress=False, tolerance=0.02)
+    fit = fit_keyframes(
+        src, [(3, mid), (6, end)], image_size=(48, 48), grid=24, steps=6, control=(4, 4), progress=False, tolerance=0.02
+    )
     for t, err in fit.keyframe_errors:
         assert err.max() <= 0.02, f"keyframe {t}: {err.max():.3f} px"
     torch.testing.assert_close(fit.trajectories[:, 3], mid[None].double(), atol=0.02, rtol=0)
@@ -62,8 +63,9 @@ def test_two_keyframes_are_both_met():
 
 def test_the_returned_warp_replays_the_fitted_forces():
     src = torch.tensor([[12.0, 14.0], [20.0, 18.0], [9.0, 22.0]])
-    fit = fit_keyframes(src, src + torch.tensor([2.0, 1.0]), image_size=(32, 32), grid=16, steps=4, control=3,
-                        progress=False)
+    fit = fit_keyframes(
+        src, src + torch.tensor([2.0, 1.0]), image_size=(32, 32), grid=16, steps=4, control=3, progress=False
+    )
     with torch.no_grad():
         replay = fit.warp.advect_points(src[None].double(), fit.forces)
         frames = fit.animate(torch.rand(1, 3, 32, 32, dtype=torch.float64))
@@ -86,14 +88,17 @@ def test_duplicate_sources_with_different_targets_end_finite_and_say_so():
     assert not fit.reached and "did not reach" in fit.message
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"source": torch.zeros(3, 2), "target": torch.zeros(4, 2)}, "source has 3 points but target"),
-    ({"source": torch.tensor([[40.0, 3.0]]), "target": torch.zeros(1, 2)}, "source has a point outside the 32x32"),
-    ({"source": torch.tensor([[float("nan"), 3.0]]), "target": torch.zeros(1, 2)}, "source contains non-finite"),
-    ({"source": torch.zeros(0, 2), "target": torch.zeros(0, 2)}, "M >= 1"),
-    ({"source": torch.zeros(1, 2), "target": torch.zeros(1, 2), "steps": 0}, "steps must be >= 1"),
-    ({"source": torch.zeros(1, 2), "target": [(9, torch.zeros(1, 2))], "steps": 4}, "time_step must be in 1..4"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"source": torch.zeros(3, 2), "target": torch.zeros(4, 2)}, "source has 3 points but target"),
+        ({"source": torch.tensor([[40.0, 3.0]]), "target": torch.zeros(1, 2)}, "source has a point outside the 32x32"),
+        ({"source": torch.tensor([[float("nan"), 3.0]]), "target": torch.zeros(1, 2)}, "source contains non-finite"),
+        ({"source": torch.zeros(0, 2), "target": torch.zeros(0, 2)}, "M >= 1"),
+        ({"source": torch.zeros(1, 2), "target": torch.zeros(1, 2), "steps": 0}, "steps must be >= 1"),
+        ({"source": torch.zeros(1, 2), "target": [(9, torch.zeros(1, 2))], "steps": 4}, "time_step must be in 1..4"),
+    ],
+)
 def test_bad_inputs(kwargs, match):
     args = {"image_size": (32, 32), "grid": 8, "steps": 4, "progress": False, **kwargs}
     with pytest.raises(ValueError, match=match):

@@ -2,8 +2,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import gradcheck64
+
 from torchfluidwarp import fluid
 from torchfluidwarp.grid import FluidGrid, interior_mask
 from torchfluidwarp.linalg import CGConfig
@@ -108,15 +108,20 @@ def test_points_follow_a_uniform_flow(gen):
     v[0, 0, :h, 1:w] = 0.5
     pts = torch.tensor([[[5.0, 4.0], [8.3, 10.7]]], dtype=torch.float64)
     torch.testing.assert_close(fluid.advect_points(pts, v, 2.0), pts + torch.tensor([1.0, 0.0], dtype=torch.float64))
-    torch.testing.assert_close(fluid.sample_velocity(v, pts), torch.tensor([[[0.5, 0.0], [0.5, 0.0]]], dtype=torch.float64))
+    torch.testing.assert_close(
+        fluid.sample_velocity(v, pts), torch.tensor([[[0.5, 0.0], [0.5, 0.0]]], dtype=torch.float64)
+    )
 
 
-@pytest.mark.parametrize("fn", [
-    lambda v: fluid.advect_velocity(v, 1.0),
-    lambda v: fluid.advect(torch.zeros(1, 1, 8, 8), v, 1.0),
-    lambda v: fluid.advect_points(torch.zeros(1, 3, 2), v, 1.0),
-    lambda v: fluid.sample_velocity(v, torch.zeros(1, 3, 2)),
-])
+@pytest.mark.parametrize(
+    "fn",
+    [
+        lambda v: fluid.advect_velocity(v, 1.0),
+        lambda v: fluid.advect(torch.zeros(1, 1, 8, 8), v, 1.0),
+        lambda v: fluid.advect_points(torch.zeros(1, 3, 2), v, 1.0),
+        lambda v: fluid.sample_velocity(v, torch.zeros(1, 3, 2)),
+    ],
+)
 def test_nan_velocity_is_a_python_error_not_a_crash(fn):
     v = torch.zeros(1, 2, 9, 9)
     v[0, 0, 3, 3] = float("nan")
@@ -136,13 +141,16 @@ def test_grid_sample_guard_refuses_non_finite_grids():
         fluid.grid_sample_checked(torch.zeros(1, 1, 4, 4), grid)
 
 
-@pytest.mark.parametrize("bad,match", [
-    (-0.1, "viscosity must be finite and >= 0"),
-    (float("nan"), "viscosity must be finite"),
-    (torch.full((1, 1, 8, 8), -1.0), "viscosity must be >= 0"),
-    (torch.zeros(1, 1, 4, 4), r"viscosity must be a float or a field of shape"),
-    (torch.full((1, 1, 8, 8), float("inf")), "viscosity contains non-finite"),
-])
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        (-0.1, "viscosity must be finite and >= 0"),
+        (float("nan"), "viscosity must be finite"),
+        (torch.full((1, 1, 8, 8), -1.0), "viscosity must be >= 0"),
+        (torch.zeros(1, 1, 4, 4), r"viscosity must be a float or a field of shape"),
+        (torch.full((1, 1, 8, 8), float("inf")), "viscosity contains non-finite"),
+    ],
+)
 def test_bad_viscosity(bad, match):
     with pytest.raises(ValueError, match=match):
         fluid.check_viscosity(bad, 1, (8, 8))

@@ -2,8 +2,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import gradcheck64
+
 from torchfluidwarp.forces import Brushes, CellForces, ControlGrid, SumForces, ViscosityBrushes, viscosity_from_mask
 from torchfluidwarp.grid import FluidGrid
 
@@ -15,8 +15,9 @@ def test_brush_peak_direction_and_oscillation():
     peak = f[0, 0, :, 31:33, 31:33].mean(dim=(-2, -1))
     torch.testing.assert_close(peak, torch.tensor([1.2, 1.6]) * math.exp(-0.25 / 25), atol=1e-4, rtol=0)
     # sin(2 pi 0.25 t + pi/2) = cos(pi t / 2): 1, 0, -1, 0
-    torch.testing.assert_close(f[0, :, 0, 31, 31] / f[0, 0, 0, 31, 31], torch.tensor([1.0, 0.0, -1.0, 0.0]),
-                               atol=1e-6, rtol=0)
+    torch.testing.assert_close(
+        f[0, :, 0, 31, 31] / f[0, 0, 0, 31, 31], torch.tensor([1.0, 0.0, -1.0, 0.0]), atol=1e-6, rtol=0
+    )
 
 
 def test_brush_units_follow_the_image_size():
@@ -29,8 +30,9 @@ def test_brushes_are_differentiable_in_their_parameters():
     brush = Brushes([[6.0, 5.0]], [[1.0, 0.5]], radius=3.0, amplitude=1.5, frequency=0.1).double()
 
     def fn(centers, directions, radius, amplitude, frequency, phase):
-        params = dict(centers=centers, directions=directions, radius=radius, amplitude=amplitude,
-                      frequency=frequency, phase=phase)
+        params = dict(
+            centers=centers, directions=directions, radius=radius, amplitude=amplitude, frequency=frequency, phase=phase
+        )
         return torch.func.functional_call(brush, params, (FluidGrid(6, 7), 3, 1.0, (12, 14)))
 
     names = ["centers", "directions", "radius", "amplitude", "frequency", "phase"]
@@ -68,12 +70,15 @@ def test_viscosity_maps():
     assert field.shape == (1, 1, 8, 8) and field.min() >= 0.1 and field.max() <= 3.1
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"centers": [[1.0, float("nan")]], "directions": [[1.0, 0.0]]}, "centers contains non-finite"),
-    ({"centers": [[1.0, 1.0]], "directions": [[0.0, 0.0]]}, "directions must be non-zero"),
-    ({"centers": [[1.0, 1.0]], "directions": [[1.0, 0.0]], "radius": -1.0}, "radius must be > 0"),
-    ({"centers": [[1.0, 1.0]], "directions": [[1.0, 0.0]], "frequency": -1.0}, "frequency must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"centers": [[1.0, float("nan")]], "directions": [[1.0, 0.0]]}, "centers contains non-finite"),
+        ({"centers": [[1.0, 1.0]], "directions": [[0.0, 0.0]]}, "directions must be non-zero"),
+        ({"centers": [[1.0, 1.0]], "directions": [[1.0, 0.0]], "radius": -1.0}, "radius must be > 0"),
+        ({"centers": [[1.0, 1.0]], "directions": [[1.0, 0.0]], "frequency": -1.0}, "frequency must be >= 0"),
+    ],
+)
 def test_bad_brushes(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Brushes(**kwargs)

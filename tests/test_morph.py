@@ -58,8 +58,9 @@ def test_flow_inverse_agrees_with_the_forward_warp(pair):
 def test_different_sizes_and_alignment(gen):
     a = _blobs((64, 64), POINTS_A.tolist(), gen)
     b_points = POINTS_B * 2 + 0.5  # B at twice the size: pixel centres scale as (x + 0.5) * 2 - 0.5
-    b = torch.nn.functional.interpolate(_blobs((64, 64), POINTS_B.tolist(), gen)[None], size=(128, 128),
-                                        mode="bilinear", align_corners=False)[0]
+    b = torch.nn.functional.interpolate(
+        _blobs((64, 64), POINTS_B.tolist(), gen)[None], size=(128, 128), mode="bilinear", align_corners=False
+    )[0]
     r = morph(a, b, POINTS_A, b_points, frames=4, **KW)
     assert r.frames.shape == (4, 3, 64, 64)
     assert r.fit.error.mean() < 0.3

@@ -19,13 +19,13 @@ def _one_thread():
 
 @pytest.fixture(scope="module")
 def astronaut64():
-    return F.interpolate(load_sample("astronaut"), size=(64, 64), mode="bilinear", antialias=True,
-                         align_corners=False).double()
+    return F.interpolate(
+        load_sample("astronaut"), size=(64, 64), mode="bilinear", antialias=True, align_corners=False
+    ).double()
 
 
 def _blob(cx, cy, n=32, sigma=5.0):
-    yy, xx = torch.meshgrid(torch.arange(n, dtype=torch.float64), torch.arange(n, dtype=torch.float64),
-                            indexing="ij")
+    yy, xx = torch.meshgrid(torch.arange(n, dtype=torch.float64), torch.arange(n, dtype=torch.float64), indexing="ij")
     return torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * sigma**2))[None, None]
 
 
@@ -33,8 +33,9 @@ def test_recovers_a_known_brush_warp(astronaut64):
     brushes = Brushes([[24.0, 30.0], [44.0, 36.0]], [[1.0, 0.3], [-0.2, -1.0]], radius=9.0, amplitude=0.3).double()
     with torch.no_grad():
         target = FluidWarp(32, 6).double()(astronaut64, brushes)[:, -1]
-    fit = fit_images(astronaut64, target, grid=32, levels=(16,), steps=6, control=(6, 6), max_iter=(20, 40),
-                     progress=False)
+    fit = fit_images(
+        astronaut64, target, grid=32, levels=(16,), steps=6, control=(6, 6), max_iter=(20, 40), progress=False
+    )
     assert fit.initial_loss == pytest.approx(float(mse_loss(astronaut64, target)))
     assert fit.final_loss < 0.01 * fit.initial_loss, fit.message
     assert [lv.grid for lv in fit.levels] == [(16, 16), (32, 32)]
@@ -50,8 +51,7 @@ def test_recovers_a_known_brush_warp(astronaut64):
 def test_ncc_ignores_brightness_and_contrast():
     source = _blob(14.0, 16.0)
     target = 0.6 * _blob(18.0, 15.0) + 0.2
-    fit = fit_images(source, target, loss="ncc", grid=16, levels=None, steps=4, control=3, max_iter=40,
-                     progress=False)
+    fit = fit_images(source, target, loss="ncc", grid=16, levels=None, steps=4, control=3, max_iter=40, progress=False)
     assert fit.final_loss < 0.05 * fit.initial_loss, fit.message
     assert float(ncc_loss(2 * source + 0.5, source)) == pytest.approx(0.0, abs=1e-9)
 
@@ -60,8 +60,18 @@ def test_landmarks_pull_points_onto_their_targets():
     image = _blob(16.0, 16.0)
     src = torch.tensor([[10.0, 12.0], [20.0, 18.0]], dtype=torch.float64)
     tgt = src + torch.tensor([2.0, -1.0], dtype=torch.float64)
-    fit = fit_images(image, image, points=(src, tgt), point_weight=1.0, grid=16, levels=None, steps=4,
-                     control=3, max_iter=30, progress=False)
+    fit = fit_images(
+        image,
+        image,
+        points=(src, tgt),
+        point_weight=1.0,
+        grid=16,
+        levels=None,
+        steps=4,
+        control=3,
+        max_iter=30,
+        progress=False,
+    )
     with torch.no_grad():
         moved = fit.warp.advect_points(src[None], fit.forces, (32, 32))[0, -1]
     assert (moved - tgt).norm(dim=-1).max() < 0.3
@@ -71,8 +81,17 @@ def test_landmarks_pull_points_onto_their_targets():
 def test_a_callable_loss_and_a_batch():
     source = torch.cat([_blob(14.0, 16.0), _blob(16.0, 14.0)])
     target = torch.cat([_blob(17.0, 16.0), _blob(16.0, 17.0)])
-    fit = fit_images(source, target, loss=lambda a, b: (a - b).abs().mean() * 2, grid=16, levels=(8,), steps=3,
-                     control=3, max_iter=10, progress=False)
+    fit = fit_images(
+        source,
+        target,
+        loss=lambda a, b: (a - b).abs().mean() * 2,
+        grid=16,
+        levels=(8,),
+        steps=3,
+        control=3,
+        max_iter=10,
+        progress=False,
+    )
     assert fit.warped.shape == (2, 1, 32, 32) and fit.forces.weight.shape == (2, 3, 2, 3, 3)
     assert fit.final_loss < fit.initial_loss
 
@@ -93,7 +112,13 @@ def test_a_callable_loss_and_a_batch():
     ],
 )
 def test_bad_inputs_name_the_argument(kwargs, name):
-    args = {"source": _blob(14.0, 16.0), "target": _blob(16.0, 16.0), "grid": 16, "levels": (8,), "progress": False,
-            **kwargs}
+    args = {
+        "source": _blob(14.0, 16.0),
+        "target": _blob(16.0, 16.0),
+        "grid": 16,
+        "levels": (8,),
+        "progress": False,
+        **kwargs,
+    }
     with pytest.raises(ValueError, match=name):
         fit_images(args.pop("source"), args.pop("target"), **args)

@@ -2,8 +2,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import gradcheck64
+
 from torchfluidwarp.fluid import divergence
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
@@ -84,13 +84,16 @@ def test_a_ring_of_particles_keeps_its_area(seed):
     assert abs(float(area1 / area0) - 1) < 0.01
 
 
-@pytest.mark.parametrize("bad,match", [
-    (torch.full((1, 2, 2, 8, 8), float("nan")), "forces contains non-finite"),
-    (torch.zeros(1, 2, 3, 8, 8), r"forces must have shape \(\*, \*, 2, 8, 8\)"),
-    (torch.zeros(2, 8, 8), "forces must have shape"),
-    (torch.zeros(1, 0, 2, 8, 8), "at least one step"),
-    ([1.0], "forces must be a torch.Tensor"),
-])
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        (torch.full((1, 2, 2, 8, 8), float("nan")), "forces contains non-finite"),
+        (torch.zeros(1, 2, 3, 8, 8), r"forces must have shape \(\*, \*, 2, 8, 8\)"),
+        (torch.zeros(2, 8, 8), "forces must have shape"),
+        (torch.zeros(1, 0, 2, 8, 8), "at least one step"),
+        ([1.0], "forces must be a torch.Tensor"),
+    ],
+)
 def test_bad_forces(bad, match):
     sim = FluidSimulator((8, 8))
     with pytest.raises((ValueError, TypeError), match=match):

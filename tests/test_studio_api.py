@@ -109,11 +109,13 @@ def test_non_image_then_valid_upload(client):
     assert r.json()["images"]["b"]["width"] == 64
 
 
-@pytest.mark.parametrize("name", ["../escape.pts", "../../etc/passwd.pts", "/tmp/abs.pts", "sub/../../x.pts",
-                                  "..\\win.pts", "C:/x.pts"])
+@pytest.mark.parametrize(
+    "name", ["../escape.pts", "../../etc/passwd.pts", "/tmp/abs.pts", "sub/../../x.pts", "..\\win.pts", "C:/x.pts"]
+)
 def test_save_path_traversal_refused(client, tmp_path, name):
-    r = client.post("/api/points/export", json={"points": PA, "format": "pts", "save": True, "name": name},
-                    headers=AUTH)
+    r = client.post(
+        "/api/points/export", json={"points": PA, "format": "pts", "save": True, "name": name}, headers=AUTH
+    )
     assert r.status_code == 400
     assert "save folder" in r.json()["error"]
     written = {p.name for p in tmp_path.rglob("*") if p.is_file()}
@@ -139,8 +141,9 @@ def test_save_symlink_escape_refused(client, tmp_path):
     outside = tmp_path / "outside"
     outside.mkdir()
     (tmp_path / "exports" / "link").symlink_to(outside)
-    r = client.post("/api/points/export", json={"points": PA, "format": "pts", "save": True, "name": "link/x.pts"},
-                    headers=AUTH)
+    r = client.post(
+        "/api/points/export", json={"points": PA, "format": "pts", "save": True, "name": "link/x.pts"}, headers=AUTH
+    )
     assert r.status_code == 400
     assert not any(outside.iterdir())
 
@@ -173,15 +176,18 @@ def test_points_import_count_and_values(client):
     assert r.status_code == 400
 
 
-@pytest.mark.parametrize("bad", [
-    '{"points_a": [[1.0, NaN], [2, 2]], "points_b": [[1.0, 1.0], [3, 3]]}',  # Python's json reads NaN
-    '{"points_a": [[1.0, Infinity], [2, 2]], "points_b": [[1.0, 1.0], [3, 3]]}',
-    "not json",
-    {"points_a": PA, "points_b": PB[:3]},
-    {"points_a": [[1e6, 3.0]] + PA[1:], "points_b": PB},
-    {"points_a": PA, "points_b": PB, "settings": {"inverse": "magic"}},
-    {"points_a": PA, "points_b": PB, "settings": {"grid": 10**6}},
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        '{"points_a": [[1.0, NaN], [2, 2]], "points_b": [[1.0, 1.0], [3, 3]]}',  # Python's json reads NaN
+        '{"points_a": [[1.0, Infinity], [2, 2]], "points_b": [[1.0, 1.0], [3, 3]]}',
+        "not json",
+        {"points_a": PA, "points_b": PB[:3]},
+        {"points_a": [[1e6, 3.0]] + PA[1:], "points_b": PB},
+        {"points_a": PA, "points_b": PB, "settings": {"inverse": "magic"}},
+        {"points_a": PA, "points_b": PB, "settings": {"grid": 10**6}},
+    ],
+)
 def test_bad_morph_requests(client, bad):
     if isinstance(bad, str):
         r = client.post("/api/morph/preview", content=bad.encode(), headers=AUTH)
@@ -211,10 +217,13 @@ def test_morph_preview_frames_and_warm_start(client):
 
 
 def test_animate_preview_and_config(client):
-    cfg = {"brushes": [{"position": [30, 30], "direction": [0, -1], "radius": 8, "frequency": 0.1,
-                        "amplitude": 1.0}], "viscosity": {"base": 0.0, "regions": [{"position": [10, 10],
-                                                                                      "radius": 5, "value": 4}]},
-           "grid": [16, 16], "steps": 4, "fps": 12}
+    cfg = {
+        "brushes": [{"position": [30, 30], "direction": [0, -1], "radius": 8, "frequency": 0.1, "amplitude": 1.0}],
+        "viscosity": {"base": 0.0, "regions": [{"position": [10, 10], "radius": 5, "value": 4}]},
+        "grid": [16, 16],
+        "steps": 4,
+        "fps": 12,
+    }
     r = client.post("/api/animate/preview", json={"config": cfg}, headers=AUTH)
     assert r.status_code == 200, r.text
     assert r.json()["frames"] == 5
@@ -242,6 +251,7 @@ def test_latest_only_supersedes_stale_requests():
             if n == 0:
                 release.wait(5)
             return n
+
         return fn
 
     def call(n: int, ticket: int):
@@ -270,7 +280,14 @@ def test_main_parses_arguments(capsys):
     add_arguments(p)
     ns = p.parse_args(["a.png", "b.png", "--points-a", "a.pts", "--port", "0", "--no-browser", "--save-dir", "out"])
     assert (ns.image_a, ns.image_b, ns.points_a, ns.port, ns.no_browser, ns.save_dir, ns.host) == (
-        "a.png", "b.png", "a.pts", 0, True, "out", "127.0.0.1")
+        "a.png",
+        "b.png",
+        "a.pts",
+        0,
+        True,
+        "out",
+        "127.0.0.1",
+    )
     assert main(["--help"]) == 0
     assert main(["missing.png", "--no-browser"]) == 2
     assert "missing.png" in capsys.readouterr().err

@@ -22,8 +22,9 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="pip install playwr
 
 CHROMIUM = Path("/usr/bin/chromium")
 if not CHROMIUM.exists():
-    pytest.skip(f"Chromium not found at {CHROMIUM}: install it with `apt-get install -y chromium`",
-                allow_module_level=True)
+    pytest.skip(
+        f"Chromium not found at {CHROMIUM}: install it with `apt-get install -y chromium`", allow_module_level=True
+    )
 
 from torchfluidwarp.io import read_points  # noqa: E402
 from torchfluidwarp.studio import StudioConfig, create_app, loopback_hosts, serve_in_thread  # noqa: E402
@@ -72,13 +73,16 @@ def server_state(base: str) -> dict:
 
 def content_box(page, selector: str) -> dict:
     """The canvas's content box in CSS pixels, and its image size."""
-    return page.evaluate("""(sel) => {
+    return page.evaluate(
+        """(sel) => {
         const c = document.querySelector(sel), r = c.getBoundingClientRect(), s = getComputedStyle(c);
         const f = (k) => parseFloat(s[k]);
         return {left: r.left + f('borderLeftWidth'), top: r.top + f('borderTopWidth'),
                 width: r.width - f('borderLeftWidth') - f('borderRightWidth'),
                 height: r.height - f('borderTopWidth') - f('borderBottomWidth')};
-    }""", selector)
+    }""",
+        selector,
+    )
 
 
 def css_point(box: dict, size: tuple[int, int], p: tuple[float, float]) -> tuple[float, float]:
@@ -94,13 +98,15 @@ def set_value(page, selector: str, value: str) -> None:
 
 def wait_idle(page, previews: int) -> None:
     """Wait until at least ``previews`` previews were drawn and none is in flight."""
-    page.wait_for_function(f"() => window.studio.previews >= {previews} && !document.body.classList.contains('busy')",
-                           timeout=WAIT_MS)
+    page.wait_for_function(
+        f"() => window.studio.previews >= {previews} && !document.body.classList.contains('busy')", timeout=WAIT_MS
+    )
 
 
 def open_page(browser, base: str, dpr: float):
-    context = browser.new_context(device_scale_factor=dpr, viewport={"width": 1280, "height": 860},
-                                  accept_downloads=True)
+    context = browser.new_context(
+        device_scale_factor=dpr, viewport={"width": 1280, "height": 860}, accept_downloads=True
+    )
     page = context.new_page()
     page.goto(f"{base}/?token={TOKEN}")
     page.wait_for_function("() => document.body.dataset.ready === 'true'", timeout=WAIT_MS)
@@ -217,13 +223,15 @@ def test_screenshots(browser, tmp_path):
     size = 192
     images, points = {}, {}
     for slot, name in (("a", "astronaut"), ("b", "cat")):
-        img = F.interpolate(load_sample(name), size=(size, size), mode="bilinear", antialias=True,
-                            align_corners=False).clamp(0, 1)
+        img = F.interpolate(
+            load_sample(name), size=(size, size), mode="bilinear", antialias=True, align_corners=False
+        ).clamp(0, 1)
         images[slot] = (img, f"{name}.png")
         points[slot] = (load_sample_points(name) + 0.5) * (size / 512) - 0.5
     port = free_port()
-    app = create_app(StudioConfig(token=TOKEN, allowed_hosts=loopback_hosts(port), preview_iter=15),
-                     images=images, points=points)
+    app = create_app(
+        StudioConfig(token=TOKEN, allowed_hosts=loopback_hosts(port), preview_iter=15), images=images, points=points
+    )
     with serve_in_thread(app, port=port):
         context, page = open_page(browser, f"http://127.0.0.1:{port}", 1)
         try:
@@ -233,8 +241,10 @@ def test_screenshots(browser, tmp_path):
             wait_idle(page, 1)
             page.wait_for_timeout(300)
             wait_idle(page, 1)
-            page.evaluate("() => { const s = document.querySelector('#time'); s.value = String(Math.floor(s.max / 2)); "
-                          "s.dispatchEvent(new Event('input')); }")
+            page.evaluate(
+                "() => { const s = document.querySelector('#time'); s.value = String(Math.floor(s.max / 2)); "
+                "s.dispatchEvent(new Event('input')); }"
+            )
             page.wait_for_timeout(500)
             DOCS_STATIC.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(DOCS_STATIC / "studio_morph.png"))

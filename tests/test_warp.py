@@ -1,7 +1,7 @@
 import pytest
 import torch
-
 from conftest import gradcheck64
+
 from torchfluidwarp.forces import Brushes
 from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.warp import FluidWarp, identity_map, jacobian_determinant, warp_image

@@ -76,7 +76,9 @@ def interpolate_alignment(matrix: Tensor, u: float, center: Tensor | None = None
     m = matrix.double()
     lin = m[:2, :2]
     ata = lin.T @ lin
-    is_similarity = bool(torch.allclose(ata, ata[0, 0] * torch.eye(2, dtype=torch.float64), atol=1e-9 * float(ata.abs().max() + 1)))
+    is_similarity = bool(
+        torch.allclose(ata, ata[0, 0] * torch.eye(2, dtype=torch.float64), atol=1e-9 * float(ata.abs().max() + 1))
+    )
     if is_similarity and float(torch.linalg.det(lin)) > 0:
         s = math.sqrt(float(ata[0, 0]))
         angle = math.atan2(float(lin[1, 0]), float(lin[0, 0]))

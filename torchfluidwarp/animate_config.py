@@ -62,9 +62,18 @@ from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.io import read_image
 
 __all__ = [
-    "BrushSpec", "RegionSpec", "ViscositySpec", "AnimationConfig", "DEFAULT_GRID",
-    "parse_config", "load_config", "brush_from_values", "region_from_values", "auto_grid",
-    "build_forces", "build_viscosity",
+    "BrushSpec",
+    "RegionSpec",
+    "ViscositySpec",
+    "AnimationConfig",
+    "DEFAULT_GRID",
+    "parse_config",
+    "load_config",
+    "brush_from_values",
+    "region_from_values",
+    "auto_grid",
+    "build_forces",
+    "build_viscosity",
 ]
 
 DEFAULT_GRID = 64
@@ -125,10 +134,13 @@ class AnimationConfig:
             return ((p[0] + 0.5) * sx - 0.5, (p[1] + 0.5) * sy - 0.5)
 
         s = 0.5 * (sx + sy)
-        brushes = tuple(dataclasses.replace(b, position=pos(b.position), radius=b.radius * s,
-                                            amplitude=b.amplitude * s) for b in self.brushes)
-        regions = tuple(dataclasses.replace(r, position=pos(r.position), radius=r.radius * s)
-                        for r in self.viscosity.regions)
+        brushes = tuple(
+            dataclasses.replace(b, position=pos(b.position), radius=b.radius * s, amplitude=b.amplitude * s)
+            for b in self.brushes
+        )
+        regions = tuple(
+            dataclasses.replace(r, position=pos(r.position), radius=r.radius * s) for r in self.viscosity.regions
+        )
         viscosity = dataclasses.replace(self.viscosity, regions=regions)
         return dataclasses.replace(self, brushes=brushes, viscosity=viscosity)
 
@@ -158,8 +170,9 @@ def load_config(path: str | Path) -> AnimationConfig:
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"config {str(path)!r} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
-                         ) from None
+        raise ValueError(
+            f"config {str(path)!r} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
+        ) from None
     try:
         return parse_config(data, base_dir=path.parent)
     except ValueError as exc:
@@ -206,8 +219,17 @@ def brush_from_values(values: Sequence[float], where: str = "brush") -> BrushSpe
     if len(values) not in (7, 8):
         raise ValueError(f"{where} needs 7 or 8 values X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE], got {len(values)}")
     x, y, dx, dy, radius, freq, amp, *phase = values
-    return _brush(where, {"position": [x, y], "direction": [dx, dy], "radius": radius, "frequency": freq,
-                          "amplitude": amp, "phase": phase[0] if phase else 0.0})
+    return _brush(
+        where,
+        {
+            "position": [x, y],
+            "direction": [dx, dy],
+            "radius": radius,
+            "frequency": freq,
+            "amplitude": amp,
+            "phase": phase[0] if phase else 0.0,
+        },
+    )
 
 
 def region_from_values(values: Sequence[float], where: str = "region") -> RegionSpec:
@@ -304,9 +326,11 @@ def _brush(where: str, value: object) -> BrushSpec:
 
 def _region(where: str, value: object) -> RegionSpec:
     obj = _object(where, value, _REGION_KEYS, required=_REGION_KEYS)
-    return RegionSpec(position=_pair(f"{where}.position", obj["position"]),
-                      radius=_number(f"{where}.radius", obj["radius"], positive=True),
-                      value=_number(f"{where}.value", obj["value"]))
+    return RegionSpec(
+        position=_pair(f"{where}.position", obj["position"]),
+        radius=_number(f"{where}.radius", obj["radius"], positive=True),
+        value=_number(f"{where}.value", obj["value"]),
+    )
 
 
 def _viscosity(value: object, base_dir: Path | None) -> ViscositySpec:
@@ -316,11 +340,16 @@ def _viscosity(value: object, base_dir: Path | None) -> ViscositySpec:
         if not isinstance(mask, str) or not mask:
             raise ValueError(f"viscosity.mask must be an image path (a string), got {_describe(mask)}")
         mask = Path(mask) if base_dir is None else base_dir / mask
-    regions = tuple(_region(f"viscosity.regions[{k}]", r) for k, r in enumerate(_list("viscosity.regions",
-                                                                                       obj.get("regions", []))))
-    return ViscositySpec(base=_number("viscosity.base", obj.get("base", 0.0), non_negative=True), regions=regions,
-                         mask=mask, stiff=_number("viscosity.stiff", obj.get("stiff", 5.0), non_negative=True),
-                         soft=_number("viscosity.soft", obj.get("soft", 0.0), non_negative=True))
+    regions = tuple(
+        _region(f"viscosity.regions[{k}]", r) for k, r in enumerate(_list("viscosity.regions", obj.get("regions", [])))
+    )
+    return ViscositySpec(
+        base=_number("viscosity.base", obj.get("base", 0.0), non_negative=True),
+        regions=regions,
+        mask=mask,
+        stiff=_number("viscosity.stiff", obj.get("stiff", 5.0), non_negative=True),
+        soft=_number("viscosity.soft", obj.get("soft", 0.0), non_negative=True),
+    )
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -347,13 +376,22 @@ def build_forces(config: AnimationConfig) -> Brushes:
     if not config.brushes:
         raise ValueError("nothing to animate: give at least one brush")
     b = config.brushes
-    return Brushes(centers=[p.position for p in b], directions=[p.direction for p in b],
-                   radius=[p.radius for p in b], amplitude=[p.amplitude for p in b],
-                   frequency=[p.frequency for p in b], phase=[p.phase for p in b])
+    return Brushes(
+        centers=[p.position for p in b],
+        directions=[p.direction for p in b],
+        radius=[p.radius for p in b],
+        amplitude=[p.amplitude for p in b],
+        frequency=[p.frequency for p in b],
+        phase=[p.phase for p in b],
+    )
 
 
-def build_viscosity(config: AnimationConfig, grid: tuple[int, int], image_size: tuple[int, int],
-                    mask_size: tuple[int, int] | None = None) -> float | Tensor:
+def build_viscosity(
+    config: AnimationConfig,
+    grid: tuple[int, int],
+    image_size: tuple[int, int],
+    mask_size: tuple[int, int] | None = None,
+) -> float | Tensor:
     """The viscosity: a float when it is uniform, else a field ``(1, 1, h, w)`` in cells^2 per time unit.
 
     Args:
@@ -370,8 +408,9 @@ def build_viscosity(config: AnimationConfig, grid: tuple[int, int], image_size: 
     field: float | Tensor = spec.base
     if spec.regions:
         r = spec.regions
-        module = ViscosityBrushes(centers=[p.position for p in r], radius=[p.radius for p in r],
-                                  value=[p.value for p in r], base=spec.base)
+        module = ViscosityBrushes(
+            centers=[p.position for p in r], radius=[p.radius for p in r], value=[p.value for p in r], base=spec.base
+        )
         with torch.no_grad():
             field = module(FluidGrid.of(grid), image_size).detach()
     if spec.mask is not None:
@@ -381,7 +420,9 @@ def build_viscosity(config: AnimationConfig, grid: tuple[int, int], image_size: 
             raise ValueError(f"viscosity.mask: {exc}") from None
         want = mask_size or image_size
         if tuple(mask.shape[-2:]) != tuple(want):
-            raise ValueError(f"viscosity.mask {str(spec.mask)!r} is {mask.shape[-1]}x{mask.shape[-2]} pixels, "
-                             f"but the image is {want[1]}x{want[0]}")
+            raise ValueError(
+                f"viscosity.mask {str(spec.mask)!r} is {mask.shape[-1]}x{mask.shape[-2]} pixels, "
+                f"but the image is {want[1]}x{want[0]}"
+            )
         field = field + viscosity_from_mask(mask, grid, stiff=spec.stiff, soft=spec.soft)
     return field

@@ -39,8 +39,18 @@ from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.warp import OVERSAMPLE, FluidWarp, _carry, identity_map, iter_backward_maps, warp_image
 
 __all__ = [
-    "MAX_SHEAR", "MIN_DET", "FluidWarpParams", "RandomFluidWarp", "brush_forces", "min_quad_determinant",
-    "raster_map", "fluid_warp_map", "carry_points", "carry_boxes", "box_outline", "polygon_outline",
+    "MAX_SHEAR",
+    "MIN_DET",
+    "FluidWarpParams",
+    "RandomFluidWarp",
+    "brush_forces",
+    "min_quad_determinant",
+    "raster_map",
+    "fluid_warp_map",
+    "carry_points",
+    "carry_boxes",
+    "box_outline",
+    "polygon_outline",
     "apply_fluid_warp",
 ]
 
@@ -116,8 +126,14 @@ class FluidWarpParams:
 
 
 def brush_forces(
-    centers: Tensor, directions: Tensor, amplitude: Tensor, radius: Tensor, *,
-    grid: FluidGrid | int | tuple[int, int], image_size: tuple[int, int], steps: int,
+    centers: Tensor,
+    directions: Tensor,
+    amplitude: Tensor,
+    radius: Tensor,
+    *,
+    grid: FluidGrid | int | tuple[int, int],
+    image_size: tuple[int, int],
+    steps: int,
 ) -> Tensor:
     """Steady Gaussian brush pushes for a batch of independent samples.
 
@@ -172,8 +188,11 @@ def min_quad_determinant(coords: Tensor, size: tuple[int, int]) -> Tensor:
     ex = coords[:, :, 1:] - coords[:, :, :-1]  # (B, h_r, w_r - 1, 2) along x
     ey = coords[:, 1:] - coords[:, :-1]  # (B, h_r - 1, w_r, 2) along y
     area = (W / w_r) * (H / h_r)  # raster spacing in image pixels
-    dets = [a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-            for a in (ex[:, :-1], ex[:, 1:]) for b in (ey[:, :, :-1], ey[:, :, 1:])]
+    dets = [
+        a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+        for a in (ex[:, :-1], ex[:, 1:])
+        for b in (ey[:, :, :-1], ey[:, :, 1:])
+    ]
     return torch.stack(dets).amin(0).flatten(1).amin(1) / area
 
 
@@ -267,7 +286,11 @@ def box_outline(boxes: Tensor, edge_points: int) -> Tensor:
 
 
 def carry_boxes(
-    params: FluidWarpParams, boxes: Tensor, size: tuple[int, int] | None = None, edge_points: int = 8, *,
+    params: FluidWarpParams,
+    boxes: Tensor,
+    size: tuple[int, int] | None = None,
+    edge_points: int = 8,
+    *,
     clip: bool = True,
 ) -> Tensor:
     """Carry boxes ``(B, N, 4)`` ``(x1, y1, x2, y2)`` (pixels) through the warp.
@@ -444,11 +467,14 @@ class RandomFluidWarp(nn.Module):
                 f"strength up to {self.strength[1]} px/time^2 could fold the warp: with count={self.count}, "
                 f"steps={self.steps}, radius={self.radius} px and dt={self.dt}, S * max(1, T / 4) = {stretch:.3g} "
                 f"> MAX_SHEAR = {MAX_SHEAR} (S = count_max * strength_max * steps_max * dt^2 / radius_min); "
-                f"keep strength <= {limit:.4g}, or widen the smallest radius")
+                f"keep strength <= {limit:.4g}, or widen the smallest radius"
+            )
 
     def extra_repr(self) -> str:
-        return (f"count={self.count}, strength={self.strength}, radius={self.radius}, steps={self.steps}, "
-                f"grid={self.grid.shape}, dt={self.dt}, viscosity={self.viscosity}")
+        return (
+            f"count={self.count}, strength={self.strength}, radius={self.radius}, steps={self.steps}, "
+            f"grid={self.grid.shape}, dt={self.dt}, viscosity={self.viscosity}"
+        )
 
     def _rng(self) -> torch.Generator | None:
         """The generator for this call; a DataLoader worker re-seeds its own copy once."""
@@ -463,7 +489,11 @@ class RandomFluidWarp(nn.Module):
         return self.generator
 
     def make_params(
-        self, batch: int, size: tuple[int, int], *, device: torch.device | str | None = None,
+        self,
+        batch: int,
+        size: tuple[int, int],
+        *,
+        device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
     ) -> FluidWarpParams:
         """Draw the random brushes of one call and roll the fluid out for the whole batch.
@@ -491,8 +521,7 @@ class RandomFluidWarp(nn.Module):
 
         counts = torch.randint(self.count[0], self.count[1] + 1, (B,), generator=g, device=draw_device)
         steps = torch.randint(self.steps[0], self.steps[1] + 1, (B,), generator=g, device=draw_device)
-        centers = uniform(0.0, 1.0, B, K, 2) * torch.tensor([W - 1.0, H - 1.0], dtype=torch.float64,
-                                                            device=draw_device)
+        centers = uniform(0.0, 1.0, B, K, 2) * torch.tensor([W - 1.0, H - 1.0], dtype=torch.float64, device=draw_device)
         angle = uniform(0.0, 2 * math.pi, B, K)
         amplitude = uniform(*self.strength, B, K)
         radius = uniform(*self.radius, B, K)
@@ -526,9 +555,19 @@ class RandomFluidWarp(nn.Module):
                 v, m, d = roll(forces[todo] * scale[todo, None, None, None, None], running[todo])
                 vel[todo], maps[todo], det[todo] = v, m, d
                 todo = todo[d < MIN_DET]
-        return FluidWarpParams(velocities=vel, steps=steps, dt=self.dt, centers=centers, directions=directions,
-                               amplitude=amplitude, radius=radius, force_scale=scale, size=(H, W),
-                               raster_map=maps, min_det=det)
+        return FluidWarpParams(
+            velocities=vel,
+            steps=steps,
+            dt=self.dt,
+            centers=centers,
+            directions=directions,
+            amplitude=amplitude,
+            radius=radius,
+            force_scale=scale,
+            size=(H, W),
+            raster_map=maps,
+            min_det=det,
+        )
 
     def forward(
         self,

@@ -65,6 +65,7 @@ def register_fluid_kernel(cls: type) -> Callable[[Kernel], Kernel]:
     ``BoundingBoxes`` and PIL images; use this for your own ``TVTensor`` subclasses (which otherwise pass
     through), like ``torchvision.transforms.v2.functional.register_kernel``.
     """
+
     def decorator(kernel: Kernel) -> Kernel:
         _KERNELS[cls] = kernel
         return kernel
@@ -160,8 +161,9 @@ def _oriented_box(corners: Tensor, moved: Tensor) -> Tensor:
 
 
 @register_fluid_kernel(tv_tensors.BoundingBoxes)
-def _boxes_kernel(x: tv_tensors.BoundingBoxes, params: FluidWarpParams, *, edge_points: int = 8
-                  ) -> tv_tensors.BoundingBoxes:
+def _boxes_kernel(
+    x: tv_tensors.BoundingBoxes, params: FluidWarpParams, *, edge_points: int = 8
+) -> tv_tensors.BoundingBoxes:
     data = x.as_subclass(Tensor)
     if data.numel() == 0:
         return x
@@ -222,8 +224,13 @@ class RandomFluidWarp(v2.Transform):
     """
 
     _transformed_types = (
-        tv_tensors.Image, tv_tensors.Video, tv_tensors.Mask, tv_tensors.KeyPoints, tv_tensors.BoundingBoxes,
-        PIL.Image.Image, TF.is_pure_tensor,
+        tv_tensors.Image,
+        tv_tensors.Video,
+        tv_tensors.Mask,
+        tv_tensors.KeyPoints,
+        tv_tensors.BoundingBoxes,
+        PIL.Image.Image,
+        TF.is_pure_tensor,
     )
 
     def __init__(
@@ -241,8 +248,18 @@ class RandomFluidWarp(v2.Transform):
         generator: torch.Generator | None = None,
     ) -> None:
         super().__init__()
-        self.sampler = _Sampler(count, strength, radius, steps, grid=grid, dt=dt, viscosity=viscosity,
-                                edge_points=edge_points, max_retries=max_retries, generator=generator)
+        self.sampler = _Sampler(
+            count,
+            strength,
+            radius,
+            steps,
+            grid=grid,
+            dt=dt,
+            viscosity=viscosity,
+            edge_points=edge_points,
+            max_retries=max_retries,
+            generator=generator,
+        )
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.sampler.extra_repr()})"

@@ -162,8 +162,9 @@ def _bounded(kind: Callable[[str], float], minimum: float, strict: bool) -> Call
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'} {bound}, "
-                                             f"got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if kind is int else 'a number'} {bound}, got {text!r}"
+            ) from None
         if not (value > minimum if strict else value >= minimum) or value != value or value == float("inf"):
             raise argparse.ArgumentTypeError(f"must be {bound}, got {text!r}")
         return value
@@ -174,31 +175,61 @@ def _bounded(kind: Callable[[str], float], minimum: float, strict: bool) -> Call
 
 def _add_animate(commands: argparse._SubParsersAction) -> None:
     p = commands.add_parser(
-        "animate", help="animate a photo with oscillating brushes (GIF, MP4 or PNG frames)",
+        "animate",
+        help="animate a photo with oscillating brushes (GIF, MP4 or PNG frames)",
         description="Animate a photo: oscillating Gaussian brushes stir a 2-D incompressible fluid that carries "
-                    "the image's texture coordinates; viscosity regions keep parts of it rigid.",
-        epilog=ANIMATE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        "the image's texture coordinates; viscosity regions keep parts of it rigid.",
+        epilog=ANIMATE_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("image", metavar="IMAGE", help="the photo to animate (PNG, JPEG, ...)")
-    p.add_argument("-o", "--output", metavar="OUT", required=True,
-                   help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/' or "
-                        "without suffix)")
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT",
+        required=True,
+        help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/' or without suffix)",
+    )
     p.add_argument("--config", metavar="JSON", help="animation settings file (format below)")
-    p.add_argument("--brush", metavar="X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE]", type=_brush, action="append",
-                   help="an oscillating brush: centre (px), push direction, Gaussian radius (px), frequency "
-                        "(cycles per time unit, 0 = steady), amplitude (px/time^2), phase (radians); repeatable")
-    p.add_argument("--stiff", metavar="X,Y,RADIUS,VALUE", type=_region, action="append",
-                   help="a viscosity region: centre (px), radius (px), added viscosity (cells^2/time); repeatable")
-    p.add_argument("--viscosity", metavar="BASE", type=_bounded(float, 0.0, strict=False),
-                   help="background viscosity (cells^2/time, default 0)")
-    p.add_argument("--grid", metavar="N", nargs="+", type=_bounded(int, 2, strict=False),
-                   help="fluid grid: 'H W' cells, or N for N x N (default: 64 cells along the image's longer side)")
-    p.add_argument("--steps", type=_bounded(int, 1, strict=False), help="fluid steps; frames = steps + 1 "
-                   "(default 60)")
+    p.add_argument(
+        "--brush",
+        metavar="X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE]",
+        type=_brush,
+        action="append",
+        help="an oscillating brush: centre (px), push direction, Gaussian radius (px), frequency "
+        "(cycles per time unit, 0 = steady), amplitude (px/time^2), phase (radians); repeatable",
+    )
+    p.add_argument(
+        "--stiff",
+        metavar="X,Y,RADIUS,VALUE",
+        type=_region,
+        action="append",
+        help="a viscosity region: centre (px), radius (px), added viscosity (cells^2/time); repeatable",
+    )
+    p.add_argument(
+        "--viscosity",
+        metavar="BASE",
+        type=_bounded(float, 0.0, strict=False),
+        help="background viscosity (cells^2/time, default 0)",
+    )
+    p.add_argument(
+        "--grid",
+        metavar="N",
+        nargs="+",
+        type=_bounded(int, 2, strict=False),
+        help="fluid grid: 'H W' cells, or N for N x N (default: 64 cells along the image's longer side)",
+    )
+    p.add_argument("--steps", type=_bounded(int, 1, strict=False), help="fluid steps; frames = steps + 1 (default 60)")
     p.add_argument("--dt", type=_bounded(float, 0.0, strict=True), help="time step in time units (default 1.0)")
     p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), help="output frames per second (default 20)")
-    p.add_argument("--max-size", metavar="PX", type=_bounded(int, 0, strict=False), default=800,
-                   help="downscale the photo so its longer side is at most PX pixels, for speed (0 = keep; "
-                        "default 800); brush positions stay in the original's pixels")
+    p.add_argument(
+        "--max-size",
+        metavar="PX",
+        type=_bounded(int, 0, strict=False),
+        default=800,
+        help="downscale the photo so its longer side is at most PX pixels, for speed (0 = keep; "
+        "default 800); brush positions stay in the original's pixels",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=_cmd_animate)
@@ -257,8 +288,9 @@ def _fit(image: Tensor, max_size: int) -> Tensor:
 def _render(warp: FluidWarp, image: Tensor, forces: Brushes, *, quiet: bool) -> Tensor:
     """All ``steps + 1`` frames ``(T + 1, C, H, W)``, with a progress bar on an interactive stderr."""
     frames = torch.empty(warp.steps + 1, *image.shape[1:], dtype=image.dtype)
-    bar = tqdm(total=warp.steps + 1, unit="frame", desc="animate", leave=False,
-               disable=quiet or not sys.stderr.isatty())
+    bar = tqdm(
+        total=warp.steps + 1, unit="frame", desc="animate", leave=False, disable=quiet or not sys.stderr.isatty()
+    )
     with torch.no_grad(), bar:
         for t, frame in enumerate(warp.iter_frames(image, forces)):
             frames[t] = frame[0]
@@ -270,7 +302,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
     try:
         config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
         if not config.brushes:
-            raise ValueError("nothing to animate: give at least one --brush (or \"brushes\" in --config)")
+            raise ValueError('nothing to animate: give at least one --brush (or "brushes" in --config)')
         _check_output(args.output, args.overwrite)
         original = read_image(args.image)
         image = _fit(original, args.max_size)
@@ -291,41 +323,69 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 
 
 def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible: float) -> None:
-    p.add_argument("-o", "--output", metavar="OUT", default=None,
-                   help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/')")
-    p.add_argument("--frames", type=_bounded(int, 2, strict=False), default=frames,
-                   help=f"frames (default {frames})")
-    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), default=15.0,
-                   help="frames per second (default 15)")
-    p.add_argument("--grid", metavar="N", type=_bounded(int, 4, strict=False), default=64,
-                   help="fluid grid N x N cells over the points' region (default 64)")
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUT",
+        default=None,
+        help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/')",
+    )
+    p.add_argument("--frames", type=_bounded(int, 2, strict=False), default=frames, help=f"frames (default {frames})")
+    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), default=15.0, help="frames per second (default 15)")
+    p.add_argument(
+        "--grid",
+        metavar="N",
+        type=_bounded(int, 4, strict=False),
+        default=64,
+        help="fluid grid N x N cells over the points' region (default 64)",
+    )
     p.add_argument("--steps", type=_bounded(int, 1, strict=False), default=10, help="fluid steps (default 10)")
-    p.add_argument("--control", metavar="K", type=_bounded(int, 2, strict=False), default=8,
-                   help="control points per axis and step of the fitted forces (default 8)")
-    p.add_argument("--align", choices=["similarity", "affine", "none"], default="similarity",
-                   help="global pre-alignment from the points (default similarity)")
-    p.add_argument("--inverse", choices=["flow", "paper"], default="flow",
-                   help="how image B is pulled back: along the same flow (default) or the paper's stepwise fits")
+    p.add_argument(
+        "--control",
+        metavar="K",
+        type=_bounded(int, 2, strict=False),
+        default=8,
+        help="control points per axis and step of the fitted forces (default 8)",
+    )
+    p.add_argument(
+        "--align",
+        choices=["similarity", "affine", "none"],
+        default="similarity",
+        help="global pre-alignment from the points (default similarity)",
+    )
+    p.add_argument(
+        "--inverse",
+        choices=["flow", "paper"],
+        default="flow",
+        help="how image B is pulled back: along the same flow (default) or the paper's stepwise fits",
+    )
     p.add_argument("--blend", choices=["linear", "smooth"], default="linear", help="cross-dissolve schedule")
-    p.add_argument("--compressible", metavar="W", type=_bounded(float, 0.0, strict=False), default=compressible,
-                   help="fraction of the divergent flow kept (0 = incompressible, 1 = no projection; "
-                        f"default {compressible:g})")
-    p.add_argument("--max-iter", type=_bounded(int, 1, strict=False), default=150,
-                   help="L-BFGS iterations (default 150)")
+    p.add_argument(
+        "--compressible",
+        metavar="W",
+        type=_bounded(float, 0.0, strict=False),
+        default=compressible,
+        help=f"fraction of the divergent flow kept (0 = incompressible, 1 = no projection; default {compressible:g})",
+    )
+    p.add_argument(
+        "--max-iter", type=_bounded(int, 1, strict=False), default=150, help="L-BFGS iterations (default 150)"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
 
 def _add_morph(commands: argparse._SubParsersAction) -> None:
     p = commands.add_parser(
-        "morph", help="morph image A into image B along corresponding points (GIF, MP4 or PNG frames)",
+        "morph",
+        help="morph image A into image B along corresponding points (GIF, MP4 or PNG frames)",
         description="Morph A into B: fluid forces are fitted (adjoint gradients + L-BFGS) so that A's points reach "
-                    "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
-                    "cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {\"points\": ...}) or CSV, "
-                    "pixels with pixel centres at integers.",
+        "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
+        'cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {"points": ...}) or CSV, '
+        "pixels with pixel centres at integers.",
         epilog="example:\n  torchfluidwarp morph a.png b.png --points-a a.pts --points-b b.pts -o morph.gif "
-               "--frames 30",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        "--frames 30",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("image_a", metavar="A", help="source image")
     p.add_argument("image_b", metavar="B", help="target image (resized to A's size if needed)")
     p.add_argument("--points-a", required=True, metavar="FILE", help="A's points (.pts, .json or .csv)")
@@ -335,27 +395,47 @@ def _add_morph(commands: argparse._SubParsersAction) -> None:
 
 
 def _add_demo(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("demo", help="morph the bundled astronaut into the bundled cat: writes morph.gif",
-                            description="Morph the bundled public-domain samples (a photo of an astronaut into a "
-                                        "photo of a cat, 23 corresponding points each) and write morph.gif.")
+    p = commands.add_parser(
+        "demo",
+        help="morph the bundled astronaut into the bundled cat: writes morph.gif",
+        description="Morph the bundled public-domain samples (a photo of an astronaut into a "
+        "photo of a cat, 23 corresponding points each) and write morph.gif.",
+    )
     _add_morph_options(p, frames=30, compressible=0.5)
     p.set_defaults(handler=_cmd_demo)
 
 
-def _run_morph(command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor,
-               points_b: Tensor) -> int:
+def _run_morph(
+    command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
+) -> int:
     from torchfluidwarp.morph import morph
 
     _check_output(args.output, args.overwrite)
     progress = not args.quiet and sys.stderr.isatty()
-    result = morph(image_a, image_b, points_a, points_b, frames=args.frames, grid=args.grid, steps=args.steps,
-                   control=args.control, align=None if args.align == "none" else args.align, inverse=args.inverse,
-                   blend=args.blend, compressible=args.compressible, max_iter=args.max_iter, progress=progress)
+    result = morph(
+        image_a,
+        image_b,
+        points_a,
+        points_b,
+        frames=args.frames,
+        grid=args.grid,
+        steps=args.steps,
+        control=args.control,
+        align=None if args.align == "none" else args.align,
+        inverse=args.inverse,
+        blend=args.blend,
+        compressible=args.compressible,
+        max_iter=args.max_iter,
+        progress=progress,
+    )
     path = write_animation(args.output, result.frames, fps=args.fps, overwrite=args.overwrite)
     if not args.quiet:
         err = result.fit.error
-        print(f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
-              f"{result.seconds['total']:.1f} s", file=sys.stderr)
+        print(
+            f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
+            f"{result.seconds['total']:.1f} s",
+            file=sys.stderr,
+        )
     print(path)
     return EXIT_OK
 
@@ -378,8 +458,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     try:
         args.output = args.output or "morph.gif"
-        return _run_morph("demo", args, load_sample("astronaut"), load_sample("cat"),
-                          load_sample_points("astronaut"), load_sample_points("cat"))
+        return _run_morph(
+            "demo",
+            args,
+            load_sample("astronaut"),
+            load_sample("cat"),
+            load_sample_points("astronaut"),
+            load_sample_points("cat"),
+        )
     except (ValueError, TypeError, OSError) as exc:
         return _fail("demo", exc)
 
@@ -388,9 +474,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _add_studio(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser("studio", help="the interactive web studio: click point pairs, watch the morph",
-                            description="Start the local studio page (127.0.0.1 by default) and open it in the "
-                                        "browser.")
+    p = commands.add_parser(
+        "studio",
+        help="the interactive web studio: click point pairs, watch the morph",
+        description="Start the local studio page (127.0.0.1 by default) and open it in the browser.",
+    )
     try:
         from torchfluidwarp import studio
     except ImportError:

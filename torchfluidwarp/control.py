@@ -84,13 +84,16 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
     outside = (p[..., 0] < -0.5) | (p[..., 0] > W - 0.5) | (p[..., 1] < -0.5) | (p[..., 1] > H - 0.5)
     if bool(outside.any()):
         i = int(outside.flatten().nonzero()[0])
-        raise ValueError(f"{name} has a point outside the {H}x{W} image: {p.reshape(-1, 2)[i].tolist()} "
-                         f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])")
+        raise ValueError(
+            f"{name} has a point outside the {H}x{W} image: {p.reshape(-1, 2)[i].tolist()} "
+            f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])"
+        )
     return p
 
 
-def _keyframes(target: Keyframes, steps: int, image_size: tuple[int, int], m: int, batch: int
-               ) -> list[tuple[int, Tensor]]:
+def _keyframes(
+    target: Keyframes, steps: int, image_size: tuple[int, int], m: int, batch: int
+) -> list[tuple[int, Tensor]]:
     frames = [(steps, target)] if isinstance(target, Tensor) else list(target)
     if not frames:
         raise ValueError("target must be a tensor of points or a non-empty list of (time_step, points)")
@@ -207,8 +210,16 @@ def fit_keyframes(
     if not params:
         raise ValueError("the force module has no trainable parameters")
 
-    optimizer = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, max_eval=max_iter * 2, history_size=20,
-                                  tolerance_grad=1e-12, tolerance_change=1e-14, line_search_fn="strong_wolfe")
+    optimizer = torch.optim.LBFGS(
+        params,
+        lr=1.0,
+        max_iter=max_iter,
+        max_eval=max_iter * 2,
+        history_size=20,
+        tolerance_grad=1e-12,
+        tolerance_change=1e-14,
+        line_search_fn="strong_wolfe",
+    )
     history: list[float] = []
     best_loss = math.inf
     best_state: list[Tensor] | None = None
@@ -263,8 +274,21 @@ def fit_keyframes(
     kf_err = [(t, (paths[:, t] - q).norm(dim=-1)) for t, q in keyframes]
     reached = all(bool(e.max() <= tolerance) for _, e in kf_err)
     err = kf_err[-1][1]
-    message = (f"{'reached' if reached else 'did not reach'} the targets: mean error {float(err.mean()):.4f} px, "
-               f"max {float(err.max()):.4f} px after {len(history)} evaluations")
-    return KeyframeFit(forces=module, warp=warp, points=paths[:, -1], trajectories=paths, error=err,
-                       keyframe_errors=kf_err, loss_history=history, evaluations=len(history),
-                       seconds=time.perf_counter() - start, converged=converged, reached=reached, message=message)
+    message = (
+        f"{'reached' if reached else 'did not reach'} the targets: mean error {float(err.mean()):.4f} px, "
+        f"max {float(err.max()):.4f} px after {len(history)} evaluations"
+    )
+    return KeyframeFit(
+        forces=module,
+        warp=warp,
+        points=paths[:, -1],
+        trajectories=paths,
+        error=err,
+        keyframe_errors=kf_err,
+        loss_history=history,
+        evaluations=len(history),
+        seconds=time.perf_counter() - start,
+        converged=converged,
+        reached=reached,
+        message=message,
+    )

@@ -22,8 +22,18 @@ from torchfluidwarp.linalg import CGConfig, implicit_solve
 from torchfluidwarp.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
 
 __all__ = [
-    "divergence", "gradient", "faces_from_cells", "cells_from_faces", "sample_velocity", "advect",
-    "advect_velocity", "advect_points", "vector_laplacian", "strain_operator", "diffuse", "project",
+    "divergence",
+    "gradient",
+    "faces_from_cells",
+    "cells_from_faces",
+    "sample_velocity",
+    "advect",
+    "advect_velocity",
+    "advect_points",
+    "vector_laplacian",
+    "strain_operator",
+    "diffuse",
+    "project",
     "check_velocity",
 ]
 
@@ -34,8 +44,9 @@ def check_velocity(velocity: object, name: str = "velocity") -> Tensor:
     """Validate a staggered velocity ``(B, 2, h + 1, w + 1)`` (finite, floating, h and w at least 2)."""
     v = check_tensor(name, velocity, ndim=4)
     if v.shape[1] != 2 or v.shape[2] < 3 or v.shape[3] < 3:
-        raise ValueError(f"{name} must be a staggered velocity of shape (B, 2, h + 1, w + 1) with h, w >= 2, "
-                         f"got {tuple(v.shape)}")
+        raise ValueError(
+            f"{name} must be a staggered velocity of shape (B, 2, h + 1, w + 1) with h, w >= 2, got {tuple(v.shape)}"
+        )
     return v
 
 
@@ -99,9 +110,13 @@ def grid_sample_checked(image: Tensor, grid: Tensor, mode: str = "bilinear", ali
 def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
     """Memo of a pure function: constants of an ``(h, w)`` grid (box bounds, sampling affines, positions)."""
     with torch.inference_mode(False), torch.no_grad():
+
         def positions(ny: int, nx: int, x0: float, y0: float) -> Tensor:
-            gy, gx = torch.meshgrid(torch.arange(ny, dtype=dtype, device=device) + y0,
-                                    torch.arange(nx, dtype=dtype, device=device) + x0, indexing="ij")
+            gy, gx = torch.meshgrid(
+                torch.arange(ny, dtype=dtype, device=device) + y0,
+                torch.arange(nx, dtype=dtype, device=device) + x0,
+                indexing="ij",
+            )
             return torch.stack([gx, gy]).reshape(1, 2, -1)
 
         def col(a: float, b: float) -> Tensor:
@@ -116,8 +131,14 @@ def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[
         sv, tv = affine(w, h + 1, 0.0, -0.5)
         sc, tc = affine(w, h, 0.0, 0.0)
         return {
-            "lo": col(-0.5, -0.5), "hi": col(w - 0.5, h - 0.5),
-            "su": su, "tu": tu, "sv": sv, "tv": tv, "sc": sc, "tc": tc,
+            "lo": col(-0.5, -0.5),
+            "hi": col(w - 0.5, h - 0.5),
+            "su": su,
+            "tu": tu,
+            "sv": sv,
+            "tv": tv,
+            "sc": sc,
+            "tc": tc,
             "faces": torch.cat([positions(h, w - 1, 0.5, 0.0), positions(h - 1, w, 0.0, 0.5)], dim=2),
             "cells": positions(h, w, 0.0, 0.0),
             "mask": interior_mask(FluidGrid(h, w), device=device, dtype=dtype),
@@ -223,8 +244,12 @@ def substeps(velocity: Tensor, dt: float) -> int:
     bounds its velocity gradient (cells per time unit per cell). Most gentle flows need one sub-step.
     """
     u, v = _split(velocity.detach())
-    grads = [(u[..., 1:] - u[..., :-1]).abs().amax(), (u[:, 1:] - u[:, :-1]).abs().amax(),
-             (v[..., 1:] - v[..., :-1]).abs().amax(), (v[:, 1:] - v[:, :-1]).abs().amax()]
+    grads = [
+        (u[..., 1:] - u[..., :-1]).abs().amax(),
+        (u[:, 1:] - u[:, :-1]).abs().amax(),
+        (v[..., 1:] - v[..., :-1]).abs().amax(),
+        (v[:, 1:] - v[:, :-1]).abs().amax(),
+    ]
     strain = float(torch.stack(grads).max()) * abs(dt)
     return max(1, math.ceil(strain / MAX_STRAIN_PER_SUBSTEP))
 
@@ -290,12 +315,14 @@ def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
 def _constant_operator(alpha: float, mask: Tensor):
     def op(x: Tensor) -> Tensor:
         return x - alpha * vector_laplacian(x * mask)
+
     return op
 
 
 def _variable_operator(dt: float, mask: Tensor):
     def op(x: Tensor, mu: Tensor) -> Tensor:
         return x + dt * strain_operator(x * mask, mu)
+
     return op
 
 
@@ -341,8 +368,12 @@ def diffuse(
         mu = viscosity
         alpha = dt * mu.detach().flatten(1).mean(1).expand(velocity.shape[0])
         x, iters = implicit_solve(
-            _variable_operator(dt, mask), velocity, (mu,),
-            precond=lambda r: _strain_preconditioner(r, alpha, mask), config=config, adjoint_config=adjoint_config,
+            _variable_operator(dt, mask),
+            velocity,
+            (mu,),
+            precond=lambda r: _strain_preconditioner(r, alpha, mask),
+            config=config,
+            adjoint_config=adjoint_config,
             name="viscosity solve",
         )
     elif viscosity == 0:
@@ -350,8 +381,11 @@ def diffuse(
     else:
         a = torch.full((velocity.shape[0],), dt * viscosity, device=velocity.device, dtype=velocity.dtype)
         x, iters = implicit_solve(
-            _constant_operator(dt * viscosity, mask), velocity,
-            precond=lambda r: solve_velocity_helmholtz(r, a), config=config, adjoint_config=adjoint_config,
+            _constant_operator(dt * viscosity, mask),
+            velocity,
+            precond=lambda r: solve_velocity_helmholtz(r, a),
+            config=config,
+            adjoint_config=adjoint_config,
             name="viscosity solve",
         )
     return (x, iters) if return_iterations else x
@@ -383,7 +417,11 @@ def project(
     rhs = -divergence(velocity)
     rhs = rhs - rhs.mean(dim=(-2, -1), keepdim=True)  # the walls make it zero-mean; remove round-off
     p, iters = implicit_solve(
-        _pressure_operator, rhs, precond=solve_pressure_poisson, config=config, adjoint_config=adjoint_config,
+        _pressure_operator,
+        rhs,
+        precond=solve_pressure_poisson,
+        config=config,
+        adjoint_config=adjoint_config,
         name="pressure solve",
     )
     out = velocity - gradient(p)
@@ -397,8 +435,10 @@ def check_viscosity(viscosity: object, batch: int, grid: tuple[int, int]) -> Vis
         if mu.ndim == 0:
             mu = mu.reshape(1, 1, 1, 1).expand(1, 1, *grid)
         if mu.ndim != 4 or mu.shape[1] != 1 or tuple(mu.shape[-2:]) != tuple(grid) or mu.shape[0] not in (1, batch):
-            raise ValueError(f"viscosity must be a float or a field of shape ({batch} or 1, 1, {grid[0]}, {grid[1]}), "
-                             f"got {tuple(mu.shape)}")
+            raise ValueError(
+                f"viscosity must be a float or a field of shape ({batch} or 1, 1, {grid[0]}, {grid[1]}), "
+                f"got {tuple(mu.shape)}"
+            )
         if bool((mu < 0).any()):
             raise ValueError(f"viscosity must be >= 0 everywhere, got a minimum of {float(mu.min()):.3g}")
         return mu

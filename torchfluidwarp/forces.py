@@ -21,7 +21,12 @@ from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.grid import FluidGrid
 
 __all__ = [
-    "Brushes", "SumForces", "ControlGrid", "CellForces", "ViscosityBrushes", "viscosity_from_mask",
+    "Brushes",
+    "SumForces",
+    "ControlGrid",
+    "CellForces",
+    "ViscosityBrushes",
+    "viscosity_from_mask",
     "cell_centres",
 ]
 
@@ -139,8 +144,9 @@ class ControlGrid(nn.Module):
         init: optional initial values ``(B, T, 2, K_y, K_x)``; zero by default.
     """
 
-    def __init__(self, steps: int, control: tuple[int, int] | int = (5, 5), batch: int = 1,
-                 init: Tensor | None = None) -> None:
+    def __init__(
+        self, steps: int, control: tuple[int, int] | int = (5, 5), batch: int = 1, init: Tensor | None = None
+    ) -> None:
         super().__init__()
         ky, kx = check_size("control", control, minimum=2)
         steps, batch = check_int("steps", steps), check_int("batch", batch)
@@ -153,8 +159,9 @@ class ControlGrid(nn.Module):
         B, T, _, ky, kx = self.weight.shape
         if steps != T:
             raise ValueError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
-        fine = F.interpolate(self.weight.reshape(B, T * 2, ky, kx), size=FluidGrid.of(grid).shape, mode="bicubic",
-                             align_corners=True)
+        fine = F.interpolate(
+            self.weight.reshape(B, T * 2, ky, kx), size=FluidGrid.of(grid).shape, mode="bicubic", align_corners=True
+        )
         return fine.view(B, T, 2, *fine.shape[-2:])
 
 
@@ -168,13 +175,16 @@ class CellForces(nn.Module):
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         if FluidGrid.of(grid).shape != tuple(self.weight.shape[-2:]) or steps != self.weight.shape[1]:
-            raise ValueError(f"CellForces holds {tuple(self.weight.shape)}, but grid {FluidGrid.of(grid).shape} "
-                             f"and {steps} steps were asked for")
+            raise ValueError(
+                f"CellForces holds {tuple(self.weight.shape)}, but grid {FluidGrid.of(grid).shape} "
+                f"and {steps} steps were asked for"
+            )
         return self.weight
 
 
-def viscosity_from_mask(mask: Tensor, grid: FluidGrid | tuple[int, int] | int, *, stiff: float = 5.0,
-                        soft: float = 0.0) -> Tensor:
+def viscosity_from_mask(
+    mask: Tensor, grid: FluidGrid | tuple[int, int] | int, *, stiff: float = 5.0, soft: float = 0.0
+) -> Tensor:
     """A viscosity field from a mask image: ``soft + (stiff - soft) * mask`` averaged onto the fluid grid.
 
     Args:
@@ -203,8 +213,13 @@ class ViscosityBrushes(nn.Module):
         base: the background viscosity.
     """
 
-    def __init__(self, centers: Tensor | Sequence, radius: Tensor | Sequence | float = 10.0,
-                 value: Tensor | Sequence | float = 5.0, base: float = 0.0) -> None:
+    def __init__(
+        self,
+        centers: Tensor | Sequence,
+        radius: Tensor | Sequence | float = 10.0,
+        value: Tensor | Sequence | float = 5.0,
+        base: float = 0.0,
+    ) -> None:
         super().__init__()
         c = torch.as_tensor(centers, dtype=torch.get_default_dtype()).detach().clone()
         check_tensor("centers", c, shape=[None, 2])

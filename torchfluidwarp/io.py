@@ -297,9 +297,7 @@ def write_points(path: PathLike, points: Tensor) -> Path:
     return path
 
 
-def check_point_counts(
-    points_a: Tensor, points_b: Tensor, name_a: str = "points_a", name_b: str = "points_b"
-) -> None:
+def check_point_counts(points_a: Tensor, points_b: Tensor, name_a: str = "points_a", name_b: str = "points_b") -> None:
     """Check that two point sets are ``(M, 2)`` tensors with the same ``M``.
 
     Args:
@@ -395,7 +393,7 @@ def _parse_json(text: str) -> list[list[float]]:
 
 
 def _parse_csv(text: str) -> list[list[float]]:
-    rows = []
+    rows: list[list[float]] = []
     for n, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
         fields = [f.strip() for f in fields]
         if not any(fields):
@@ -541,7 +539,7 @@ def _gif_palette_frames(frames: np.ndarray) -> list[Image.Image]:
     for rgb in frames:
         quantized = Image.fromarray(rgb).quantize(colors=255)  # median cut, no dithering
         indices = np.array(quantized, dtype=np.uint8)
-        used = np.asarray(quantized.getpalette()[: 3 * 255], dtype=np.uint8).reshape(-1, 3)
+        used = np.asarray((quantized.getpalette() or [])[: 3 * 255], dtype=np.uint8).reshape(-1, 3)
         palette = np.zeros((256, 3), dtype=np.uint8)
         palette[: len(used)] = used
         twin = int(indices[0, 0])

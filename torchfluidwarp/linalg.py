@@ -165,8 +165,13 @@ class _ImplicitSolve(torch.autograd.Function):
 
     @staticmethod
     def forward(  # type: ignore[override]
-        b: Tensor, operator: Operator, precond: Preconditioner | None, config: CGConfig, adjoint: CGConfig,
-        name: str, *params: Tensor,
+        b: Tensor,
+        operator: Operator,
+        precond: Preconditioner | None,
+        config: CGConfig,
+        adjoint: CGConfig,
+        name: str,
+        *params: Tensor,
     ) -> tuple[Tensor, Tensor]:
         x, info = conjugate_gradient(lambda v: operator(v, *params), b, _use(precond, config), config, name=name)
         return x, torch.tensor(info.iterations)
@@ -183,7 +188,10 @@ class _ImplicitSolve(torch.autograd.Function):
     def backward(ctx: Any, grad_x: Tensor, _grad_iters: Tensor | None) -> tuple[Tensor | None, ...]:
         x, *params = ctx.saved_tensors
         lam, _ = conjugate_gradient(
-            lambda v: ctx.operator(v, *params), grad_x.contiguous(), _use(ctx.precond, ctx.adjoint), ctx.adjoint,
+            lambda v: ctx.operator(v, *params),
+            grad_x.contiguous(),
+            _use(ctx.precond, ctx.adjoint),
+            ctx.adjoint,
             name=f"{ctx.name} (adjoint)",
         )
         grad_b = lam if ctx.needs_input_grad[0] else None
@@ -225,8 +233,9 @@ def implicit_solve(
         ``(x, iterations)``: the solution like ``b`` and the forward CG iteration count.
     """
     if config.backward == "unrolled":
-        x, info = conjugate_gradient(lambda v: operator(v, *params), b, _use(precond, config), config, name=name,
-                                     differentiable=True)
+        x, info = conjugate_gradient(
+            lambda v: operator(v, *params), b, _use(precond, config), config, name=name, differentiable=True
+        )
         return x, info.iterations
     x, iters = _ImplicitSolve.apply(b, operator, precond, config, adjoint_config or config, name, *params)
     return x, int(iters)

@@ -170,10 +170,22 @@ def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], 
     return [out[float(s)] for s in times]
 
 
-def _render(a: Tensor, b: Tensor, fit: KeyframeFit, M: Tensor, center: Tensor, box: tuple[int, int, int, int],
-            size: tuple[int, int], roi: tuple[int, int], steps: int, n: int, inverse: InverseMethod, blend: Blend,
-            align: AlignKind | None, fit_kwargs: dict[str, Any]
-            ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
+def _render(
+    a: Tensor,
+    b: Tensor,
+    fit: KeyframeFit,
+    M: Tensor,
+    center: Tensor,
+    box: tuple[int, int, int, int],
+    size: tuple[int, int],
+    roi: tuple[int, int],
+    steps: int,
+    n: int,
+    inverse: InverseMethod,
+    blend: Blend,
+    align: AlignKind | None,
+    fit_kwargs: dict[str, Any],
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
     """Render the frames of a fitted morph (see :func:`morph`)."""
     times = torch.linspace(0, steps, n, dtype=torch.float64)
     time_list = [float(s) for s in times]
@@ -184,8 +196,9 @@ def _render(a: Tensor, b: Tensor, fit: KeyframeFit, M: Tensor, center: Tensor, b
         k_maps = list(_embed(maps_to_end(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(1))
     else:
         small_kwargs = {**fit_kwargs, "progress": False}
-        k_maps = list(_embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size)
-                      .unsqueeze(1))
+        k_maps = list(
+            _embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size).unsqueeze(1)
+        )
     t_inv = time.perf_counter()
 
     weights = _blend_weights(times, steps, blend)
@@ -289,10 +302,23 @@ def morph(
         box = region_of_interest(torch.cat([pa.double(), target]), margin)
     offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
     roi = (box[3] - box[1], box[2] - box[0])
-    fit_kwargs: dict[str, Any] = dict(image_size=roi, grid=grid, control=control, viscosity=viscosity, compressible=compressible,
-                      max_iter=max_iter, tolerance=tolerance, progress=progress)
-    fit = fit_keyframes(pa.double() - offset, target - offset, steps=steps,
-                        forces=None if warm_start is None else warm_start.forces, **fit_kwargs)
+    fit_kwargs: dict[str, Any] = dict(
+        image_size=roi,
+        grid=grid,
+        control=control,
+        viscosity=viscosity,
+        compressible=compressible,
+        max_iter=max_iter,
+        tolerance=tolerance,
+        progress=progress,
+    )
+    fit = fit_keyframes(
+        pa.double() - offset,
+        target - offset,
+        steps=steps,
+        forces=None if warm_start is None else warm_start.forces,
+        **fit_kwargs,
+    )
     t_fit = time.perf_counter()
 
     with torch.no_grad():  # the fit is done: rendering needs no graph
@@ -300,11 +326,24 @@ def morph(
     frames_t, fwd, bwd, maps_a, maps_b, times, t_inv = result
     t_render = time.perf_counter()
 
-    traj = torch.stack([apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[:, t] + offset)
-                        for t in range(steps + 1)], dim=1)
-    fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=(traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1))
+    traj = torch.stack(
+        [
+            apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[:, t] + offset)
+            for t in range(steps + 1)
+        ],
+        dim=1,
+    )
+    fit = dataclasses.replace(
+        fit, trajectories=traj, points=traj[:, -1], error=(traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1)
+    )
     return MorphResult(
-        frames=frames_t, forward_frames=fwd, backward_frames=bwd, maps=maps_a, maps_b=maps_b, fit=fit, alignment=M,
+        frames=frames_t,
+        forward_frames=fwd,
+        backward_frames=bwd,
+        maps=maps_a,
+        maps_b=maps_b,
+        fit=fit,
+        alignment=M,
         times=times,
         seconds={"fit": t_fit - t0, "inverse": t_inv - t_fit, "render": t_render - t_inv, "total": t_render - t0},
     )

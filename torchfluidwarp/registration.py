@@ -144,8 +144,9 @@ def _level_grids(grid: FluidGrid, levels: Sequence[int] | None) -> list[FluidGri
         raise TypeError(f"levels must be a non-empty sequence of ints or None, got {describe(levels)}")
     sizes = [check_int("levels", n, minimum=2) for n in levels]
     if any(b <= a for a, b in zip(sizes, sizes[1:])) or sizes[-1] > longest:
-        raise ValueError(f"levels must increase and end at most at the finest grid's longer side ({longest}), "
-                         f"got {tuple(sizes)}")
+        raise ValueError(
+            f"levels must increase and end at most at the finest grid's longer side ({longest}), got {tuple(sizes)}"
+        )
     if sizes[-1] != longest:
         sizes.append(longest)
     h, w = grid.shape
@@ -230,8 +231,10 @@ def fit_images(
     src = check_tensor("source", source, ndim=4)
     tgt = check_tensor("target", target, ndim=4)
     if src.shape[1:] != tgt.shape[1:] or (src.shape[0] != tgt.shape[0] and 1 not in (src.shape[0], tgt.shape[0])):
-        raise ValueError(f"source and target must have the same (C, H, W) and batch sizes 1 or B, got source "
-                         f"{tuple(src.shape)} and target {tuple(tgt.shape)}")
+        raise ValueError(
+            f"source and target must have the same (C, H, W) and batch sizes 1 or B, got source "
+            f"{tuple(src.shape)} and target {tuple(tgt.shape)}"
+        )
     H, W = src.shape[-2:]
     if min(H, W) < 2:
         raise ValueError(f"source must be at least 2 x 2 pixels, got {tuple(src.shape)}")
@@ -267,8 +270,7 @@ def fit_images(
     warp = module = None
     for g, n_iter in zip(grids, iters):
         if previous is not None:  # cells per time^2: forces scale with the grid's resolution
-            ratio = torch.tensor([g.width / previous.width, g.height / previous.height], device=src.device,
-                                 dtype=dtype)
+            ratio = torch.tensor([g.width / previous.width, g.height / previous.height], device=src.device, dtype=dtype)
             weight = weight * ratio.view(1, 1, 2, 1, 1)
         previous = g
         f = max(g.height / fine.height, g.width / fine.width)
@@ -277,8 +279,21 @@ def fit_images(
         warp = FluidWarp(g, steps, dt, visc, image_size=(H, W), compressible=compressible).to(src.device, dtype)
         module = ControlGrid(steps, (ky, kx), batch=B, init=weight).to(src.device, dtype)
         s_l, t_l = _resize(src, size), _resize(tgt, size)
-        record = _fit_level(warp, module, s_l, t_l, objective, pts, (H, W), point_weight, regularization,
-                            n_iter, history, progress, f"fit_images {g.height}x{g.width}")
+        record = _fit_level(
+            warp,
+            module,
+            s_l,
+            t_l,
+            objective,
+            pts,
+            (H, W),
+            point_weight,
+            regularization,
+            n_iter,
+            history,
+            progress,
+            f"fit_images {g.height}x{g.width}",
+        )
         records.append(record)
         weight = module.weight.detach().clone()
 
@@ -290,23 +305,54 @@ def fit_images(
         initial, final = float(objective(src, tgt)), float(objective(warped, tgt))
         min_det = jacobian_determinant(coords).flatten(1).amin(1)
     seconds = time.perf_counter() - start
-    message = (f"loss {initial:.4g} -> {final:.4g} ({final / initial if initial else 0.0:.2%}) in "
-               f"{len(history)} evaluations over {len(records)} level(s), {seconds:.1f} s; min det "
-               f"{float(min_det.min()):.3f}")
-    return ImageFit(forces=module, warp=warp, warped=warped, initial_loss=initial, final_loss=final,
-                    min_det=min_det, loss_history=history, evaluations=len(history), seconds=seconds,
-                    converged=records[-1].converged, levels=records, message=message)
+    message = (
+        f"loss {initial:.4g} -> {final:.4g} ({final / initial if initial else 0.0:.2%}) in "
+        f"{len(history)} evaluations over {len(records)} level(s), {seconds:.1f} s; min det "
+        f"{float(min_det.min()):.3f}"
+    )
+    return ImageFit(
+        forces=module,
+        warp=warp,
+        warped=warped,
+        initial_loss=initial,
+        final_loss=final,
+        min_det=min_det,
+        loss_history=history,
+        evaluations=len(history),
+        seconds=seconds,
+        converged=records[-1].converged,
+        levels=records,
+        message=message,
+    )
 
 
 def _fit_level(
-    warp: FluidWarp, module: ControlGrid, source: Tensor, target: Tensor, objective: ImageLoss,
-    points: tuple[Tensor, Tensor] | None, full_size: tuple[int, int], point_weight: float, regularization: float,
-    max_iter: int, history: list[float], progress: bool, desc: str,
+    warp: FluidWarp,
+    module: ControlGrid,
+    source: Tensor,
+    target: Tensor,
+    objective: ImageLoss,
+    points: tuple[Tensor, Tensor] | None,
+    full_size: tuple[int, int],
+    point_weight: float,
+    regularization: float,
+    max_iter: int,
+    history: list[float],
+    progress: bool,
+    desc: str,
 ) -> LevelFit:
     """L-BFGS on one level (the structure of :func:`~torchfluidwarp.control.fit_keyframes`)."""
     params = [module.weight]
-    optimizer = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, max_eval=max_iter * 2, history_size=20,
-                                  tolerance_grad=1e-10, tolerance_change=1e-12, line_search_fn="strong_wolfe")
+    optimizer = torch.optim.LBFGS(
+        params,
+        lr=1.0,
+        max_iter=max_iter,
+        max_eval=max_iter * 2,
+        history_size=20,
+        tolerance_grad=1e-10,
+        tolerance_change=1e-12,
+        line_search_fn="strong_wolfe",
+    )
     best: dict[str, object] = {"loss": math.inf, "state": None}
     first: list[float] = []
     start = time.perf_counter()
@@ -356,6 +402,12 @@ def _fit_level(
         with torch.no_grad():
             module.weight.copy_(best["state"])  # type: ignore[arg-type]
     final = float(best["loss"])  # type: ignore[arg-type]
-    return LevelFit(grid=warp.grid.shape, image_size=(source.shape[-2], source.shape[-1]),
-                    initial_loss=first[0] if first else math.nan, final_loss=final,
-                    evaluations=len(history) - evals, seconds=time.perf_counter() - start, converged=converged)
+    return LevelFit(
+        grid=warp.grid.shape,
+        image_size=(source.shape[-2], source.shape[-1]),
+        initial_loss=first[0] if first else math.nan,
+        final_loss=final,
+        evaluations=len(history) - evals,
+        seconds=time.perf_counter() - start,
+        converged=converged,
+    )

@@ -15,7 +15,13 @@ from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_positive, check_tensor
 from torchfluidwarp.fluid import (
-    Viscosity, _advect_points, _advect_velocity, check_viscosity, diffuse, faces_from_cells, project,
+    Viscosity,
+    _advect_points,
+    _advect_velocity,
+    check_viscosity,
+    diffuse,
+    faces_from_cells,
+    project,
 )
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
@@ -54,8 +60,9 @@ class Diffuse(nn.Module):
         self.config, self.adjoint_config = config, adjoint_config
 
     def forward(self, velocity: Tensor, viscosity: Viscosity) -> tuple[Tensor, int]:
-        return diffuse(velocity, viscosity, self.dt, config=self.config, adjoint_config=self.adjoint_config,
-                       return_iterations=True)  # type: ignore[return-value]
+        return diffuse(
+            velocity, viscosity, self.dt, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True
+        )  # type: ignore[return-value]
 
 
 class Project(nn.Module):
@@ -66,8 +73,7 @@ class Project(nn.Module):
         self.config, self.adjoint_config = config, adjoint_config
 
     def forward(self, velocity: Tensor) -> tuple[Tensor, int]:
-        return project(velocity, config=self.config, adjoint_config=self.adjoint_config,
-                       return_iterations=True)  # type: ignore[return-value]
+        return project(velocity, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True)  # type: ignore[return-value]
 
 
 class StableFluidsStep(nn.Module):
@@ -174,13 +180,16 @@ class FluidSimulator(nn.Module):
         super().__init__()
         self.grid = FluidGrid.of(grid)
         self.dt = check_positive("dt", dt)
-        self.step = StableFluidsStep(dt, pressure=pressure, diffusion=diffusion, adjoint=adjoint,
-                                     compressible=compressible)
+        self.step = StableFluidsStep(
+            dt, pressure=pressure, diffusion=diffusion, adjoint=adjoint, compressible=compressible
+        )
         self.viscosity: Viscosity | nn.Module
         if isinstance(viscosity, (nn.Module, nn.Parameter)):
             self.viscosity = viscosity
         elif isinstance(viscosity, Tensor):
-            self.register_buffer("viscosity", cast(Tensor, check_viscosity(viscosity, viscosity.shape[0], self.grid.shape)))
+            self.register_buffer(
+                "viscosity", cast(Tensor, check_viscosity(viscosity, viscosity.shape[0], self.grid.shape))
+            )
         else:
             self.viscosity = check_viscosity(viscosity, 1, self.grid.shape)
 

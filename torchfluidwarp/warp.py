@@ -16,7 +16,7 @@ covers the same rectangle whatever the image's resolution.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from typing import Literal, Union
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -29,11 +29,17 @@ from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
 
 __all__ = [
-    "FluidWarp", "warp_image", "identity_map", "backward_maps", "iter_backward_maps", "forward_maps", "maps_to_end",
+    "FluidWarp",
+    "warp_image",
+    "identity_map",
+    "backward_maps",
+    "iter_backward_maps",
+    "forward_maps",
+    "maps_to_end",
     "jacobian_determinant",
 ]
 
-ForceSource = Union[Tensor, Callable[..., Tensor]]
+ForceSource = Tensor | Callable[..., Tensor]
 SampleMode = Literal["bilinear", "bicubic", "nearest"]
 
 
@@ -45,8 +51,9 @@ def identity_map(size: tuple[int, int], *, batch: int = 1, device=None, dtype=to
         [2.0, 1.0]
     """
     H, W = check_size("size", size)
-    ys, xs = torch.meshgrid(torch.arange(H, device=device, dtype=dtype), torch.arange(W, device=device, dtype=dtype),
-                            indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(H, device=device, dtype=dtype), torch.arange(W, device=device, dtype=dtype), indexing="ij"
+    )
     return torch.stack([xs, ys], dim=-1).expand(batch, H, W, 2)
 
 
@@ -90,8 +97,9 @@ def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode) -> Tensor:
     B, Ho, Wo = coords.shape[:3]
     pts = coords.reshape(B, -1, 2).transpose(1, 2)  # (B, 2, N)
     scale, shift = _pixel_affine(H, W, coords)
-    out = _sample(image, pts.to(image.dtype), scale.to(image.dtype), shift.to(image.dtype), align_corners=False,
-                  mode=mode)
+    out = _sample(
+        image, pts.to(image.dtype), scale.to(image.dtype), shift.to(image.dtype), align_corners=False, mode=mode
+    )
     return out.view(B, image.shape[1], Ho, Wo)
 
 
@@ -295,7 +303,8 @@ class FluidWarp(nn.Module):
         viscosity: float, field ``(B|1, 1, h, w)``, or a viscosity module from :mod:`torchfluidwarp.forces`.
         image_size: ``(H, W)`` used by :meth:`advect_points` when no image is at hand (optional).
         compressible: ``True`` skips the pressure projection (the warp may then change areas); a weight in
-            ``[0, 1]`` keeps that fraction of the divergent part (see :class:`~torchfluidwarp.simulator.StableFluidsStep`).
+            ``[0, 1]`` keeps that fraction of the divergent part (see
+            :class:`~torchfluidwarp.simulator.StableFluidsStep`).
         mode: image sampling, ``"bilinear"`` or ``"bicubic"``.
         pressure, diffusion, adjoint: CG settings (:class:`~torchfluidwarp.linalg.CGConfig`).
 
@@ -325,8 +334,9 @@ class FluidWarp(nn.Module):
         adjoint: CGConfig | None = None,
     ) -> None:
         super().__init__()
-        self.simulator = FluidSimulator(grid, dt, viscosity, pressure=pressure, diffusion=diffusion, adjoint=adjoint,
-                                        compressible=compressible)
+        self.simulator = FluidSimulator(
+            grid, dt, viscosity, pressure=pressure, diffusion=diffusion, adjoint=adjoint, compressible=compressible
+        )
         self.steps = check_int("steps", steps)
         self.image_size = None if image_size is None else check_size("image_size", image_size)
         if mode not in ("bilinear", "bicubic"):
@@ -352,12 +362,16 @@ class FluidWarp(nn.Module):
         """The force schedule ``(B|1, T, 2, h, w)`` from a tensor or a force module, validated."""
         if not isinstance(forces, Tensor):
             if not callable(forces):
-                raise TypeError(f"forces must be a tensor (B, T, 2, h, w) or a force module, got {type(forces).__name__}")
+                raise TypeError(
+                    f"forces must be a tensor (B, T, 2, h, w) or a force module, got {type(forces).__name__}"
+                )
             forces = forces(self.grid, self.steps, self.dt, image_size)
         h, w = self.grid.shape
         return check_tensor("forces", forces, shape=[None, self.steps, 2, h, w])
 
-    def rollout(self, forces: ForceSource, size: tuple[int, int] | None = None, points: Tensor | None = None) -> FluidRollout:
+    def rollout(
+        self, forces: ForceSource, size: tuple[int, int] | None = None, points: Tensor | None = None
+    ) -> FluidRollout:
         """Run the fluid: velocities ``(B, T, 2, h + 1, w + 1)`` and, given ``points`` in fluid cells, their paths."""
         size = self._size(size)
         return self.simulator(self.resolve_forces(forces, size), points, image_size=size)

@@ -125,8 +125,16 @@ class CliSubcommands(SphinxDirective):
                 continue
             for name, sub in action.choices.items():
                 title = f"``{prog} {name}``"
-                lines += [title, "-" * len(title), "", ".. argparse::", f"   :module: {module}",
-                          f"   :func: {func}", f"   :prog: {prog}", f"   :path: {name}"]
+                lines += [
+                    title,
+                    "-" * len(title),
+                    "",
+                    ".. argparse::",
+                    f"   :module: {module}",
+                    f"   :func: {func}",
+                    f"   :prog: {prog}",
+                    f"   :path: {name}",
+                ]
                 raw = issubclass(sub.formatter_class, argparse.RawDescriptionHelpFormatter)
                 if raw and sub.epilog:
                     lines += ["   :noepilog:", "", ".. code-block:: text", ""]

@@ -39,7 +39,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar, cast
 
 import anyio.to_thread
 import torch
@@ -207,13 +207,16 @@ class _Guard:
         headers = Headers(scope=scope)
         if headers.get("host", "").lower() not in self.hosts:
             await _error("host not allowed (the studio answers only on its own loopback address)", 403)(
-                scope, receive, send)
+                scope, receive, send
+            )
             return
         given = QueryParams(scope.get("query_string", b"").decode("latin-1")).get("token") or headers.get(
-            TOKEN_HEADER, "")
+            TOKEN_HEADER, ""
+        )
         if not secrets.compare_digest(given.encode(), self.config.token.encode()):
             await _error("missing or wrong session token: open the address the studio printed", 403)(
-                scope, receive, send)
+                scope, receive, send
+            )
             return
         limit = self.config.max_upload
         length = headers.get("content-length")
@@ -403,12 +406,14 @@ def _rescale(points: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
 
 def _download(data: bytes, name: str, media: str) -> Response:
     safe = re.sub(r"[^A-Za-z0-9._-]", "_", Path(name).name) or "export"
-    return Response(data, media_type=media, headers={"Content-Disposition": f'attachment; filename="{safe}"',
-                                                      "Cache-Control": "no-store"})
+    return Response(
+        data,
+        media_type=media,
+        headers={"Content-Disposition": f'attachment; filename="{safe}"', "Cache-Control": "no-store"},
+    )
 
 
-_MEDIA = {"gif": "image/gif", "mp4": "video/mp4", "pts": "text/plain", "json": "application/json",
-          "csv": "text/csv"}
+_MEDIA = {"gif": "image/gif", "mp4": "video/mp4", "pts": "text/plain", "json": "application/json", "csv": "text/csv"}
 
 
 # -------------------------------------------------------------------------------------------------- app
@@ -470,8 +475,9 @@ def create_app(
 
     async def index(request: Request) -> Response:
         html = (static / "index.html").read_text(encoding="utf-8").replace("__TOKEN__", config.token)
-        return Response(html, media_type="text/html", headers={"Cache-Control": "no-store",
-                                                                "Referrer-Policy": "no-referrer"})
+        return Response(
+            html, media_type="text/html", headers={"Cache-Control": "no-store", "Referrer-Policy": "no-referrer"}
+        )
 
     async def static_file(request: Request) -> Response:
         name = request.path_params["name"]
@@ -480,13 +486,25 @@ def create_app(
         return Response((static / name).read_bytes(), media_type=_STATIC[name], headers={"Cache-Control": "no-store"})
 
     def describe_state() -> dict:
-        out: dict[str, Any] = {"images": {}, "points": {}, "save_dir": config.save_dir is not None,
-                               "preview_frames": config.preview_frames}
+        out: dict[str, Any] = {
+            "images": {},
+            "points": {},
+            "save_dir": config.save_dir is not None,
+            "preview_frames": config.preview_frames,
+        }
         for key in _IMAGE_SLOTS:
             slot = state.images.get(key)
-            out["images"][key] = None if slot is None else {
-                "width": slot.image.shape[-1], "height": slot.image.shape[-2], "channels": slot.image.shape[1],
-                "name": slot.name, "version": slot.version}
+            out["images"][key] = (
+                None
+                if slot is None
+                else {
+                    "width": slot.image.shape[-1],
+                    "height": slot.image.shape[-2],
+                    "channels": slot.image.shape[1],
+                    "name": slot.name,
+                    "version": slot.version,
+                }
+            )
             out["points"][key] = state.points[key].tolist() if key in state.points else []
         return out
 
@@ -606,8 +624,14 @@ def create_app(
         a, b, pa, pb, settings = morph_inputs(data)
         with state.lock:
             state.points["a"], state.points["b"] = pa, pb
-        key = (settings["grid"], settings["steps"], settings["control"], settings["compressible"],
-               tuple(a.shape), tuple(b.shape))
+        key = (
+            settings["grid"],
+            settings["steps"],
+            settings["control"],
+            settings["compressible"],
+            tuple(a.shape),
+            tuple(b.shape),
+        )
         ticket = worker.ticket("morph")
 
         def job() -> MorphResult:
@@ -618,27 +642,38 @@ def create_app(
             small_b = F.interpolate(b, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
             start = warm(key)
             iters = config.preview_iter if start is not None else 5 * config.preview_iter
-            return morph(small_a[0], small_b[0], _rescale(pa, a, size).float(), _rescale(pb, b, size).float(),
-                         frames=config.preview_frames, max_iter=iters, tolerance=config.preview_tolerance,
-                         warm_start=start, progress=False, **settings)
+            return morph(
+                small_a[0],
+                small_b[0],
+                _rescale(pa, a, size).float(),
+                _rescale(pb, b, size).float(),
+                frames=config.preview_frames,
+                max_iter=iters,
+                tolerance=config.preview_tolerance,
+                warm_start=start,
+                progress=False,
+                **settings,
+            )
 
         gen, res = await anyio.to_thread.run_sync(lambda: worker.run("morph", job, ticket))
         keep_fit(key, res.fit)
         with state.lock:
             state.morph_gen, state.morph_result = gen, res
         err = res.fit.error[0] * (a.shape[-1] / res.frames.shape[-1])  # in A's pixels
-        return JSONResponse({
-            "generation": gen,
-            "frames": int(res.frames.shape[0]),
-            "times": (res.times / settings["steps"]).tolist(),
-            "trajectories": res.fit.trajectories[0].permute(1, 0, 2).tolist(),  # (M, T + 1, 2) frame pixels
-            "error": err.tolist(),
-            "mean_error": float(err.mean()),
-            "alignment": proposal(pa, pb, settings["align"]),
-            "seconds": {k: round(v, 4) for k, v in res.seconds.items()},
-            "server_seconds": round(time.perf_counter() - t0, 4),
-            "size": [int(res.frames.shape[-1]), int(res.frames.shape[-2])],  # trajectories are in these pixels
-        })
+        return JSONResponse(
+            {
+                "generation": gen,
+                "frames": int(res.frames.shape[0]),
+                "times": (res.times / settings["steps"]).tolist(),
+                "trajectories": res.fit.trajectories[0].permute(1, 0, 2).tolist(),  # (M, T + 1, 2) frame pixels
+                "error": err.tolist(),
+                "mean_error": float(err.mean()),
+                "alignment": proposal(pa, pb, settings["align"]),
+                "seconds": {k: round(v, 4) for k, v in res.seconds.items()},
+                "server_seconds": round(time.perf_counter() - t0, 4),
+                "size": [int(res.frames.shape[-1]), int(res.frames.shape[-2])],  # trajectories are in these pixels
+            }
+        )
 
     async def morph_frame(request: Request) -> Response:
         q = request.query_params
@@ -669,14 +704,29 @@ def create_app(
         fmt = _choice("format", data.get("format", "gif"), _ANIMATION_FORMATS)
         frames = _integer("frames", data.get("frames", 30), 2, 600)
         fps = _number("fps", data.get("fps", 10), 0.1, 120)
-        key = (settings["grid"], settings["steps"], settings["control"], settings["compressible"],
-               tuple(a.shape), tuple(b.shape))
+        key = (
+            settings["grid"],
+            settings["steps"],
+            settings["control"],
+            settings["compressible"],
+            tuple(a.shape),
+            tuple(b.shape),
+        )
 
         def job() -> bytes:
-            res = morph(a[0], b[0], pa.float(), pb.float(), frames=frames, max_iter=config.export_iter,
-                        warm_start=warm(key), progress=False, **settings)
+            res = morph(
+                a[0],
+                b[0],
+                pa.float(),
+                pb.float(),
+                frames=frames,
+                max_iter=config.export_iter,
+                warm_start=warm(key),
+                progress=False,
+                **settings,
+            )
             keep_fit(key, res.fit)
-            return encode_animation(res.frames, fmt, fps=fps)
+            return encode_animation(res.frames, cast(Literal["gif", "mp4"], fmt), fps=fps)
 
         _, payload = await anyio.to_thread.run_sync(lambda: worker.run(None, job))
         return respond_export(data, payload, data.get("name") or f"morph.{fmt}", (f".{fmt}",), fmt)
@@ -685,8 +735,11 @@ def create_app(
 
     def animation_config(data: dict):
         cfg_data = data.get("config")
-        if isinstance(cfg_data, dict) and isinstance(cfg_data.get("viscosity"), dict) and \
-                "mask" in cfg_data["viscosity"]:
+        if (
+            isinstance(cfg_data, dict)
+            and isinstance(cfg_data.get("viscosity"), dict)
+            and "mask" in cfg_data["viscosity"]
+        ):
             raise BadInput("viscosity.mask is not supported in the studio: paint stiff and soft regions instead")
         cfg = parse_config(cfg_data)
         if not cfg.brushes:
@@ -710,12 +763,19 @@ def create_app(
         cfg = animation_config(data)
         image("a")
         gen, frames = await anyio.to_thread.run_sync(
-            lambda: worker.run("animate", lambda: animate(cfg, config.animate_preview_size)))
+            lambda: worker.run("animate", lambda: animate(cfg, config.animate_preview_size))
+        )
         with state.lock:
             state.animate_gen, state.animate_frames = gen, frames
-        return JSONResponse({"generation": gen, "frames": int(frames.shape[0]), "fps": cfg.fps,
-                             "size": [int(frames.shape[-1]), int(frames.shape[-2])],
-                             "server_seconds": round(time.perf_counter() - t0, 4)})
+        return JSONResponse(
+            {
+                "generation": gen,
+                "frames": int(frames.shape[0]),
+                "fps": cfg.fps,
+                "size": [int(frames.shape[-1]), int(frames.shape[-2])],
+                "server_seconds": round(time.perf_counter() - t0, 4),
+            }
+        )
 
     async def animate_frame(request: Request) -> Response:
         q = request.query_params
@@ -742,7 +802,9 @@ def create_app(
             image("a")
 
             def job() -> bytes:
-                return encode_animation(animate(cfg, config.animate_export_size), fmt, fps=cfg.fps)
+                return encode_animation(
+                    animate(cfg, config.animate_export_size), cast(Literal["gif", "mp4"], fmt), fps=cfg.fps
+                )
 
             _, payload = await anyio.to_thread.run_sync(lambda: worker.run(None, job))
         return respond_export(data, payload, data.get("name") or f"animation.{fmt}", (f".{fmt}",), fmt)
@@ -773,12 +835,26 @@ def create_app(
 def config_json(cfg) -> dict:
     """An :class:`~torchfluidwarp.animate_config.AnimationConfig` as the JSON ``torchfluidwarp animate`` reads."""
     out: dict[str, Any] = {
-        "brushes": [{"position": list(b.position), "direction": list(b.direction), "radius": b.radius,
-                     "frequency": b.frequency, "amplitude": b.amplitude, "phase": b.phase} for b in cfg.brushes],
-        "viscosity": {"base": cfg.viscosity.base,
-                      "regions": [{"position": list(r.position), "radius": r.radius, "value": r.value}
-                                  for r in cfg.viscosity.regions]},
-        "steps": cfg.steps, "dt": cfg.dt, "fps": cfg.fps,
+        "brushes": [
+            {
+                "position": list(b.position),
+                "direction": list(b.direction),
+                "radius": b.radius,
+                "frequency": b.frequency,
+                "amplitude": b.amplitude,
+                "phase": b.phase,
+            }
+            for b in cfg.brushes
+        ],
+        "viscosity": {
+            "base": cfg.viscosity.base,
+            "regions": [
+                {"position": list(r.position), "radius": r.radius, "value": r.value} for r in cfg.viscosity.regions
+            ],
+        },
+        "steps": cfg.steps,
+        "dt": cfg.dt,
+        "fps": cfg.fps,
     }
     if cfg.grid is not None:
         out["grid"] = list(cfg.grid)

@@ -37,15 +37,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("image_b", metavar="B", nargs="?", help="second image (default: the bundled cat)")
     parser.add_argument("--points-a", metavar="FILE", help="points on A (.pts, .json or .csv)")
     parser.add_argument("--points-b", metavar="FILE", help="points on B (.pts, .json or .csv)")
-    parser.add_argument("--port", type=int, default=DEFAULT_PORT,
-                        help=f"port to listen on (default {DEFAULT_PORT}; 0 picks a free one)")
-    parser.add_argument("--host", default="127.0.0.1",
-                        help="address to listen on (default 127.0.0.1: this machine only). Anything else exposes "
-                             "your images to the network, guarded only by the session token")
+    parser.add_argument(
+        "--port", type=int, default=DEFAULT_PORT, help=f"port to listen on (default {DEFAULT_PORT}; 0 picks a free one)"
+    )
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only). Anything else exposes "
+        "your images to the network, guarded only by the session token",
+    )
     parser.add_argument("--no-browser", action="store_true", help="do not open a web browser")
-    parser.add_argument("--save-dir", metavar="DIR",
-                        help="folder the page may save exports into (created if missing; existing files are never "
-                             "replaced). Without it the studio writes no file: exports are downloads")
+    parser.add_argument(
+        "--save-dir",
+        metavar="DIR",
+        help="folder the page may save exports into (created if missing; existing files are never "
+        "replaced). Without it the studio writes no file: exports are downloads",
+    )
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -117,8 +124,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: {lines[0] if lines else exc}", file=sys.stderr)
         return 2
     if args.host not in _LOOPBACK:
-        print(f"{PROG}: warning: listening on {args.host}, not only on this machine: anyone who can reach it and "
-              "learns the address with its token can see your images", file=sys.stderr)
+        print(
+            f"{PROG}: warning: listening on {args.host}, not only on this machine: anyone who can reach it and "
+            "learns the address with its token can see your images",
+            file=sys.stderr,
+        )
     token = secrets.token_urlsafe(24)
     config = StudioConfig(token=token, allowed_hosts=loopback_hosts(port, args.host), save_dir=save_dir)
     app = create_app(config, images=images, points=points)
@@ -141,8 +151,11 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``torchfluidwarp studio`` as a function: parse ``argv`` (default ``sys.argv[1:]``), then :func:`run`."""
-    parser = argparse.ArgumentParser(prog=PROG, description="Mark corresponding points, preview the morph live, "
-                                     "and animate a photo with brushes, in a local web page.")
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Mark corresponding points, preview the morph live, "
+        "and animate a photo with brushes, in a local web page.",
+    )
     add_arguments(parser)
     try:
         args = parser.parse_args(argv)
