@@ -23,18 +23,26 @@ in float32 on CPU, in one process, so every figure below comes from the same run
    * **time** of the whole ``N``-frame morph (wall clock around the call) and its split as ``result.seconds``
      reports it (fit, inverse, render), medians over ``--repeats`` repeats; the fit's objective evaluations.
 
-2. **Thin-plate-spline morph** with kornia, on the same pair: for frame ``k`` (``u = k / (N - 1)``) the points
-   ``p_k = (1 - u) a + u b``; A is warped from ``a`` to ``p_k`` and B from ``b`` to ``p_k`` with
-   ``kornia.geometry.transform.get_tps_transform(p_k, a)`` and ``warp_image_tps(A, a, ...)`` (points in the
-   normalised ``align_corners=False`` frame, as kornia's Convention block requires; ``padding_mode="border"``
-   to match the fluid morph, which reads the edge pixels beyond the image), then cross-dissolved linearly. The
-   same figures as for the fluid: the end error (where A's points land in the last frame, against B's points;
-   and the spline evaluated exactly at B's points against A's points, zero by construction up to round-off),
-   the folded fractions of the TPS backward maps (evaluated with ``warp_points_tps`` on the pixel grid, the
-   same arithmetic that ``warp_image_tps`` samples through), the middle-frame misalignment and the time.
+2. **Thin-plate-spline morph** on the same pair: for frame ``k`` (``u = k / (N - 1)``) the points
+   ``p_k = (1 - u) a + u b``; A is warped from ``a`` to ``p_k`` and B from ``b`` to ``p_k``, then the two are
+   cross-dissolved linearly. Points are in kornia's normalised ``align_corners=False`` frame, as its Convention
+   block requires, and ``padding_mode="border"`` matches the fluid morph, which reads the edge pixels beyond
+   the image. Two splines, both rendered by ``kornia.geometry.transform.warp_image_tps``:
+
+   * ``kornia``: kornia's documented composition, ``get_tps_transform(p_k, a)`` and ``warp_image_tps(A, a, ...)``
+     (kernel centres at the *source* points ``a``), in float32 like the images;
+   * ``standard``: the textbook TPS, kernel centres at the points ``p_k`` where the backward map is evaluated,
+     solved in float64 by this script (:func:`standard_tps`) and passed to ``warp_image_tps`` with centres
+     ``p_k``; the baseline for what a thin-plate spline itself does on this pair.
+
+   The same figures as for the fluid: the end error (where A's landmarks appear in the last frame, against B's
+   points; and the spline evaluated exactly at B's points against A's points, zero by construction up to
+   round-off), the folded fractions of the TPS backward maps (evaluated with ``warp_points_tps`` on the pixel
+   grid, the same arithmetic that ``warp_image_tps`` samples through, and checked against it), the
+   middle-frame misalignment and the time.
 
 3. With ``--images DIR`` the middle frames of the fluid morphs with ``compressible=0.5`` (``flow`` and
-   ``paper``) and of the TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png``
+   ``paper``) and of the kornia TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png``
    and ``morph_mid_tps.png``.
 
 The fluid morphs run under ``torch.no_grad()``: :func:`morph` fits its forces inside L-BFGS's closure, which
@@ -450,50 +458,69 @@ def label(inverse: str, compressible: bool | float) -> str:
 # ----------------------------------------------------------------------------------------------- report
 
 
-def report(fluid: list[FluidRow], tps: TpsRow, frames: int, size: int, probe: dict[str, bool]
-           ) -> tuple[str, dict[str, Any]]:
-    out = [f"Accuracy ({size}x{size}, {frames} frames; end = last frame, B's pixels; mid = frame "
-           f"{fluid[0].marks.mid_frame} (u = {fluid[0].marks.mid_u:.3f}))"]
+def tps_label(kind: str) -> str:
+    return {"kornia": "TPS kornia", "standard": "TPS standard"}[kind]
+
+
+def report(fluid: list[FluidRow], tps: list[TpsRow], frames: int, size: int, n_points: int,
+           probe: dict[str, bool]) -> tuple[str, dict[str, Any]]:
+    M = f"/{n_points}"
+    mid = fluid[0].marks
+    out = [f"Landmarks ({size}x{size}, {frames} frames; px = pixels of B (= of the last frame); mid = frame "
+           f"{mid.mid_frame}, u = {mid.mid_u:.3f}; 'loc' = landmarks located in the frame through its map)"]
     rows = []
     for r in fluid:
         m = r.marks
-        rows.append([label(r.inverse, r.compressible), f"{r.fit_error_px:.3f}", f"{r.fit_error_px_max:.3f}",
-                     f"{m.end_error_px:.3f}", f"{m.mid_misalign_b_px:.3f}", f"{m.mid_misalign_b_px_max:.3f}",
-                     f"{m.mid_ghost_px:.3f}", f"{m.traj_gap_px:.3f}", f"{m.inversion_residual_px:.1e}"])
-    m = tps.marks
-    rows.append(["TPS (kornia)", "-", "-", f"{m.end_error_px:.3f}", f"{m.mid_misalign_b_px:.3f}",
-                 f"{m.mid_misalign_b_px_max:.3f}", f"{m.mid_ghost_px:.3f}", "-", f"{m.inversion_residual_px:.1e}"])
-    out.append(table(["method", "fit.error mean", "fit.error max", "end (maps) mean", "mid B-px mean",
-                      "mid B-px max", "mid ghost px", "traj gap px", "Newton res"], rows))
-    out.append(f"TPS spline at B's points vs A's points (exact by construction): max {m.exact_end_px:.2e} px; "
-               f"middle frame re-rendered from the TPS maps vs warp_image_tps: max |diff| {tps.map_check:.2e}")
+        rows.append([label(r.inverse, r.compressible), f"{r.fit_error_px:.2f}", f"{r.fit_error_px_max:.2f}",
+                     f"{m.end_error_px:.2f}", f"{m.end_error_px_max:.2f}", f"{m.end_located}{M}",
+                     f"{m.traj_gap_end_px:.2f}", f"{m.traj_gap_end_px_max:.2f}",
+                     f"{m.mid_misalign_b_px:.2f}", f"{m.mid_misalign_b_px_max:.2f}", f"{m.mid_located}{M}",
+                     f"{m.mid_ghost_px:.2f}", f"{m.ghost_located}{M}"])
+    for t in tps:
+        m = t.marks
+        rows.append([tps_label(t.kind), "-", "-", f"{m.end_error_px:.2f}", f"{m.end_error_px_max:.2f}",
+                     f"{m.end_located}{M}", "-", "-", f"{m.mid_misalign_b_px:.2f}", f"{m.mid_misalign_b_px_max:.2f}",
+                     f"{m.mid_located}{M}", f"{m.mid_ghost_px:.2f}", f"{m.ghost_located}{M}"])
+    out.append(table(["method", "fit.error", "max", "end (map)", "max", "loc", "traj gap", "max",
+                      "mid B-px", "max", "loc", "mid ghost", "loc"], rows))
+    out.append("fit.error = fit.error (A's points advected to the last frame vs B's); end (map) = where the last "
+               "frame's map shows A's landmarks vs B's points; traj gap = end (map) position vs advected point; "
+               "mid B-px = |maps_b[mid](y) - b| at A's landmark y in the middle frame; mid ghost = |y - z|, z = "
+               "B's landmark in the middle frame (frame px)")
+    for t in tps:
+        out.append(f"{tps_label(t.kind)}: spline at B's points vs A's points (exact by construction) max "
+                   f"{t.marks.exact_end_px:.2e} px; middle frame re-rendered from the maps vs warp_image_tps: max "
+                   f"|diff| {t.map_check:.1e}")
 
-    out.append("\nFolds: Jacobian determinant <= 0 of the backward maps, over all frames "
-               "(inside = pixels whose map source lies inside the source image)")
+    out.append("\nFolds: Jacobian determinant <= 0 of the backward maps, over all frames (inside = only pixels "
+               "whose map source lies inside the source image)")
     rows = []
     for name, fa, fb in [(label(r.inverse, r.compressible), r.folds_a, r.folds_b) for r in fluid] + [
-            ("TPS (kornia)", tps.folds_a, tps.folds_b)]:
+            (tps_label(t.kind), t.folds_a, t.folds_b) for t in tps]:
         rows.append([name, pct(fa.fraction), pct(fa.fraction_inside), f"{fa.frames_with_folds}/{frames}",
                      f"{pct(fa.worst_frame_fraction)} @{fa.worst_frame}", f"{fa.min_det:.3g}",
-                     pct(fb.fraction), pct(fb.fraction_inside), f"{fb.min_det:.3g}"])
-    out.append(table(["method", "A folded", "A folded inside", "A frames", "A worst frame", "A min det",
-                      "B folded", "B folded inside", "B min det"], rows))
+                     pct(fb.fraction), pct(fb.fraction_inside), f"{fb.frames_with_folds}/{frames}",
+                     f"{fb.min_det:.3g}"])
+    out.append(table(["method", "A folded", "A inside", "A frames", "A worst frame", "A min det",
+                      "B folded", "B inside", "B frames", "B min det"], rows))
 
-    out.append("\nTime of a whole morph (median s; fluid split as result.seconds reports it)")
+    out.append("\nTime of a whole morph (median s over the repeats; the fluid's split as result.seconds reports it)")
     rows = []
     for r in fluid:
         s = r.seconds
         rows.append([label(r.inverse, r.compressible), f"{s['wall']:.2f}", f"{s['fit']:.2f}", f"{s['inverse']:.2f}",
                      f"{s['render']:.2f}", str(r.fit_evaluations), f"{r.fit_ms_per_evaluation:.0f}",
                      f"{r.peak_rss_growth_mib:.0f}", " ".join(f"{x:.1f}" for x in r.seconds_all["wall"])])
-    rows.append(["TPS (kornia)", f"{tps.seconds:.2f}", "-", "-", f"{tps.seconds:.2f}", "-", "-",
-                 f"{tps.peak_rss_growth_mib:.0f}", " ".join(f"{x:.1f}" for x in tps.seconds_all)])
+    for t in tps:
+        rows.append([tps_label(t.kind), f"{t.seconds:.2f}", "-", "-", f"{t.seconds:.2f}", "-", "-",
+                     f"{t.peak_rss_growth_mib:.0f}", " ".join(f"{x:.2f}" for x in t.seconds_all)])
     out.append(table(["method", "total s", "fit s", "inverse s", "render s", "fit evals", "ms/eval",
-                      "peak RSS +MiB", "all repeats s"], rows))
-    base = next(r for r in fluid if r.inverse == "flow" and r.compressible is False).seconds["wall"]
-    out.append("ratios to 'fluid flow, compr. no': " + ", ".join(
-        f"{label(r.inverse, r.compressible)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:])
-        + f", TPS {tps.seconds / base:.3f}x")
+                      "peak RSS +MiB", "repeats s"], rows))
+    base_row = fluid[0]
+    base = base_row.seconds["wall"]
+    out.append(f"ratios to '{label(base_row.inverse, base_row.compressible)}': " + ", ".join(
+        [f"{label(r.inverse, r.compressible)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:]]
+        + [f"{tps_label(t.kind)} {t.seconds / base:.3f}x" for t in tps]))
     for r in fluid:
         out.append(f"  {label(r.inverse, r.compressible)}: {r.fit_message}"
                    + ("" if r.deterministic else " [repeats differed]"))
@@ -512,12 +539,14 @@ def report(fluid: list[FluidRow], tps: TpsRow, frames: int, size: int, probe: di
         met = r.folds_a.fraction == 0
         targets[f"folds_{r.inverse}_{r.compressible}"] = {"fraction": r.folds_a.fraction,
                                                           "fraction_inside": r.folds_a.fraction_inside, "met": met}
-        out.append(f"{label(r.inverse, r.compressible)}: folded fraction of A's maps {pct(r.folds_a.fraction)} "
-                   f"(inside A's image {pct(r.folds_a.fraction_inside)}) (target: 0) -> {verdict(met)}")
-    folds = tps.folds_a.fraction > 0 or tps.folds_b.fraction > 0
-    targets["tps_folds"] = {"fraction_a": tps.folds_a.fraction, "fraction_b": tps.folds_b.fraction, "folds": folds}
-    out.append(f"TPS: folded fraction A {pct(tps.folds_a.fraction)}, B {pct(tps.folds_b.fraction)} "
-               f"(expected: folds on large motions) -> {'folds seen' if folds else 'no folds seen'}")
+        out.append(f"{label(r.inverse, r.compressible)}: folded fraction of A's maps {pct(r.folds_a.fraction)}, "
+                   f"inside A's image {pct(r.folds_a.fraction_inside)} (target: 0) -> {verdict(met)}")
+    for t in tps:
+        folds = t.folds_a.fraction > 0 or t.folds_b.fraction > 0
+        targets[f"tps_folds_{t.kind}"] = {"fraction_a": t.folds_a.fraction, "fraction_b": t.folds_b.fraction,
+                                          "folds": folds}
+        out.append(f"{tps_label(t.kind)}: folded fraction A {pct(t.folds_a.fraction)}, B {pct(t.folds_b.fraction)} "
+                   f"(expected: folds on large motions) -> {'folds seen' if folds else 'no folds seen'}")
     return "\n".join(out), targets
 
 
@@ -558,11 +587,12 @@ def main(argv: list[str] | None = None) -> int:
 
     t_start = time.perf_counter()
     probe = graph_probe(a, b, pa, pb)
-    tps_frames = tps_morph(a, b, pa, pb, 3)  # warm-up
+    for kind in TPS_KINDS:
+        tps_morph(kind, a, b, pa, pb, 3)  # warm-up
     times: dict[Any, dict[str, list[float]]] = {cfg: {} for cfg in FLUID_CONFIGS}
-    tps_times: list[float] = []
+    tps_times: dict[str, list[float]] = {kind: [] for kind in TPS_KINDS}
     rows: dict[Any, FluidRow] = {}
-    tps: TpsRow | None = None
+    tps_rows: dict[str, TpsRow] = {}
     mids: dict[str, Tensor] = {}
     for rep in range(repeats):
         for inverse, compressible in FLUID_CONFIGS:
@@ -579,21 +609,24 @@ def main(argv: list[str] | None = None) -> int:
                 rows[cfg] = row
                 if compressible == IMAGE_COMPRESSIBLE:
                     mids[f"morph_mid_fluid_{inverse}.png"] = res.frames[frames // 2].clone()
-            elif abs(float(res.fit.error.mean()) - rows[cfg].fit_error_px) > 0:
+            elif float(res.fit.error.mean()) != rows[cfg].fit_error_px:
                 rows[cfg].deterministic = False
             del res
-        log(f"  repeat {rep + 1}/{repeats}: TPS ...")
-        base = reset_peak()
-        t0 = time.perf_counter()
-        tps_frames = tps_morph(a, b, pa, pb, frames)
-        tps_times.append(time.perf_counter() - t0)
-        if rep == 0:
+        for kind in TPS_KINDS:
+            log(f"  repeat {rep + 1}/{repeats}: {tps_label(kind)} ...")
+            base = reset_peak()
+            t0 = time.perf_counter()
+            tps_frames = tps_morph(kind, a, b, pa, pb, frames)
+            tps_times[kind].append(time.perf_counter() - t0)
             growth = peak_growth_mib(base)
-            tps = tps_row(a, b, pa, pb, frames, tps_frames)
-            tps.peak_rss_growth_mib = growth
-            mids["morph_mid_tps.png"] = tps_frames[frames // 2].clone()
-    assert tps is not None
-    tps.seconds_all, tps.seconds = tps_times, statistics.median(tps_times)
+            if rep == 0:
+                tps_rows[kind] = tps_row(kind, a, b, pa, pb, frames, tps_frames)
+                tps_rows[kind].peak_rss_growth_mib = growth
+                if kind == "kornia":
+                    mids["morph_mid_tps.png"] = tps_frames[frames // 2].clone()
+    tps = [tps_rows[kind] for kind in TPS_KINDS]
+    for t in tps:
+        t.seconds_all, t.seconds = tps_times[t.kind], statistics.median(tps_times[t.kind])
     fluid = []
     for cfg in FLUID_CONFIGS:
         row = rows[cfg]
@@ -602,7 +635,7 @@ def main(argv: list[str] | None = None) -> int:
         row.fit_ms_per_evaluation = row.seconds["fit"] / max(row.fit_evaluations, 1) * 1e3
         fluid.append(row)
 
-    text, targets = report(fluid, tps, frames, size, probe)
+    text, targets = report(fluid, tps, frames, size, pa.shape[0], probe)
     print("\n" + text)
     load_after = os.getloadavg()
     total = time.perf_counter() - t_start
@@ -616,7 +649,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         result = {"machine": info, "args": vars(args), "size": size, "frames": frames, "repeats": repeats,
                   "max_iter": max_iter, "load_before": load_before, "load_after": load_after,
-                  "graph_probe": probe, "fluid": [asdict(r) for r in fluid], "tps": asdict(tps),
+                  "graph_probe": probe, "fluid": [asdict(r) for r in fluid], "tps": [asdict(t) for t in tps],
                   "targets": targets, "total_s": total}
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:

@@ -30,7 +30,7 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
 
     Example:
         >>> a = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-        >>> estimate_alignment(a, 2 * a + 3)[:2].tolist()
+        >>> estimate_alignment(a, 2 * a + 3)[:2].round(decimals=6).tolist()
         [[2.0, 0.0, 3.0], [0.0, 2.0, 3.0]]
     """
     a = check_tensor("points_a", points_a, shape=[None, 2]).double()
