@@ -45,17 +45,18 @@ in float32 on CPU, in one process, so every figure below comes from the same run
    ``paper``) and of the kornia TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png``
    and ``morph_mid_tps.png``.
 
-The fluid morphs run under ``torch.no_grad()``: :func:`morph` fits its forces inside L-BFGS's closure, which
-turns grad on by itself, so the result is the same, but a plain call returns frames that still carry an autograd
-graph (checked and reported below on a tiny call), and with ``inverse="paper"`` that graph chains through all
-the one-step fits. Repeats are interleaved over the configurations so that other load on the machine affects
-them alike. Run ``python benchmarks/bench_morph.py --help`` for the options.
+The fluid morphs are plain :func:`morph` calls, as a user makes them (grad mode on). A tiny call first checks
+that the returned frames and maps carry no autograd graph (an earlier version of :func:`morph` kept one, which
+with ``inverse="paper"`` chained through all the one-step fits). Repeats are interleaved over the configurations
+so that other load on the machine affects them alike; the load average before and after is printed, and the
+JSON records a digest of the package's sources. Run ``python benchmarks/bench_morph.py --help`` for the options.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import hashlib
 import json
 import os
 import platform
@@ -264,9 +265,8 @@ def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Te
 def run_fluid(a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, inverse: str, compressible: bool | float,
               frames: int, max_iter: int) -> tuple[MorphResult, float]:
     t0 = time.perf_counter()
-    with torch.no_grad():  # see the module doc: same result, no graph kept on the outputs
-        res = morph(a, b, pa, pb, frames=frames, inverse=inverse, compressible=compressible,  # type: ignore[arg-type]
-                    max_iter=max_iter, progress=False)
+    res = morph(a, b, pa, pb, frames=frames, inverse=inverse, compressible=compressible,  # type: ignore[arg-type]
+                max_iter=max_iter, progress=False)
     return res, time.perf_counter() - t0
 
 
@@ -419,6 +419,14 @@ def peak_growth_mib(base_kib: float) -> float:
         return float("nan")
 
 
+def sources_digest() -> str:
+    """A short digest of the installed package's Python sources, to tell which state of the library ran."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(torchfluidwarp.__file__).parent.rglob("*.py")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def machine() -> dict[str, Any]:
     """What the figures were measured on."""
     model = platform.processor()
@@ -432,7 +440,8 @@ def machine() -> dict[str, Any]:
     return {
         "cpu": model, "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
         "python": platform.python_version(), "torch": torch.__version__, "kornia": kornia.__version__,
-        "torchfluidwarp": torchfluidwarp.__version__, "platform": platform.platform(),
+        "torchfluidwarp": torchfluidwarp.__version__,
+        "torchfluidwarp_sources_sha256": sources_digest(), "platform": platform.platform(),
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 
@@ -582,7 +591,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{info['torch_threads']} thread(s), kornia {info['kornia']}, Python {info['python']}, {info['date']}"
           + (" [--quick]" if args.quick else ""), flush=True)
     print(f"pair: {SAMPLE_A} -> {SAMPLE_B}, {size}x{size}, {pa.shape[0]} points; {frames} frames, "
-          f"{repeats} repeat(s); load average before: {' '.join(f'{x:.2f}' for x in load_before)}", flush=True)
+          f"{repeats} repeat(s); load average before: {' '.join(f'{x:.2f}' for x in load_before)}; "
+          f"torchfluidwarp {info['torchfluidwarp']} sources {info['torchfluidwarp_sources_sha256']}", flush=True)
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
     t_start = time.perf_counter()
@@ -640,6 +650,10 @@ def main(argv: list[str] | None = None) -> int:
     load_after = os.getloadavg()
     total = time.perf_counter() - t_start
     print(f"\nload average after: {' '.join(f'{x:.2f}' for x in load_after)}; total {total:.0f} s")
+    digest_after = sources_digest()
+    if digest_after != info["torchfluidwarp_sources_sha256"]:
+        print(f"WARNING: the package's sources changed during the run ({info['torchfluidwarp_sources_sha256']} -> "
+              f"{digest_after}): the figures may mix two versions")
 
     if args.images:
         folder = Path(args.images)
@@ -649,6 +663,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         result = {"machine": info, "args": vars(args), "size": size, "frames": frames, "repeats": repeats,
                   "max_iter": max_iter, "load_before": load_before, "load_after": load_after,
+                  "sources_sha256_after": digest_after,
                   "graph_probe": probe, "fluid": [asdict(r) for r in fluid], "tps": [asdict(t) for t in tps],
                   "targets": targets, "total_s": total}
         tmp = args.json + ".tmp"
