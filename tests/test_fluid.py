@@ -28,11 +28,12 @@ def test_gradcheck_advect(grid, gen):
 @pytest.mark.parametrize("grid", GRIDS)
 def test_gradcheck_diffuse_constant_and_variable(grid, gen):
     h, w = grid
-    v = _velocity(h, w, gen)
+    v = _velocity(h, w, gen, batch=1)
     cfg = CGConfig(rtol=1e-13)
     assert gradcheck64(lambda v: fluid.diffuse(v, 0.8, 1.0, config=cfg), v)
-    mu = torch.rand(2, 1, h, w, generator=gen) + 0.1
-    assert gradcheck64(lambda v, mu: fluid.diffuse(v, mu, 1.0, config=cfg), v, mu)
+    mu = torch.rand(1, 1, h, w, generator=gen) + 0.1
+    # the variable-viscosity solve iterates; fast mode checks random vector-Jacobian products in float64
+    assert gradcheck64(lambda v, mu: fluid.diffuse(v, mu, 1.0, config=cfg), v, mu, fast_mode=True)
 
 
 @pytest.mark.parametrize("grid", GRIDS)

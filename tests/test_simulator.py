@@ -19,7 +19,7 @@ def test_gradcheck_one_step(grid, gen):
     v = torch.zeros(1, 2, h + 1, w + 1)
     f = torch.randn(1, 2, h, w, generator=gen) * 0.3
     mu = torch.rand(1, 1, h, w, generator=gen) * 0.5 + 0.1
-    assert gradcheck64(lambda f, mu: step(v.double(), f, mu)[0], f, mu)
+    assert gradcheck64(lambda f, mu: step(v.double(), f, mu)[0], f, mu, fast_mode=True)
 
 
 @pytest.mark.parametrize("grid", [(8, 8), (7, 9)])
