@@ -333,9 +333,12 @@ def morph(
         ],
         dim=1,
     )
-    fit = dataclasses.replace(
-        fit, trajectories=traj, points=traj[:, -1], error=(traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1)
+    err = (traj[:, -1] - pb.to(traj.dtype)).norm(dim=-1)
+    message = (
+        f"{fit.message}; in the last frame's pixels: mean error {float(err.mean()):.4f} px, "
+        f"max {float(err.max()):.4f} px"
     )
+    fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=err, message=message)
     return MorphResult(
         frames=frames_t,
         forward_frames=fwd,
