@@ -63,8 +63,14 @@ def make_brushes(size: tuple[int, int]) -> Brushes:
     H, W = size
     centers = [[0.30 * W, 0.35 * H], [0.70 * W, 0.55 * H], [0.45 * W, 0.80 * H]]
     directions = [[1.0, 0.3], [-0.2, 1.0], [1.0, -1.0]]
-    return Brushes(centers, directions, radius=0.12 * min(H, W), amplitude=BRUSH_CELLS * H / FLUID[0],
-                   frequency=BRUSH_FREQUENCY, phase=[0.0, 2.1, 4.2])
+    return Brushes(
+        centers,
+        directions,
+        radius=0.12 * min(H, W),
+        amplitude=BRUSH_CELLS * H / FLUID[0],
+        frequency=BRUSH_FREQUENCY,
+        phase=[0.0, 2.1, 4.2],
+    )
 
 
 def make_image(size: tuple[int, int]) -> Tensor:
@@ -163,21 +169,38 @@ class Row:
     max_displacement_px: float
 
 
-def summarise(size: tuple[int, int], threads: int, steps: int, samples: list[dict[str, tuple[float, float]]],
-              max_disp: float) -> Row:
+def summarise(
+    size: tuple[int, int], threads: int, steps: int, samples: list[dict[str, tuple[float, float]]], max_disp: float
+) -> Row:
     def med(key: str, which: int) -> float:
         return statistics.median(s[key][which] for s in samples) / steps * 1e3
 
     w = {k: med(k, 0) for k in PIECES}
     c = {k: med(k, 1) for k in PIECES}
     return Row(
-        height=size[0], width=size[1], threads=threads, steps=steps, repeats=len(samples),
-        fluid_ms=w["fluid"], maps_ms=w["maps"], displacement_ms=w["displacement"],
-        compose_ms=w["maps"] - w["displacement"], resample_ms=w["resample"], public_resample_ms=w["public_resample"],
-        sum_ms=w["fluid"] + w["maps"] + w["resample"], end_to_end_ms=w["end_to_end"], fps=1e3 / w["end_to_end"],
-        fluid_cpu=c["fluid"], maps_cpu=c["maps"], displacement_cpu=c["displacement"],
-        compose_cpu=c["maps"] - c["displacement"], resample_cpu=c["resample"], public_resample_cpu=c["public_resample"],
-        sum_cpu=c["fluid"] + c["maps"] + c["resample"], end_to_end_cpu=c["end_to_end"], fps_cpu=1e3 / c["end_to_end"],
+        height=size[0],
+        width=size[1],
+        threads=threads,
+        steps=steps,
+        repeats=len(samples),
+        fluid_ms=w["fluid"],
+        maps_ms=w["maps"],
+        displacement_ms=w["displacement"],
+        compose_ms=w["maps"] - w["displacement"],
+        resample_ms=w["resample"],
+        public_resample_ms=w["public_resample"],
+        sum_ms=w["fluid"] + w["maps"] + w["resample"],
+        end_to_end_ms=w["end_to_end"],
+        fps=1e3 / w["end_to_end"],
+        fluid_cpu=c["fluid"],
+        maps_cpu=c["maps"],
+        displacement_cpu=c["displacement"],
+        compose_cpu=c["maps"] - c["displacement"],
+        resample_cpu=c["resample"],
+        public_resample_cpu=c["public_resample"],
+        sum_cpu=c["fluid"] + c["maps"] + c["resample"],
+        end_to_end_cpu=c["end_to_end"],
+        fps_cpu=1e3 / c["end_to_end"],
         max_displacement_px=max_disp,
     )
 
@@ -200,8 +223,15 @@ def profile_ops(warp: FluidWarp, brushes: Brushes, image: Tensor, threads: int, 
             pass
     events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
     total = sum(e.self_cpu_time_total for e in events)
-    return [{"op": e.key, "calls": e.count, "self_ms_per_frame": e.self_cpu_time_total / 1e3 / warp.steps,
-             "share": e.self_cpu_time_total / total} for e in events[:top]]
+    return [
+        {
+            "op": e.key,
+            "calls": e.count,
+            "self_ms_per_frame": e.self_cpu_time_total / 1e3 / warp.steps,
+            "share": e.self_cpu_time_total / total,
+        }
+        for e in events[:top]
+    ]
 
 
 # ----------------------------------------------------------------------------------------------- report
@@ -216,8 +246,12 @@ def machine() -> dict[str, Any]:
     except (OSError, StopIteration):
         pass
     return {
-        "cpu": model, "cpu_count": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
-        "platform": platform.platform(), "date": datetime.datetime.now().isoformat(timespec="seconds"),
+        "cpu": model,
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+        "date": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 
 
@@ -267,36 +301,108 @@ def verdict(ok: bool) -> str:
 
 
 def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[str, dict[str, Any]]:
-    out = [f"Warp animation loop, {FLUID[0]}x{FLUID[1]} fluid, RGB float32, no grad; median ms per frame "
-           "(a) fluid step, (b) map advance = back-trace displacement + composition, (c) resampling as iter_frames "
-           "runs it (_warp_image); 'warp_image' = the public function on the same maps, input checks included"]
-    out.append(table(
-        ["image", "threads", "frames", "reps", "(a) fluid", "(b) map", "(b) disp", "(b) compose", "(c) resample",
-         "a+b+c", "end to end", "fps", "warp_image", "max disp px"],
-        [[f"{r.width}x{r.height}", str(r.threads), str(r.steps), str(r.repeats), f"{r.fluid_ms:.2f}",
-          f"{r.maps_ms:.2f}", f"{r.displacement_ms:.2f}", f"{r.compose_ms:.2f}", f"{r.resample_ms:.2f}",
-          f"{r.sum_ms:.2f}", f"{r.end_to_end_ms:.2f}", f"{r.fps:.1f}", f"{r.public_resample_ms:.2f}",
-          f"{r.max_displacement_px:.1f}"]
-         for r in rows],
-    ))
-    out.append("\nThe same in CPU time of this process per frame (median; all its threads together). With 1 thread "
-               "this is close to what the wall time would be on a core of its own, whatever else runs")
-    out.append(table(
-        ["image", "threads", "(a) fluid", "(b) map", "(b) disp", "(b) compose", "(c) resample", "a+b+c",
-         "end to end", "fps by CPU", "warp_image"],
-        [[f"{r.width}x{r.height}", str(r.threads), f"{r.fluid_cpu:.2f}", f"{r.maps_cpu:.2f}",
-          f"{r.displacement_cpu:.2f}", f"{r.compose_cpu:.2f}", f"{r.resample_cpu:.2f}", f"{r.sum_cpu:.2f}",
-          f"{r.end_to_end_cpu:.2f}", f"{r.fps_cpu:.1f}", f"{r.public_resample_cpu:.2f}"] for r in rows],
-    ))
+    out = [
+        f"Warp animation loop, {FLUID[0]}x{FLUID[1]} fluid, RGB float32, no grad; median ms per frame "
+        "(a) fluid step, (b) map advance = back-trace displacement + composition, (c) resampling as iter_frames "
+        "runs it (_warp_image); 'warp_image' = the public function on the same maps, input checks included"
+    ]
+    out.append(
+        table(
+            [
+                "image",
+                "threads",
+                "frames",
+                "reps",
+                "(a) fluid",
+                "(b) map",
+                "(b) disp",
+                "(b) compose",
+                "(c) resample",
+                "a+b+c",
+                "end to end",
+                "fps",
+                "warp_image",
+                "max disp px",
+            ],
+            [
+                [
+                    f"{r.width}x{r.height}",
+                    str(r.threads),
+                    str(r.steps),
+                    str(r.repeats),
+                    f"{r.fluid_ms:.2f}",
+                    f"{r.maps_ms:.2f}",
+                    f"{r.displacement_ms:.2f}",
+                    f"{r.compose_ms:.2f}",
+                    f"{r.resample_ms:.2f}",
+                    f"{r.sum_ms:.2f}",
+                    f"{r.end_to_end_ms:.2f}",
+                    f"{r.fps:.1f}",
+                    f"{r.public_resample_ms:.2f}",
+                    f"{r.max_displacement_px:.1f}",
+                ]
+                for r in rows
+            ],
+        )
+    )
+    out.append(
+        "\nThe same in CPU time of this process per frame (median; all its threads together). With 1 thread "
+        "this is close to what the wall time would be on a core of its own, whatever else runs"
+    )
+    out.append(
+        table(
+            [
+                "image",
+                "threads",
+                "(a) fluid",
+                "(b) map",
+                "(b) disp",
+                "(b) compose",
+                "(c) resample",
+                "a+b+c",
+                "end to end",
+                "fps by CPU",
+                "warp_image",
+            ],
+            [
+                [
+                    f"{r.width}x{r.height}",
+                    str(r.threads),
+                    f"{r.fluid_cpu:.2f}",
+                    f"{r.maps_cpu:.2f}",
+                    f"{r.displacement_cpu:.2f}",
+                    f"{r.compose_cpu:.2f}",
+                    f"{r.resample_cpu:.2f}",
+                    f"{r.sum_cpu:.2f}",
+                    f"{r.end_to_end_cpu:.2f}",
+                    f"{r.fps_cpu:.1f}",
+                    f"{r.public_resample_cpu:.2f}",
+                ]
+                for r in rows
+            ],
+        )
+    )
     out.append("\nShare of the end-to-end frame time (each piece over the end-to-end median)")
-    out.append(table(
-        ["image", "threads", "(a) fluid", "(b) map", "(c) resample", "a+b+c / end to end", "largest"],
-        [[f"{r.width}x{r.height}", str(r.threads), f"{r.fluid_ms / r.end_to_end_ms:.0%}",
-          f"{r.maps_ms / r.end_to_end_ms:.0%}", f"{r.resample_ms / r.end_to_end_ms:.0%}",
-          f"{r.sum_ms / r.end_to_end_ms:.2f}",
-          max([("(a) fluid", r.fluid_ms), ("(b) map", r.maps_ms), ("(c) resample", r.resample_ms)],
-              key=lambda kv: kv[1])[0]] for r in rows],
-    ))
+    out.append(
+        table(
+            ["image", "threads", "(a) fluid", "(b) map", "(c) resample", "a+b+c / end to end", "largest"],
+            [
+                [
+                    f"{r.width}x{r.height}",
+                    str(r.threads),
+                    f"{r.fluid_ms / r.end_to_end_ms:.0%}",
+                    f"{r.maps_ms / r.end_to_end_ms:.0%}",
+                    f"{r.resample_ms / r.end_to_end_ms:.0%}",
+                    f"{r.sum_ms / r.end_to_end_ms:.2f}",
+                    max(
+                        [("(a) fluid", r.fluid_ms), ("(b) map", r.maps_ms), ("(c) resample", r.resample_ms)],
+                        key=lambda kv: kv[1],
+                    )[0],
+                ]
+                for r in rows
+            ],
+        )
+    )
     threads = sorted({r.threads for r in rows})
     if len(threads) > 1:
         t0 = threads[0]
@@ -306,12 +412,21 @@ def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[
             if r.threads == t0:
                 continue
             base = next(b for b in rows if (b.height, b.width, b.threads) == (r.height, r.width, t0))
-            sp_rows.append([f"{r.width}x{r.height}", str(r.threads), f"{base.end_to_end_ms / r.end_to_end_ms:.2f}",
-                            f"{base.fluid_ms / r.fluid_ms:.2f}", f"{base.maps_ms / r.maps_ms:.2f}",
-                            f"{base.resample_ms / r.resample_ms:.2f}"])
+            sp_rows.append(
+                [
+                    f"{r.width}x{r.height}",
+                    str(r.threads),
+                    f"{base.end_to_end_ms / r.end_to_end_ms:.2f}",
+                    f"{base.fluid_ms / r.fluid_ms:.2f}",
+                    f"{base.maps_ms / r.maps_ms:.2f}",
+                    f"{base.resample_ms / r.resample_ms:.2f}",
+                ]
+            )
         out.append(table(["image", "threads", "end to end", "(a) fluid", "(b) map", "(c) resample"], sp_rows))
-    out.append(f"\nTarget: >= {TARGET_FPS:g} frames per second end to end at {TARGET_SIZE[1]}x{TARGET_SIZE[0]} "
-               f"(i.e. <= {1e3 / TARGET_FPS:.2f} ms per frame)")
+    out.append(
+        f"\nTarget: >= {TARGET_FPS:g} frames per second end to end at {TARGET_SIZE[1]}x{TARGET_SIZE[0]} "
+        f"(i.e. <= {1e3 / TARGET_FPS:.2f} ms per frame)"
+    )
     targets = []
     t_rows = []
     for r in rows:
@@ -322,20 +437,44 @@ def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[
         top = max(pieces, key=pieces.__getitem__)
         # with one thread, CPU time is a load-independent estimate of the wall time on an idle core
         met_cpu = r.fps_cpu >= TARGET_FPS if r.threads == 1 else None
-        targets.append({"threads": r.threads, "fps": r.fps, "met": met, "dominant": top,
-                        "dominant_ms": pieces[top], "needed_speedup": TARGET_FPS / r.fps, "fps_cpu": r.fps_cpu,
-                        "met_by_cpu_time": met_cpu})
-        t_rows.append([str(r.threads), f"{r.fps:.1f}", f"{r.end_to_end_ms:.2f}", f"{TARGET_FPS / r.fps:.2f}x",
-                       f"{top} ({pieces[top]:.2f} ms)", verdict(met),
-                       "-" if met_cpu is None else f"{r.fps_cpu:.1f} fps: {verdict(met_cpu)}"])
+        targets.append(
+            {
+                "threads": r.threads,
+                "fps": r.fps,
+                "met": met,
+                "dominant": top,
+                "dominant_ms": pieces[top],
+                "needed_speedup": TARGET_FPS / r.fps,
+                "fps_cpu": r.fps_cpu,
+                "met_by_cpu_time": met_cpu,
+            }
+        )
+        t_rows.append(
+            [
+                str(r.threads),
+                f"{r.fps:.1f}",
+                f"{r.end_to_end_ms:.2f}",
+                f"{TARGET_FPS / r.fps:.2f}x",
+                f"{top} ({pieces[top]:.2f} ms)",
+                verdict(met),
+                "-" if met_cpu is None else f"{r.fps_cpu:.1f} fps: {verdict(met_cpu)}",
+            ]
+        )
     if t_rows:
-        out.append(table(["threads", "fps", "ms/frame", "speed-up needed", "largest piece", "target",
-                          "by CPU time (1 thread)"], t_rows))
+        out.append(
+            table(
+                ["threads", "fps", "ms/frame", "speed-up needed", "largest piece", "target", "by CPU time (1 thread)"],
+                t_rows,
+            )
+        )
     for label, ops in profiles.items():
         out.append(f"\nOperators of one end-to-end loop, {label} (torch.profiler, untimed pass; self CPU ms per frame)")
-        out.append(table(["op", "calls", "ms/frame", "share"],
-                         [[o["op"], str(o["calls"]), f"{o['self_ms_per_frame']:.2f}", f"{o['share']:.0%}"]
-                          for o in ops]))
+        out.append(
+            table(
+                ["op", "calls", "ms/frame", "share"],
+                [[o["op"], str(o["calls"]), f"{o['self_ms_per_frame']:.2f}", f"{o['share']:.0%}"] for o in ops],
+            )
+        )
     return "\n".join(out), {"fps_600": targets}
 
 
@@ -346,21 +485,28 @@ def parse_threads(text: str) -> list[int]:
     try:
         values = [int(t) for t in text.split(",") if t.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--threads must be a comma-separated list of integers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"--threads must be a comma-separated list of integers, got {text!r}"
+        ) from None
     if not values or any(v < 1 for v in values):
         raise argparse.ArgumentTypeError(f"--threads must list integers >= 1, got {text!r}")
     return values
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--quick", action="store_true", help="smoke mode: small images, few frames and repeats")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument("--threads", type=parse_threads, default=[1],
-                        help="torch CPU threads, or a comma-separated list measured in turn in every repeat, e.g. "
-                             "1,2 (default 1: on a small shared machine, multi-threaded kernels stall for a "
-                             "scheduler slice whenever another process holds a core)")
+    parser.add_argument(
+        "--threads",
+        type=parse_threads,
+        default=[1],
+        help="torch CPU threads, or a comma-separated list measured in turn in every repeat, e.g. "
+        "1,2 (default 1: on a small shared machine, multi-threaded kernels stall for a "
+        "scheduler slice whenever another process holds a core)",
+    )
     parser.add_argument("--frames", type=int, help="fluid steps T per loop (default 30; --quick 6)")
     parser.add_argument("--repeats", type=int, help="interleaved repeats (default 5; --quick 2)")
     args = parser.parse_args(argv)
@@ -374,11 +520,16 @@ def main(argv: list[str] | None = None) -> int:
     info["threads"] = args.threads
     info["load_start"] = machine_load()
     info["sources_sha256"] = source_fingerprint()
-    print(f"bench_warp: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with thread(s) "
-          f"{','.join(map(str, args.threads))}, Python {info['python']}, {info['date']}"
-          + (" [--quick]" if args.quick else ""), flush=True)
-    print(f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
-          flush=True)
+    print(
+        f"bench_warp: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with thread(s) "
+        f"{','.join(map(str, args.threads))}, Python {info['python']}, {info['date']}"
+        + (" [--quick]" if args.quick else ""),
+        flush=True,
+    )
+    print(
+        f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
+        flush=True,
+    )
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
     t_start = time.perf_counter()
@@ -397,8 +548,9 @@ def main(argv: list[str] | None = None) -> int:
                 torch.set_num_threads(n)
                 samples[n].append(one_repeat(warp, brushes, image))
         rows += [summarise(size, n, frames, samples[n], max_disp) for n in args.threads]
-        profiles[f"{size[1]}x{size[0]}, {args.threads[0]} thread(s)"] = profile_ops(warp, brushes, image,
-                                                                                  args.threads[0], top=10)
+        profiles[f"{size[1]}x{size[0]}, {args.threads[0]} thread(s)"] = profile_ops(
+            warp, brushes, image, args.threads[0], top=10
+        )
     text, targets = report(rows, profiles)
     print("\n" + text)
     total = time.perf_counter() - t_start
@@ -406,13 +558,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
     if source_fingerprint() != info["sources_sha256"]:
         info["sources_changed"] = True
-        print("WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
-              "at the start; any subprocess imported the new code)")
+        print(
+            "WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
+            "at the start; any subprocess imported the new code)"
+        )
 
     if args.json:
-        result = {"machine": info, "args": vars(args), "fluid": FLUID, "brush_cells": BRUSH_CELLS,
-                  "brush_frequency": BRUSH_FREQUENCY, "rows": [asdict(r) for r in rows], "profiles": profiles,
-                  "targets": targets, "total_s": total}
+        result = {
+            "machine": info,
+            "args": vars(args),
+            "fluid": FLUID,
+            "brush_cells": BRUSH_CELLS,
+            "brush_frequency": BRUSH_FREQUENCY,
+            "rows": [asdict(r) for r in rows],
+            "profiles": profiles,
+            "targets": targets,
+            "total_s": total,
+        }
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
             json.dump(result, f, indent=2)
