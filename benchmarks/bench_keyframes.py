@@ -125,17 +125,22 @@ def flow_instance(seed: int, m: int, grid: tuple[int, int], steps: int, max_atte
     for attempt in range(max_attempts):
         gen = torch.Generator().manual_seed(10_000 * seed + attempt)
         centers = MARGIN + torch.rand(N_BRUSHES, 2, generator=gen, dtype=torch.float64) * torch.tensor(
-            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64)
+            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64
+        )
         angle = torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64) * 2 * math.pi
         radius = 8.0 + 8.0 * torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
         base = 0.5 + torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
         brushes = Brushes(centers, torch.stack([angle.cos(), angle.sin()], -1), radius=radius, amplitude=base).double()
-        ys, xs = torch.meshgrid(torch.arange(MARGIN, H - MARGIN, dtype=torch.float64),
-                                torch.arange(MARGIN, W - MARGIN, dtype=torch.float64), indexing="ij")
+        ys, xs = torch.meshgrid(
+            torch.arange(MARGIN, H - MARGIN, dtype=torch.float64),
+            torch.arange(MARGIN, W - MARGIN, dtype=torch.float64),
+            indexing="ij",
+        )
         cand = torch.stack([xs, ys], -1).reshape(-1, 2)
         cand = (cand + torch.rand(cand.shape, generator=gen, dtype=torch.float64) - 0.5).clamp(
             torch.tensor([MARGIN, MARGIN], dtype=torch.float64),
-            torch.tensor([W - 1 - MARGIN, H - 1 - MARGIN], dtype=torch.float64))
+            torch.tensor([W - 1 - MARGIN, H - 1 - MARGIN], dtype=torch.float64),
+        )
 
         def carry(scale: float) -> Tensor:
             with torch.no_grad():
@@ -153,8 +158,15 @@ def flow_instance(seed: int, m: int, grid: tuple[int, int], steps: int, max_atte
         d = (end - cand).norm(dim=-1)
         chosen = _greedy_pick(cand, (d >= lo) & (d <= hi), m, gen)
         if len(chosen) == m:
-            inst = Instance(name=f"flow seed {seed}", kind="flow", seed=seed, source=cand[chosen].tolist(),
-                            target=end[chosen].tolist(), brush_scale=s_hi, attempts=attempt + 1)
+            inst = Instance(
+                name=f"flow seed {seed}",
+                kind="flow",
+                seed=seed,
+                source=cand[chosen].tolist(),
+                target=end[chosen].tolist(),
+                brush_scale=s_hi,
+                attempts=attempt + 1,
+            )
             inst.describe()
             return inst
     raise RuntimeError(f"no flow instance with {m} points for seed {seed} in {max_attempts} attempts")
@@ -168,7 +180,8 @@ def random_instance(seed: int, m: int) -> Instance:
     src: list[Tensor] = []
     while len(src) < m:
         p = MARGIN + torch.rand(2, generator=gen, dtype=torch.float64) * torch.tensor(
-            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64)
+            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64
+        )
         if all(float((p - q).norm()) >= SPACING for q in src):
             src.append(p)
     tgt: list[Tensor] = []
@@ -180,8 +193,13 @@ def random_instance(seed: int, m: int) -> Instance:
             if 0.5 <= float(q[0]) <= W - 1.5 and 0.5 <= float(q[1]) <= H - 1.5:  # 1 px inside the frame
                 tgt.append(q)
                 break
-    inst = Instance(name=f"random seed {seed}", kind="random", seed=seed, source=torch.stack(src).tolist(),
-                    target=torch.stack(tgt).tolist())
+    inst = Instance(
+        name=f"random seed {seed}",
+        kind="random",
+        seed=seed,
+        source=torch.stack(src).tolist(),
+        target=torch.stack(tgt).tolist(),
+    )
     inst.describe()
     return inst
 
@@ -206,12 +224,29 @@ class FitRun:
 def run_fit(inst: Instance, dtype: torch.dtype, cfg: dict[str, Any], control: tuple[int, int]) -> tuple[FitRun, Any]:
     src, tgt = inst.tensors(dtype)
     cpu0 = time.process_time()
-    fit = fit_keyframes(src, tgt, image_size=FRAME, grid=cfg["grid"], steps=cfg["steps"], control=control,
-                        max_iter=cfg["max_iter"], tolerance=cfg["tolerance"], dtype=dtype, progress=False)
+    fit = fit_keyframes(
+        src,
+        tgt,
+        image_size=FRAME,
+        grid=cfg["grid"],
+        steps=cfg["steps"],
+        control=control,
+        max_iter=cfg["max_iter"],
+        tolerance=cfg["tolerance"],
+        dtype=dtype,
+        progress=False,
+    )
     cpu = time.process_time() - cpu0
-    run = FitRun(seconds=fit.seconds, cpu_seconds=cpu, evaluations=fit.evaluations, mean_error=float(fit.error.mean()),
-                 max_error=float(fit.error.max()), converged=fit.converged, reached=fit.reached,
-                 final_loss=fit.loss_history[-1] if fit.loss_history else math.nan)
+    run = FitRun(
+        seconds=fit.seconds,
+        cpu_seconds=cpu,
+        evaluations=fit.evaluations,
+        mean_error=float(fit.error.mean()),
+        max_error=float(fit.error.max()),
+        converged=fit.converged,
+        reached=fit.reached,
+        final_loss=fit.loss_history[-1] if fit.loss_history else math.nan,
+    )
     return run, fit
 
 
@@ -240,17 +275,33 @@ class FitRow:
 
 def summarise_fits(inst: Instance, dtype: str, control: tuple[int, int], steps: int, runs: list[FitRun]) -> FitRow:
     first = runs[0]
-    same = all((r.evaluations, r.mean_error, r.max_error, r.reached) ==
-               (first.evaluations, first.mean_error, first.max_error, first.reached) for r in runs)
+    same = all(
+        (r.evaluations, r.mean_error, r.max_error, r.reached)
+        == (first.evaluations, first.mean_error, first.max_error, first.reached)
+        for r in runs
+    )
     secs = statistics.median(r.seconds for r in runs)
     cpu = statistics.median(r.cpu_seconds for r in runs)
     evals = int(statistics.median(r.evaluations for r in runs))
-    return FitRow(instance=inst.name, kind=inst.kind, dtype=dtype, control=control,
-                  parameters=2 * steps * control[0] * control[1], repeats=len(runs), seconds=secs, cpu_seconds=cpu,
-                  evaluations=evals, ms_per_evaluation=secs / max(evals, 1) * 1e3,
-                  cpu_ms_per_evaluation=cpu / max(evals, 1) * 1e3, mean_error=first.mean_error,
-                  max_error=first.max_error, converged=first.converged, reached=first.reached, deterministic=same,
-                  seconds_all=[r.seconds for r in runs])
+    return FitRow(
+        instance=inst.name,
+        kind=inst.kind,
+        dtype=dtype,
+        control=control,
+        parameters=2 * steps * control[0] * control[1],
+        repeats=len(runs),
+        seconds=secs,
+        cpu_seconds=cpu,
+        evaluations=evals,
+        ms_per_evaluation=secs / max(evals, 1) * 1e3,
+        cpu_ms_per_evaluation=cpu / max(evals, 1) * 1e3,
+        mean_error=first.mean_error,
+        max_error=first.max_error,
+        converged=first.converged,
+        reached=first.reached,
+        deterministic=same,
+        seconds_all=[r.seconds for r in runs],
+    )
 
 
 # ----------------------------------------------------------------------------------------------- gradient cost
@@ -270,8 +321,9 @@ class GradRow:
     ratio_cpu: float
 
 
-def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int
-                  ) -> list[GradRow]:
+def time_gradient(
+    inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int
+) -> list[GradRow]:
     """Forward (no grad) against forward + backward of the fit's objective, at each fit's own forces."""
     cases = []
     for (dtype_name, control), fit in fits.items():
@@ -305,9 +357,20 @@ def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], 
     for dtype_name, control, _f, _g, f_times, g_times in cases:
         f, g = (statistics.median(t[0] for t in x) * 1e3 for x in (f_times, g_times))
         fc, gc_ = (statistics.median(t[1] for t in x) * 1e3 for x in (f_times, g_times))
-        rows.append(GradRow(dtype=dtype_name, control=control, parameters=2 * steps * control[0] * control[1],
-                            repeats=repeats, forward_ms=f, gradient_ms=g, ratio=g / f, forward_cpu_ms=fc,
-                            gradient_cpu_ms=gc_, ratio_cpu=gc_ / fc))
+        rows.append(
+            GradRow(
+                dtype=dtype_name,
+                control=control,
+                parameters=2 * steps * control[0] * control[1],
+                repeats=repeats,
+                forward_ms=f,
+                gradient_ms=g,
+                ratio=g / f,
+                forward_cpu_ms=fc,
+                gradient_cpu_ms=gc_,
+                ratio_cpu=gc_ / fc,
+            )
+        )
     return rows
 
 
@@ -343,27 +406,54 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     # warm-up on a tiny problem loads every code path (autograd, L-BFGS, FFT and BLAS kernels); timed, as the
     # one-time cost of the first fit in a process (fit.seconds starts after the optimiser is built)
     t0 = time.perf_counter()
-    tiny = fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8,
-                         steps=2, control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+    tiny = fit_keyframes(
+        torch.tensor([[10.0, 10.0]]),
+        torch.tensor([[12.0, 10.0]]),
+        image_size=(24, 24),
+        grid=8,
+        steps=2,
+        control=(3, 3),
+        max_iter=3,
+        dtype=dtype,
+        progress=False,
+    )
     first_call_s, first_fit_s = time.perf_counter() - t0, tiny.seconds
     src, tgt = inst.tensors(dtype)
     gc.collect()
     hwm_reset = _reset_peak()
     base = _status_kib("VmRSS")
-    fit = fit_keyframes(src, tgt, image_size=FRAME, grid=tuple(spec["grid"]), steps=spec["steps"],
-                        control=tuple(spec["control"]), max_iter=spec["max_iter"], tolerance=spec["tolerance"],
-                        dtype=dtype, progress=False)
+    fit = fit_keyframes(
+        src,
+        tgt,
+        image_size=FRAME,
+        grid=tuple(spec["grid"]),
+        steps=spec["steps"],
+        control=tuple(spec["control"]),
+        max_iter=spec["max_iter"],
+        tolerance=spec["tolerance"],
+        dtype=dtype,
+        progress=False,
+    )
     peak = _status_kib("VmHWM")
-    return {**{k: v for k, v in spec.items() if k != "instance"}, "instance": inst.name,
-            "peak_measure": "VmHWM" if hwm_reset else "VmHWM (not reset: includes the warm-up)",
-            "baseline_rss_mib": base / 1024, "peak_rss_mib": peak / 1024, "peak_rss_growth_mib": (peak - base) / 1024,
-            "evaluations": fit.evaluations, "seconds": fit.seconds, "reached": fit.reached,
-            "first_call_wall_s": first_call_s, "first_call_fit_seconds": first_fit_s}
+    return {
+        **{k: v for k, v in spec.items() if k != "instance"},
+        "instance": inst.name,
+        "peak_measure": "VmHWM" if hwm_reset else "VmHWM (not reset: includes the warm-up)",
+        "baseline_rss_mib": base / 1024,
+        "peak_rss_mib": peak / 1024,
+        "peak_rss_growth_mib": (peak - base) / 1024,
+        "evaluations": fit.evaluations,
+        "seconds": fit.seconds,
+        "reached": fit.reached,
+        "first_call_wall_s": first_call_s,
+        "first_call_fit_seconds": first_fit_s,
+    }
 
 
 def run_child(spec: dict[str, Any]) -> dict[str, Any]:
-    proc = subprocess.run([sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)], capture_output=True, text=True
+    )
     if proc.returncode != 0:
         return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -381,8 +471,12 @@ def machine() -> dict[str, Any]:
     except (OSError, StopIteration):
         pass
     return {
-        "cpu": model, "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(), "torch": torch.__version__, "platform": platform.platform(),
+        "cpu": model,
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
         "date": datetime.datetime.now().isoformat(timespec="seconds"),
     }
 
@@ -438,24 +532,69 @@ def yes(b: bool) -> str:
 
 def report_instances(instances: list[Instance]) -> str:
     out = [f"Problem instances ({FRAME[1]}x{FRAME[0]} px frame; displacement = |target - source| px)"]
-    out.append(table(
-        ["instance", "points", "min disp", "max disp", "min spacing", "target min wall dist", "brush scale",
-         "attempts"],
-        [[i.name, str(len(i.source)), f"{i.min_displacement:.2f}", f"{i.max_displacement:.2f}",
-          f"{i.min_spacing:.2f}", f"{i.min_wall_distance_target:.2f}",
-          "-" if i.brush_scale is None else f"{i.brush_scale:.3f}", str(i.attempts)] for i in instances],
-    ))
+    out.append(
+        table(
+            [
+                "instance",
+                "points",
+                "min disp",
+                "max disp",
+                "min spacing",
+                "target min wall dist",
+                "brush scale",
+                "attempts",
+            ],
+            [
+                [
+                    i.name,
+                    str(len(i.source)),
+                    f"{i.min_displacement:.2f}",
+                    f"{i.max_displacement:.2f}",
+                    f"{i.min_spacing:.2f}",
+                    f"{i.min_wall_distance_target:.2f}",
+                    "-" if i.brush_scale is None else f"{i.brush_scale:.3f}",
+                    str(i.attempts),
+                ]
+                for i in instances
+            ],
+        )
+    )
     return "\n".join(out)
 
 
 def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, Any]]:
-    head = ["instance", "dtype", "evals", "fit s", "CPU s", "ms/eval", "CPU ms/eval", "mean err px", "max err px",
-            "converged", "reached", "same each rep", "mean < 0.05", "< 3 s"]
+    head = [
+        "instance",
+        "dtype",
+        "evals",
+        "fit s",
+        "CPU s",
+        "ms/eval",
+        "CPU ms/eval",
+        "mean err px",
+        "max err px",
+        "converged",
+        "reached",
+        "same each rep",
+        "mean < 0.05",
+        "< 3 s",
+    ]
 
     def cells(r: FitRow, with_target: bool) -> list[str]:
-        c = [r.instance, r.dtype, str(r.evaluations), f"{r.seconds:.2f}", f"{r.cpu_seconds:.2f}",
-             f"{r.ms_per_evaluation:.1f}", f"{r.cpu_ms_per_evaluation:.1f}", f"{r.mean_error:.4f}",
-             f"{r.max_error:.4f}", yes(r.converged), yes(r.reached), yes(r.deterministic)]
+        c = [
+            r.instance,
+            r.dtype,
+            str(r.evaluations),
+            f"{r.seconds:.2f}",
+            f"{r.cpu_seconds:.2f}",
+            f"{r.ms_per_evaluation:.1f}",
+            f"{r.cpu_ms_per_evaluation:.1f}",
+            f"{r.mean_error:.4f}",
+            f"{r.max_error:.4f}",
+            yes(r.converged),
+            yes(r.reached),
+            yes(r.deterministic),
+        ]
         if with_target:
             c += [verdict(r.mean_error < TARGET_MEAN_PX), verdict(r.seconds < TARGET_SECONDS)]
         else:
@@ -464,17 +603,21 @@ def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, An
 
     flow = [r for r in rows if r.kind == "flow"]
     rand = [r for r in rows if r.kind != "flow"]
-    out = [f"Fits, control {flow[0].control[0]}x{flow[0].control[1]} ({flow[0].parameters} parameters), tolerance "
-           f"{tolerance:g} px (stop when every point is within it); fit s = wall time (KeyframeFit.seconds), "
-           f"CPU s = this process's CPU time around the call, both medians over {flow[0].repeats} repeats"]
+    out = [
+        f"Fits, control {flow[0].control[0]}x{flow[0].control[1]} ({flow[0].parameters} parameters), tolerance "
+        f"{tolerance:g} px (stop when every point is within it); fit s = wall time (KeyframeFit.seconds), "
+        f"CPU s = this process's CPU time around the call, both medians over {flow[0].repeats} repeats"
+    ]
     out.append("\nReachable instances (targets made by a flow)")
     out.append(table(head, [cells(r, True) for r in flow]))
     if rand:
         out.append("\nRandom-direction instance (may be partly unreachable; no target)")
         out.append(table(head, [cells(r, False) for r in rand]))
     targets: dict[str, Any] = {}
-    out.append("\nSummary over the reachable instances (the 3 s target is judged on wall time; CPU time, with 1 "
-               "thread, estimates the wall time on a core of its own)")
+    out.append(
+        "\nSummary over the reachable instances (the 3 s target is judged on wall time; CPU time, with 1 "
+        "thread, estimates the wall time on a core of its own)"
+    )
     s_rows = []
     for dtype in DTYPES:
         rs = [r for r in flow if r.dtype == dtype]
@@ -485,58 +628,147 @@ def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, An
         fast_cpu = all(r.cpu_seconds < TARGET_SECONDS for r in rs)
         med_s = statistics.median(r.seconds for r in rs)
         med_c = statistics.median(r.cpu_seconds for r in rs)
-        targets[dtype] = {"mean_error_met": acc, "time_met": fast, "time_met_by_cpu": fast_cpu, "median_seconds": med_s,
-                          "max_seconds": max(r.seconds for r in rs), "median_cpu_seconds": med_c,
-                          "max_cpu_seconds": max(r.cpu_seconds for r in rs),
-                          "worst_mean_error": max(r.mean_error for r in rs),
-                          "median_evaluations": statistics.median(r.evaluations for r in rs),
-                          "median_ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in rs),
-                          "median_cpu_ms_per_evaluation": statistics.median(r.cpu_ms_per_evaluation for r in rs)}
-        s_rows.append([dtype, f"{len(rs)}", f"{max(r.mean_error for r in rs):.4f}", verdict(acc),
-                       f"{min(r.seconds for r in rs):.2f} / {med_s:.2f} / {max(r.seconds for r in rs):.2f}",
-                       f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast)}",
-                       f"{min(r.cpu_seconds for r in rs):.2f} / {med_c:.2f} / {max(r.cpu_seconds for r in rs):.2f}",
-                       f"{sum(r.cpu_seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast_cpu)}",
-                       f"{statistics.median(r.evaluations for r in rs):g}",
-                       f"{statistics.median(r.ms_per_evaluation for r in rs):.1f}",
-                       f"{statistics.median(r.cpu_ms_per_evaluation for r in rs):.1f}",
-                       f"{PAPER_SECONDS / med_s:.0f}x"])
-    out.append(table(["dtype", "instances", "worst mean err", "mean < 0.05 px", "fit s min/med/max", "fit < 3 s",
-                      "CPU s min/med/max", "CPU < 3 s", "median evals", "med ms/eval", "med CPU ms/eval",
-                      "vs 5 min (quoted)"], s_rows))
+        targets[dtype] = {
+            "mean_error_met": acc,
+            "time_met": fast,
+            "time_met_by_cpu": fast_cpu,
+            "median_seconds": med_s,
+            "max_seconds": max(r.seconds for r in rs),
+            "median_cpu_seconds": med_c,
+            "max_cpu_seconds": max(r.cpu_seconds for r in rs),
+            "worst_mean_error": max(r.mean_error for r in rs),
+            "median_evaluations": statistics.median(r.evaluations for r in rs),
+            "median_ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in rs),
+            "median_cpu_ms_per_evaluation": statistics.median(r.cpu_ms_per_evaluation for r in rs),
+        }
+        s_rows.append(
+            [
+                dtype,
+                f"{len(rs)}",
+                f"{max(r.mean_error for r in rs):.4f}",
+                verdict(acc),
+                f"{min(r.seconds for r in rs):.2f} / {med_s:.2f} / {max(r.seconds for r in rs):.2f}",
+                f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast)}",
+                f"{min(r.cpu_seconds for r in rs):.2f} / {med_c:.2f} / {max(r.cpu_seconds for r in rs):.2f}",
+                f"{sum(r.cpu_seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast_cpu)}",
+                f"{statistics.median(r.evaluations for r in rs):g}",
+                f"{statistics.median(r.ms_per_evaluation for r in rs):.1f}",
+                f"{statistics.median(r.cpu_ms_per_evaluation for r in rs):.1f}",
+                f"{PAPER_SECONDS / med_s:.0f}x",
+            ]
+        )
+    out.append(
+        table(
+            [
+                "dtype",
+                "instances",
+                "worst mean err",
+                "mean < 0.05 px",
+                "fit s min/med/max",
+                "fit < 3 s",
+                "CPU s min/med/max",
+                "CPU < 3 s",
+                "median evals",
+                "med ms/eval",
+                "med CPU ms/eval",
+                "vs 5 min (quoted)",
+            ],
+            s_rows,
+        )
+    )
     return "\n".join(out), targets
 
 
 def report_gradient(rows: list[GradRow], control: tuple[int, int]) -> tuple[str, dict[str, Any]]:
-    out = ["Cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), "
-           "at the fitted forces of the first flow instance; medians of interleaved repeats (wall, and CPU time)"]
-    out.append(table(["dtype", "control", "params", "reps", "forward ms", "gradient ms", "gradient / forward",
-                      "CPU fwd ms", "CPU grad ms", "CPU grad / fwd", "expected ~1-2x"],
-                     [[r.dtype, f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.repeats),
-                       f"{r.forward_ms:.1f}", f"{r.gradient_ms:.1f}", f"{r.ratio:.2f}", f"{r.forward_cpu_ms:.1f}",
-                       f"{r.gradient_cpu_ms:.1f}", f"{r.ratio_cpu:.2f}", verdict(r.ratio <= 2.0)]
-                      for r in rows]))
-    targets = {r.dtype: {"ratio": r.ratio, "ratio_cpu": r.ratio_cpu, "met": r.ratio <= 2.0}
-               for r in rows if r.control == control}
+    out = [
+        "Cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), "
+        "at the fitted forces of the first flow instance; medians of interleaved repeats (wall, and CPU time)"
+    ]
+    out.append(
+        table(
+            [
+                "dtype",
+                "control",
+                "params",
+                "reps",
+                "forward ms",
+                "gradient ms",
+                "gradient / forward",
+                "CPU fwd ms",
+                "CPU grad ms",
+                "CPU grad / fwd",
+                "expected ~1-2x",
+            ],
+            [
+                [
+                    r.dtype,
+                    f"{r.control[0]}x{r.control[1]}",
+                    str(r.parameters),
+                    str(r.repeats),
+                    f"{r.forward_ms:.1f}",
+                    f"{r.gradient_ms:.1f}",
+                    f"{r.ratio:.2f}",
+                    f"{r.forward_cpu_ms:.1f}",
+                    f"{r.gradient_cpu_ms:.1f}",
+                    f"{r.ratio_cpu:.2f}",
+                    verdict(r.ratio <= 2.0),
+                ]
+                for r in rows
+            ],
+        )
+    )
+    targets = {
+        r.dtype: {"ratio": r.ratio, "ratio_cpu": r.ratio_cpu, "met": r.ratio <= 2.0}
+        for r in rows
+        if r.control == control
+    }
     return "\n".join(out), targets
 
 
 def report_controls(fit_rows: list[FitRow], grad_rows: list[GradRow]) -> tuple[str, dict[str, Any]]:
-    out = [f"Parameter count: the same fit ({fit_rows[0].instance}, {fit_rows[0].dtype}) with each control grid, "
-           "interleaved in one run; gradient ms from the table above"]
+    out = [
+        f"Parameter count: the same fit ({fit_rows[0].instance}, {fit_rows[0].dtype}) with each control grid, "
+        "interleaved in one run; gradient ms from the table above"
+    ]
     rows = []
     fit_rows = sorted(fit_rows, key=lambda r: r.parameters)
     grads = {x.control: x for x in grad_rows if x.dtype == fit_rows[0].dtype}
     base, big = fit_rows[0], fit_rows[-1]
     for r in fit_rows:
         g = grads.get(r.control)
-        rows.append([f"{r.control[0]}x{r.control[1]}", str(r.parameters), str(r.evaluations), f"{r.seconds:.2f}",
-                     f"{r.ms_per_evaluation:.1f}", f"{r.cpu_ms_per_evaluation:.1f}",
-                     f"{r.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation:.2f}",
-                     "-" if g is None else f"{g.gradient_ms:.1f}", "-" if g is None else f"{g.gradient_cpu_ms:.1f}",
-                     f"{r.mean_error:.4f}", yes(r.reached)])
-    out.append(table(["control", "params", "evals", "fit s", "ms/eval", "CPU ms/eval", "CPU ms/eval vs fewest",
-                      "gradient ms", "CPU gradient ms", "mean err px", "reached"], rows))
+        rows.append(
+            [
+                f"{r.control[0]}x{r.control[1]}",
+                str(r.parameters),
+                str(r.evaluations),
+                f"{r.seconds:.2f}",
+                f"{r.ms_per_evaluation:.1f}",
+                f"{r.cpu_ms_per_evaluation:.1f}",
+                f"{r.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation:.2f}",
+                "-" if g is None else f"{g.gradient_ms:.1f}",
+                "-" if g is None else f"{g.gradient_cpu_ms:.1f}",
+                f"{r.mean_error:.4f}",
+                yes(r.reached),
+            ]
+        )
+    out.append(
+        table(
+            [
+                "control",
+                "params",
+                "evals",
+                "fit s",
+                "ms/eval",
+                "CPU ms/eval",
+                "CPU ms/eval vs fewest",
+                "gradient ms",
+                "CPU gradient ms",
+                "mean err px",
+                "reached",
+            ],
+            rows,
+        )
+    )
     growth = big.ms_per_evaluation / base.ms_per_evaluation
     growth_cpu = big.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation
     g_growth = g_growth_cpu = math.nan
@@ -545,30 +777,66 @@ def report_controls(fit_rows: list[FitRow], grad_rows: list[GradRow]) -> tuple[s
         g_growth_cpu = grads[big.control].gradient_cpu_ms / grads[base.control].gradient_cpu_ms
     # judged on CPU time: the claim is about the work per gradient, which wall time on a shared machine blurs
     met = growth_cpu <= 1.25 and (math.isnan(g_growth_cpu) or g_growth_cpu <= 1.25)
-    out.append(f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): CPU ms "
-               f"per evaluation {growth_cpu:.2f}x (wall {growth:.2f}x), CPU ms per gradient {g_growth_cpu:.2f}x (wall "
-               f"{g_growth:.2f}x). Target: does not grow, read as within 25% in CPU time -> {verdict(met)}")
-    return "\n".join(out), {"ms_per_eval_growth": growth, "cpu_ms_per_eval_growth": growth_cpu,
-                             "gradient_growth": g_growth, "gradient_cpu_growth": g_growth_cpu, "met": met}
+    out.append(
+        f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): CPU ms "
+        f"per evaluation {growth_cpu:.2f}x (wall {growth:.2f}x), CPU ms per gradient {g_growth_cpu:.2f}x (wall "
+        f"{g_growth:.2f}x). Target: does not grow, read as within 25% in CPU time -> {verdict(met)}"
+    )
+    return "\n".join(out), {
+        "ms_per_eval_growth": growth,
+        "cpu_ms_per_eval_growth": growth_cpu,
+        "gradient_growth": g_growth,
+        "gradient_cpu_growth": g_growth_cpu,
+        "met": met,
+    }
 
 
 def report_memory(runs: list[dict[str, Any]]) -> str:
-    out = ["Peak memory of a fit (each in a fresh process; peak RSS growth = VmHWM after the fit minus VmRSS at the "
-           "baseline)"]
+    out = [
+        "Peak memory of a fit (each in a fresh process; peak RSS growth = VmHWM after the fit minus VmRSS at the "
+        "baseline)"
+    ]
     rows = []
     for r in runs:
         if r.get("failed"):
             rows.append([r["dtype"], "FAILED", f"rc {r['returncode']}", "", "", "", ""])
             continue
-        rows.append([r["dtype"], r["instance"], f"{r['control'][0]}x{r['control'][1]}", str(r["evaluations"]),
-                     f"{r['seconds']:.2f}", f"{r['baseline_rss_mib']:.1f}", f"{r['peak_rss_mib']:.1f}",
-                     f"{r['peak_rss_growth_mib']:.1f}", f"{r['first_call_wall_s']:.2f}",
-                     f"{r['first_call_fit_seconds']:.2f}"])
-    out.append(table(["dtype", "instance", "control", "evals", "fit s", "baseline RSS MiB", "peak RSS MiB",
-                      "peak RSS growth MiB", "1st call wall s", "1st call fit s"], rows))
-    out.append("1st call = the warm-up, the first fit_keyframes call of the fresh process (a 3-iteration fit on an 8x8 "
-               "fluid): its wall time around the call against its KeyframeFit.seconds, which starts after the "
-               "optimiser is built")
+        rows.append(
+            [
+                r["dtype"],
+                r["instance"],
+                f"{r['control'][0]}x{r['control'][1]}",
+                str(r["evaluations"]),
+                f"{r['seconds']:.2f}",
+                f"{r['baseline_rss_mib']:.1f}",
+                f"{r['peak_rss_mib']:.1f}",
+                f"{r['peak_rss_growth_mib']:.1f}",
+                f"{r['first_call_wall_s']:.2f}",
+                f"{r['first_call_fit_seconds']:.2f}",
+            ]
+        )
+    out.append(
+        table(
+            [
+                "dtype",
+                "instance",
+                "control",
+                "evals",
+                "fit s",
+                "baseline RSS MiB",
+                "peak RSS MiB",
+                "peak RSS growth MiB",
+                "1st call wall s",
+                "1st call fit s",
+            ],
+            rows,
+        )
+    )
+    out.append(
+        "1st call = the warm-up, the first fit_keyframes call of the fresh process (a 3-iteration fit on an 8x8 "
+        "fluid): its wall time around the call against its KeyframeFit.seconds, which starts after the "
+        "optimiser is built"
+    )
     return "\n".join(out)
 
 
@@ -579,29 +847,40 @@ def parse_control(text: str) -> tuple[int, int]:
     try:
         ky, kx = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"a control grid is written KYxKX, e.g. 5x5, got {text!r}")
+        raise argparse.ArgumentTypeError(f"a control grid is written KYxKX, e.g. 5x5, got {text!r}") from None
     if ky < 2 or kx < 2:
         raise argparse.ArgumentTypeError(f"control points per axis must be >= 2, got {text!r}")
     return ky, kx
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true",
-                        help="smoke mode: 32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat")
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke mode: 32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat"
+    )
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument("--threads", type=int, default=1,
-                        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall "
-                             "for a scheduler slice whenever another process holds a core)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall "
+        "for a scheduler slice whenever another process holds a core)",
+    )
     parser.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
     parser.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
     parser.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")
-    parser.add_argument("--tolerance", type=float, default=0.05,
-                        help="px: the fit stops once every point is within it (default 0.05)")
+    parser.add_argument(
+        "--tolerance", type=float, default=0.05, help="px: the fit stops once every point is within it (default 0.05)"
+    )
     parser.add_argument("--max-iter", type=int, default=200, help="L-BFGS iterations at most (default 200)")
-    parser.add_argument("--controls", type=parse_control, nargs="+",
-                        help="control grids of the parameter-count sweep (default 3x3 5x5 8x8)")
+    parser.add_argument(
+        "--controls",
+        type=parse_control,
+        nargs="+",
+        help="control grids of the parameter-count sweep (default 3x3 5x5 8x8)",
+    )
     parser.add_argument("--_child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args._child:
@@ -612,11 +891,23 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     if args.quick:
-        cfg = dict(grid=(32, 32), steps=5, points=6, seeds=args.seeds or 2, repeats=args.repeats or 1,
-                   grad_repeats=args.grad_repeats or 3)
+        cfg = dict(
+            grid=(32, 32),
+            steps=5,
+            points=6,
+            seeds=args.seeds or 2,
+            repeats=args.repeats or 1,
+            grad_repeats=args.grad_repeats or 3,
+        )
     else:
-        cfg = dict(grid=(64, 64), steps=10, points=14, seeds=args.seeds or 5, repeats=args.repeats or 3,
-                   grad_repeats=args.grad_repeats or 9)
+        cfg = dict(
+            grid=(64, 64),
+            steps=10,
+            points=14,
+            seeds=args.seeds or 5,
+            repeats=args.repeats or 3,
+            grad_repeats=args.grad_repeats or 9,
+        )
     cfg.update(tolerance=args.tolerance, max_iter=args.max_iter)
     control = (5, 5)
     controls = args.controls or [(3, 3), (5, 5), (8, 8)]
@@ -626,15 +917,23 @@ def main(argv: list[str] | None = None) -> int:
     info = machine()
     info["load_start"] = machine_load()
     info["sources_sha256"] = source_fingerprint()
-    print(f"bench_keyframes: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
-          f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
-          + (" [--quick]" if args.quick else ""), flush=True)
-    print(f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
-          flush=True)
-    print(f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {cfg['steps']} steps, {cfg['points']} points in a "
-          f"{FRAME[1]}x{FRAME[0]} px frame, control {control[0]}x{control[1]} "
-          f"({2 * cfg['steps'] * control[0] * control[1]} parameters), tolerance {cfg['tolerance']:g} px, "
-          f"max_iter {cfg['max_iter']}", flush=True)
+    print(
+        f"bench_keyframes: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
+        f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
+        + (" [--quick]" if args.quick else ""),
+        flush=True,
+    )
+    print(
+        f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
+        flush=True,
+    )
+    print(
+        f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {cfg['steps']} steps, {cfg['points']} points in a "
+        f"{FRAME[1]}x{FRAME[0]} px frame, control {control[0]}x{control[1]} "
+        f"({2 * cfg['steps'] * control[0] * control[1]} parameters), tolerance {cfg['tolerance']:g} px, "
+        f"max_iter {cfg['max_iter']}",
+        flush=True,
+    )
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
     t_start = time.perf_counter()
 
@@ -645,8 +944,17 @@ def main(argv: list[str] | None = None) -> int:
 
     # warm-up: one small fit per dtype (kernels, caches)
     for dtype in DTYPES.values():
-        fit_keyframes(torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]]), image_size=(24, 24), grid=8,
-                      steps=2, control=(3, 3), max_iter=3, dtype=dtype, progress=False)
+        fit_keyframes(
+            torch.tensor([[10.0, 10.0]]),
+            torch.tensor([[12.0, 10.0]]),
+            image_size=(24, 24),
+            grid=8,
+            steps=2,
+            control=(3, 3),
+            max_iter=3,
+            dtype=dtype,
+            progress=False,
+        )
 
     # 1. the fits, interleaved over instances and dtypes
     runs: dict[tuple[str, str], list[FitRun]] = {}
@@ -659,8 +967,11 @@ def main(argv: list[str] | None = None) -> int:
                 runs.setdefault((inst.name, dname), []).append(run)
                 if inst is instances[0]:
                     fits[(dname, control)] = fit
-    fit_rows = [summarise_fits(inst, dname, control, cfg["steps"], runs[(inst.name, dname)])
-                for inst in instances for dname in DTYPES]
+    fit_rows = [
+        summarise_fits(inst, dname, control, cfg["steps"], runs[(inst.name, dname)])
+        for inst in instances
+        for dname in DTYPES
+    ]
     text_f, targets_f = report_fits(fit_rows, cfg["tolerance"])
     print("\n" + text_f, flush=True)
 
@@ -687,26 +998,45 @@ def main(argv: list[str] | None = None) -> int:
     mem_runs = []
     for dname in DTYPES:
         log(f"  memory: {dname} ...")
-        mem_runs.append(run_child({"threads": args.threads, "dtype": dname, "instance": asdict(instances[0]),
-                                   "grid": cfg["grid"], "steps": cfg["steps"], "control": control,
-                                   "max_iter": cfg["max_iter"], "tolerance": cfg["tolerance"]}))
+        mem_runs.append(
+            run_child(
+                {
+                    "threads": args.threads,
+                    "dtype": dname,
+                    "instance": asdict(instances[0]),
+                    "grid": cfg["grid"],
+                    "steps": cfg["steps"],
+                    "control": control,
+                    "max_iter": cfg["max_iter"],
+                    "tolerance": cfg["tolerance"],
+                }
+            )
+        )
     print("\n" + report_memory(mem_runs))
     total = time.perf_counter() - t_start
     info["load_end"] = machine_load()
     print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
     if source_fingerprint() != info["sources_sha256"]:
         info["sources_changed"] = True
-        print("WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
-              "at the start; any subprocess imported the new code)")
+        print(
+            "WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
+            "at the start; any subprocess imported the new code)"
+        )
 
     if args.json:
-        result = {"machine": info, "args": {k: v for k, v in vars(args).items() if k != "_child"}, "config": cfg,
-                  "instances": [asdict(i) for i in instances], "fits": [asdict(r) for r in fit_rows],
-                  "fit_runs": {f"{k[0]} / {k[1]}": [asdict(r) for r in v] for k, v in runs.items()},
-                  "gradient": [asdict(r) for r in grad_rows], "controls": [asdict(r) for r in sweep_rows],
-                  "memory": mem_runs,
-                  "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
-                  "total_s": total}
+        result = {
+            "machine": info,
+            "args": {k: v for k, v in vars(args).items() if k != "_child"},
+            "config": cfg,
+            "instances": [asdict(i) for i in instances],
+            "fits": [asdict(r) for r in fit_rows],
+            "fit_runs": {f"{k[0]} / {k[1]}": [asdict(r) for r in v] for k, v in runs.items()},
+            "gradient": [asdict(r) for r in grad_rows],
+            "controls": [asdict(r) for r in sweep_rows],
+            "memory": mem_runs,
+            "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
+            "total_s": total,
+        }
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:
             json.dump(result, f, indent=2)
