@@ -142,6 +142,31 @@ def _frame_times(T: int, times: Sequence[float] | None) -> list[float]:
     return out
 
 
+def _map_composer(velocities: Tensor, size: tuple[int, int], dt: float) -> Callable[[Tensor, int, float], Tensor]:
+    """``compose(disp, t, duration)``: one step of map composition at the image's resolution.
+
+    ``disp`` ``(B, 2, H, W)`` is a map minus the identity; the result is that map read at ``x - d(x)``, where
+    ``d`` is the midpoint back-trace displacement of step ``t``'s velocity over ``duration * dt`` (a negative
+    duration traces forward), in :func:`~torchfluidwarp.fluid.substeps` sub-steps short enough never to fold.
+    The backward maps (``duration > 0``) and the maps to the end (``duration < 0``) share it.
+    """
+    H, W = size
+    B = velocities.shape[0]
+    pix = identity_map(size, device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)  # (1, 2, H, W)
+    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
+    scale, shift = _pixel_affine(H, W, velocities)
+
+    def compose(disp: Tensor, t: int, duration: float) -> Tensor:
+        n = substeps(velocities[:, t], dt * duration)
+        for _ in range(n):
+            at = torch.clamp(pix - _displacement(velocities[:, t], size, dt * duration / n), lo, hi)
+            disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+        return disp
+
+    return compose
+
+
 def iter_backward_maps(
     velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Sequence[float] | None = None
 ) -> Iterator[Tensor]:
@@ -163,26 +188,16 @@ def iter_backward_maps(
     H, W = check_size("size", size)
     B, T = velocities.shape[:2]
     times = _frame_times(T, times)
-    pix = identity_map((H, W), device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)  # (1, 2, H, W)
-    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    scale, shift = _pixel_affine(H, W, velocities)
-
-    def advance(disp: Tensor, t: int, fraction: float) -> Tensor:
-        n = substeps(velocities[:, t], dt * fraction)
-        for _ in range(n):  # sub-steps short enough never to fold (see fluid.substeps)
-            back = torch.clamp(pix - _displacement(velocities[:, t], (H, W), dt * fraction / n), lo, hi)
-            disp = back - pix + _sample(disp, back.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
-        return disp
-
-    disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # g_t(x) - x at integer step `done`
+    advance = _map_composer(velocities, (H, W), dt)
+    ident = identity_map((H, W), device=velocities.device, dtype=velocities.dtype)  # (1, H, W, 2)
+    disp = velocities.new_zeros(B, 2, H, W)  # g_t(x) - x at integer step `done`
     done = 0
     for s in times:
         while done + 1 <= s:
             disp = advance(disp, done, 1.0)
             done += 1
         current = disp if s == done else advance(disp, done, s - done)
-        yield (current + pix).permute(0, 2, 3, 1)
+        yield current.permute(0, 2, 3, 1) + ident
 
 
 def backward_maps(
@@ -223,20 +238,13 @@ def maps_to_end(
     H, W = check_size("size", size)
     B, T = velocities.shape[:2]
     times = _frame_times(T, times)
-    pix = identity_map((H, W), device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)
-    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    scale, shift = _pixel_affine(H, W, velocities)
+    compose = _map_composer(velocities, (H, W), dt)
+    ident = identity_map((H, W), device=velocities.device, dtype=velocities.dtype)  # (1, H, W, 2)
 
     def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
-        n = substeps(velocities[:, t], dt * fraction)
-        for _ in range(n):
-            # forward displacement over a sub-step = minus the back-trace displacement of a negative time step
-            ahead = torch.clamp(pix - _displacement(velocities[:, t], (H, W), -dt * fraction / n), lo, hi)
-            disp = ahead - pix + _sample(disp, ahead.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
-        return disp
+        return compose(disp, t, -fraction)  # read ahead: trace forward over the step's remaining time
 
-    disp = torch.zeros(B, 2, H, W, device=pix.device, dtype=pix.dtype)  # K_t(z) - z at integer step `done`
+    disp = velocities.new_zeros(B, 2, H, W)  # K_t(z) - z at integer step `done`
     done = T
     out: list[Tensor] = []
     for s in reversed(times):
@@ -244,7 +252,7 @@ def maps_to_end(
             disp = pull(disp, done - 1, 1.0)
             done -= 1
         current = disp if s == done else pull(disp, done - 1, done - s)
-        out.append((current + pix).permute(0, 2, 3, 1))
+        out.append(current.permute(0, 2, 3, 1) + ident)
     return torch.stack(out[::-1], dim=1)
 
 
