@@ -54,8 +54,8 @@ def ncc_loss(warped: Tensor, target: Tensor, eps: float = 1e-8) -> Tensor:
 
     Example:
         >>> x = torch.rand(1, 1, 8, 8)
-        >>> round(float(ncc_loss(2 * x + 0.1, x)), 6)
-        0.0
+        >>> abs(float(ncc_loss(2 * x + 0.1, x))) < 1e-6
+        True
     """
     a = warped.flatten(1) - warped.flatten(1).mean(1, keepdim=True)
     b = target.flatten(1) - target.flatten(1).mean(1, keepdim=True)
