@@ -161,3 +161,17 @@ def test_bad_viscosity(bad, match):
 def test_bad_velocity_shapes(shape):
     with pytest.raises(ValueError, match="velocity"):
         fluid.advect_velocity(torch.zeros(shape), 1.0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_exact_solves_skip_cg_and_agree_with_the_checked_loop(dtype, gen):
+    v = _velocity(12, 10, gen, dtype=dtype)
+    fast, it_fast = fluid.project(v, return_iterations=True)
+    checked, _ = fluid.project(v, config=CGConfig(verify_exact=True), return_iterations=True)
+    assert it_fast == 1
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    torch.testing.assert_close(fast, checked, atol=tol * float(v.abs().max()), rtol=0)
+    assert float(fluid.divergence(fast).abs().max()) <= tol * float(v.abs().max())
+    d_fast = fluid.diffuse(v, 0.8, 1.0)
+    d_checked = fluid.diffuse(v, 0.8, 1.0, config=CGConfig(verify_exact=True))
+    torch.testing.assert_close(d_fast, d_checked, atol=tol * float(v.abs().max()), rtol=0)

@@ -127,16 +127,15 @@ def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[
             sx, sy = 2.0 / (nx - 1), 2.0 / (ny - 1)
             return col(sx, sy), col(-1 - x0 * sx, -1 - y0 * sy)
 
-        su, tu = affine(w + 1, h, -0.5, 0.0)
-        sv, tv = affine(w, h + 1, 0.0, -0.5)
+        # both components on (h + 1, w + 1) nodes (see _extend): u at (j - 1/2, i), v at (j, i - 1/2)
+        su, tu = affine(w + 1, h + 1, -0.5, 0.0)
+        sv, tv = affine(w + 1, h + 1, 0.0, -0.5)
         sc, tc = affine(w, h, 0.0, 0.0)
         return {
             "lo": col(-0.5, -0.5),
             "hi": col(w - 0.5, h - 0.5),
-            "su": su,
-            "tu": tu,
-            "sv": sv,
-            "tv": tv,
+            "s2": torch.stack([su, sv], dim=1),  # (1, component, xy, 1)
+            "t2": torch.stack([tu, tv], dim=1),
             "sc": sc,
             "tc": tc,
             "faces": torch.cat([positions(h, w - 1, 0.5, 0.0), positions(h - 1, w, 0.0, 0.5)], dim=2),
@@ -160,22 +159,43 @@ def _sample(
     return F.grid_sample(image, g, mode=mode, padding_mode="border", align_corners=align_corners)[..., 0]
 
 
-def _velocity_at(velocity: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:
-    """Velocity ``(B, 2, N)`` at channel-first points ``(B, 2, N)`` (fluid cells)."""
-    u, v = _split(velocity)
-    su = _sample(u.unsqueeze(1), points, geo["su"], geo["tu"])  # (B, 1, N)
-    sv = _sample(v.unsqueeze(1), points, geo["sv"], geo["tv"])
-    return torch.cat([su, sv], dim=1)
+def _extend(velocity: Tensor) -> Tensor:
+    """Both components of a staggered velocity on ``(h + 1, w + 1)`` nodes, as a batch ``(2B, 1, h + 1, w + 1)``.
+
+    The padding row of ``u`` and the padding column of ``v`` repeat their last row / column, so that bilinear
+    sampling with border padding holds each component constant beyond its outermost nodes: one
+    ``grid_sample`` call then samples both components (see :func:`_velocity_at`).
+    """
+    h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
+    u = velocity[:, 0:1, :h]
+    v = velocity[:, 1:2, :, :w]
+    u = torch.cat([u, u[:, :, h - 1 :]], dim=2)
+    v = torch.cat([v, v[..., w - 1 :]], dim=3)
+    return torch.cat([u, v], dim=1).view(-1, 1, h + 1, w + 1)
+
+
+def _velocity_at(extended: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:
+    """Velocity ``(B, 2, N)`` at channel-first points ``(B, 2, N)`` (fluid cells), in one ``grid_sample``.
+
+    ``extended`` is :func:`_extend` of the velocity. Points outside the box sample its border values, as if
+    clamped into it.
+    """
+    B, _, N = points.shape
+    g = torch.addcmul(geo["t2"], points.unsqueeze(1), geo["s2"])  # (B, component, xy, N)
+    g = g.transpose(2, 3).reshape(2 * B, N, 1, 2)
+    out = F.grid_sample(extended, g, mode="bilinear", padding_mode="border", align_corners=True)
+    return out.view(B, 2, N)
 
 
 def _clamp(points: Tensor, geo: dict[str, Tensor]) -> Tensor:
     return torch.clamp(points, geo["lo"], geo["hi"])
 
 
-def _backtrace(velocity: Tensor, points: Tensor, dt: float, geo: dict[str, Tensor]) -> Tensor:
-    # explicit midpoint (RK2) back along the characteristic, clamped into the box
-    mid = _clamp(points - (0.5 * dt) * _velocity_at(velocity, points, geo), geo)
-    return _clamp(points - dt * _velocity_at(velocity, mid, geo), geo)
+def _backtrace(extended: Tensor, points: Tensor, dt: float, geo: dict[str, Tensor]) -> Tensor:
+    # explicit midpoint (RK2) back along the characteristic, clamped into the box (the midpoint needs no
+    # clamp: sampling holds the velocity constant outside the box)
+    mid = points - (0.5 * dt) * _velocity_at(extended, points, geo)
+    return _clamp(points - dt * _velocity_at(extended, mid, geo), geo)
 
 
 def sample_velocity(velocity: Tensor, points: Tensor) -> Tensor:
@@ -194,7 +214,7 @@ def sample_velocity(velocity: Tensor, points: Tensor) -> Tensor:
     check_velocity(velocity)
     check_tensor("points", points, shape=[velocity.shape[0], None, 2])
     geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
-    return _velocity_at(velocity, _clamp(points.transpose(1, 2), geo), geo).transpose(1, 2)
+    return _velocity_at(_extend(velocity), points.transpose(1, 2), geo).transpose(1, 2)
 
 
 def advect(quantity: Tensor, velocity: Tensor, dt: float) -> Tensor:
@@ -211,7 +231,7 @@ def advect(quantity: Tensor, velocity: Tensor, dt: float) -> Tensor:
     h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
     check_tensor("quantity", quantity, shape=[velocity.shape[0], None, h, w])
     geo = _geo(h, w, velocity)
-    back = _backtrace(velocity, geo["cells"].expand(velocity.shape[0], -1, -1), dt, geo)
+    back = _backtrace(_extend(velocity), geo["cells"].expand(velocity.shape[0], -1, -1), dt, geo)
     return _sample(quantity, back, geo["sc"], geo["tc"]).view_as(quantity)
 
 
@@ -224,11 +244,12 @@ def advect_velocity(velocity: Tensor, dt: float) -> Tensor:
 def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
     h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
     geo = _geo(h, w, velocity)
-    back = _backtrace(velocity, geo["faces"].expand(velocity.shape[0], -1, -1), dt, geo)
+    ext = _extend(velocity)
+    back = _backtrace(ext, geo["faces"].expand(velocity.shape[0], -1, -1), dt, geo)
     nu = h * (w - 1)
-    u, v = _split(velocity)
-    u_new = _sample(u.unsqueeze(1), back[..., :nu], geo["su"], geo["tu"]).view(-1, h, w - 1)
-    v_new = _sample(v.unsqueeze(1), back[..., nu:], geo["sv"], geo["tv"]).view(-1, h - 1, w)
+    both = _velocity_at(ext, back, geo)  # both components at every face's foot: one call, half of it used
+    u_new = both[:, 0, :nu].view(-1, h, w - 1)
+    v_new = both[:, 1, nu:].view(-1, h - 1, w)
     return _pack(F.pad(u_new, (1, 1)), F.pad(v_new, (0, 0, 1, 1)))
 
 
@@ -268,9 +289,10 @@ def _advect_points(points: Tensor, velocity: Tensor, dt: float, n: int | None = 
     geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
     n = substeps(velocity, dt) if n is None else n
     h = dt / n
+    ext = _extend(velocity)
     for _ in range(n):
-        mid = _clamp(points + (0.5 * h) * _velocity_at(velocity, points, geo), geo)
-        points = _clamp(points + h * _velocity_at(velocity, mid, geo), geo)
+        mid = points + (0.5 * h) * _velocity_at(ext, points, geo)
+        points = _clamp(points + h * _velocity_at(ext, mid, geo), geo)
     return points
 
 
@@ -387,6 +409,7 @@ def diffuse(
             config=config,
             adjoint_config=adjoint_config,
             name="viscosity solve",
+            exact=True,
         )
     return (x, iters) if return_iterations else x
 
@@ -407,9 +430,9 @@ def project(
     """Pressure projection: solve ``-L p = -div v`` and return ``v - grad p``, divergence-free.
 
     On the staggered grid the 5-point Neumann Laplacian is exactly ``div(grad)``, so after the solve the
-    discrete :func:`divergence` is zero to the CG tolerance; the DCT preconditioner is the exact inverse,
-    so CG takes one iteration (two in float32 on large grids, where round-off of the first exceeds the
-    default tolerance).
+    discrete :func:`divergence` is zero to round-off; the DCT preconditioner is the exact inverse, so CG's
+    first iterate is the solution and is returned unchecked (``CGConfig(verify_exact=True)`` runs CG with
+    its residual checks).
 
     Returns:
         ``(B, 2, h + 1, w + 1)`` the projected velocity (and the iteration count if asked).
@@ -423,6 +446,7 @@ def project(
         config=config,
         adjoint_config=adjoint_config,
         name="pressure solve",
+        exact=True,
     )
     out = velocity - gradient(p)
     return (out, iters) if return_iterations else out

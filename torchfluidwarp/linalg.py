@@ -9,6 +9,7 @@ Backward memory is therefore that of one operator application, whatever the numb
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,6 +47,10 @@ class CGConfig:
         precondition: use the solve's fast exact preconditioner (``False`` runs plain CG; for comparisons).
         backward: ``"implicit"`` (the adjoint: one more CG solve, memory independent of the iterations) or
             ``"unrolled"`` (plain autograd through every CG iteration; a reference for tests and benchmarks).
+        verify_exact: a solve whose preconditioner is the operator's exact inverse (the pressure solve and the
+            constant-viscosity solve) returns CG's first iterate, ``M^-1 b``, which is the solution, without
+            computing its residual (``CGInfo.residual`` is NaN: unchecked). ``True`` runs the full CG loop with
+            its residual checks, which in float32 may add an iteration to polish round-off.
 
     Example:
         >>> CGConfig(rtol=1e-8, max_iter=50).tolerance(torch.float32)
@@ -58,6 +63,7 @@ class CGConfig:
     on_failure: Literal["warn", "raise", "ignore"] = "warn"
     precondition: bool = True
     backward: Literal["implicit", "unrolled"] = "implicit"
+    verify_exact: bool = False
 
     def __post_init__(self) -> None:
         if self.rtol is not None and not (self.rtol >= 0):
@@ -99,6 +105,7 @@ def conjugate_gradient(
     *,
     name: str = "linear solve",
     differentiable: bool = False,
+    exact: bool = False,
 ) -> tuple[Tensor, CGInfo]:
     """Batched preconditioned CG for ``A x = b``, starting from zero.
 
@@ -109,6 +116,8 @@ def conjugate_gradient(
         config: tolerance, iteration cap and failure policy.
         name: names the solve in warnings and errors.
         differentiable: record the iterations for autograd (the unrolled reference); otherwise no graph.
+        exact: ``precond`` is the exact inverse of ``matvec``: unless ``config.verify_exact``, return its
+            application to ``b`` (CG's first iterate) at once, as one unchecked iteration.
 
     Returns:
         ``(x, info)`` with ``x`` like ``b``. A zero right-hand side returns zero at once.
@@ -117,6 +126,8 @@ def conjugate_gradient(
         ConvergenceError: the solve stopped at ``max_iter`` and ``config.on_failure == "raise"``.
     """
     with torch.set_grad_enabled(differentiable and torch.is_grad_enabled()):
+        if exact and precond is not None and not config.verify_exact:
+            return precond(b), CGInfo(1, math.nan, True)
         b_norm = _dot(b, b).detach().sqrt()
         bound = torch.clamp(b_norm * config.tolerance(b.dtype), min=config.atol)
         x = torch.zeros_like(b)
@@ -171,15 +182,18 @@ class _ImplicitSolve(torch.autograd.Function):
         config: CGConfig,
         adjoint: CGConfig,
         name: str,
+        exact: bool,
         *params: Tensor,
     ) -> tuple[Tensor, Tensor]:
-        x, info = conjugate_gradient(lambda v: operator(v, *params), b, _use(precond, config), config, name=name)
+        x, info = conjugate_gradient(
+            lambda v: operator(v, *params), b, _use(precond, config), config, name=name, exact=exact
+        )
         return x, torch.tensor(info.iterations)
 
     @staticmethod
     def setup_context(ctx: Any, inputs: tuple[Any, ...], output: tuple[Tensor, Tensor]) -> None:
-        _, operator, precond, _, adjoint, name, *params = inputs
-        ctx.operator, ctx.precond, ctx.adjoint, ctx.name = operator, precond, adjoint, name
+        _, operator, precond, _, adjoint, name, exact, *params = inputs
+        ctx.operator, ctx.precond, ctx.adjoint, ctx.name, ctx.exact = operator, precond, adjoint, name, exact
         ctx.mark_non_differentiable(output[1])
         ctx.save_for_backward(output[0], *params)
 
@@ -193,9 +207,10 @@ class _ImplicitSolve(torch.autograd.Function):
             _use(ctx.precond, ctx.adjoint),
             ctx.adjoint,
             name=f"{ctx.name} (adjoint)",
+            exact=ctx.exact,
         )
         grad_b = lam if ctx.needs_input_grad[0] else None
-        wanted = [i for i, p in enumerate(params) if ctx.needs_input_grad[6 + i]]
+        wanted = [i for i, p in enumerate(params) if ctx.needs_input_grad[7 + i]]
         grad_params: list[Tensor | None] = [None] * len(params)
         if wanted:
             with torch.enable_grad():
@@ -204,7 +219,7 @@ class _ImplicitSolve(torch.autograd.Function):
                 grads = torch.autograd.grad(Ax, [leaves[i] for i in wanted], grad_outputs=-lam, allow_unused=True)
             for i, g in zip(wanted, grads):
                 grad_params[i] = torch.zeros_like(params[i]) if g is None else g
-        return (grad_b, None, None, None, None, None, *grad_params)
+        return (grad_b, None, None, None, None, None, None, *grad_params)
 
 
 def implicit_solve(
@@ -216,6 +231,7 @@ def implicit_solve(
     config: CGConfig = CGConfig(),
     adjoint_config: CGConfig | None = None,
     name: str = "linear solve",
+    exact: bool = False,
 ) -> tuple[Tensor, int]:
     """Solve ``operator(x, *params) = b`` by preconditioned CG, differentiably, with an implicit adjoint.
 
@@ -228,14 +244,21 @@ def implicit_solve(
         config: settings of the forward solve.
         adjoint_config: settings of the backward solve (defaults to ``config``).
         name: names the solve in warnings and errors.
+        exact: ``precond`` inverts the operator exactly (see :attr:`CGConfig.verify_exact`).
 
     Returns:
         ``(x, iterations)``: the solution like ``b`` and the forward CG iteration count.
     """
     if config.backward == "unrolled":
         x, info = conjugate_gradient(
-            lambda v: operator(v, *params), b, _use(precond, config), config, name=name, differentiable=True
+            lambda v: operator(v, *params),
+            b,
+            _use(precond, config),
+            config,
+            name=name,
+            differentiable=True,
+            exact=exact,
         )
         return x, info.iterations
-    x, iters = _ImplicitSolve.apply(b, operator, precond, config, adjoint_config or config, name, *params)
+    x, iters = _ImplicitSolve.apply(b, operator, precond, config, adjoint_config or config, name, exact, *params)
     return x, int(iters)

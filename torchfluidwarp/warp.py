@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
-from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _geo, _sample, substeps
+from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _extend, _geo, _sample, substeps
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
@@ -127,7 +127,8 @@ def _displacement(velocity: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     c = _cell_scale(raster, h, w, velocity)
     pix = identity_map(raster, device=velocity.device, dtype=velocity.dtype).reshape(1, -1, 2).transpose(1, 2)
     cells = ((pix + 0.5) * c - 0.5).expand(velocity.shape[0], -1, -1)  # (B, 2, N) raster centres in cells
-    disp = ((cells - _backtrace(velocity, cells, dt, geo)) / _cell_scale(size, h, w, velocity)).view(-1, 2, *raster)
+    back = _backtrace(_extend(velocity), cells, dt, geo)
+    disp = ((cells - back) / _cell_scale(size, h, w, velocity)).view(-1, 2, *raster)
     if raster == (H, W):
         return disp
     return F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
