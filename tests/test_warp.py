@@ -129,3 +129,20 @@ def test_bicubic_and_nearest_sampling(gen):
     shifted = ident + torch.tensor([0.5, 0.0], dtype=torch.float64)
     out = warp_image(image, shifted)
     torch.testing.assert_close(out[..., :-1], 0.5 * (image[..., :-1] + image[..., 1:]))
+
+
+def test_maps_beyond_the_raster_are_resized_and_frames_match(gen):
+    # the image is larger than OVERSAMPLE points per cell: maps are composed on the raster and resized
+    size = (90, 70)
+    warp = FluidWarp((16, 12), steps=6)
+    brushes = _random_brushes(gen, 3, size, amplitude=1.0, frequency=0.1)
+    image = torch.rand(2, 3, *size, generator=gen)
+    with torch.no_grad():
+        frames = warp(image, brushes)
+        streamed = torch.stack(list(warp.iter_frames(image, brushes)), dim=1)
+        maps = warp.maps(brushes, size)
+    torch.testing.assert_close(streamed, frames, atol=1e-4, rtol=0)  # two float32 paths to the same grid
+    assert (maps[:, -1] - identity_map(size)).norm(dim=-1).max() > 3
+    det = jacobian_determinant(maps[:, 1:].reshape(-1, *size, 2))
+    assert det.min() > 0
+    assert abs(float(det.mean()) - 1) < 0.01

@@ -143,29 +143,75 @@ def _frame_times(T: int, times: Sequence[float] | None) -> list[float]:
     return out
 
 
-def _map_composer(velocities: Tensor, size: tuple[int, int], dt: float) -> Callable[[Tensor, int, float], Tensor]:
-    """``compose(disp, t, duration)``: one step of map composition at the image's resolution.
+def _raster(size: tuple[int, int], h: int, w: int) -> tuple[int, int]:
+    """The working raster of the maps: the image, or :data:`OVERSAMPLE` points per fluid cell if that is smaller."""
+    return (min(size[0], OVERSAMPLE * h), min(size[1], OVERSAMPLE * w))
 
-    ``disp`` ``(B, 2, H, W)`` is a map minus the identity; the result is that map read at ``x - d(x)``, where
-    ``d`` is the midpoint back-trace displacement of step ``t``'s velocity over ``duration * dt`` (a negative
-    duration traces forward), in :func:`~torchfluidwarp.fluid.substeps` sub-steps short enough never to fold.
-    The backward maps (``duration > 0``) and the maps to the end (``duration < 0``) share it.
+
+def _map_composer(
+    velocities: Tensor, size: tuple[int, int], dt: float
+) -> tuple[Callable[[Tensor, int, float], Tensor], Callable[[Tensor], Tensor], tuple[int, int]]:
+    """Map composition on the working raster: ``(compose, to_map, raster)``.
+
+    ``compose(disp, t, duration)`` advances ``disp`` ``(B, 2, Hr, Wr)``, a map minus the identity in raster
+    pixels: the result is that map read at ``x - d(x)``, where ``d`` is the midpoint back-trace displacement of
+    step ``t``'s velocity over ``duration * dt`` (a negative duration traces forward), in
+    :func:`~torchfluidwarp.fluid.substeps` sub-steps short enough never to fold. The backward maps
+    (``duration > 0``) and the maps to the end (``duration < 0``) share it.
+
+    ``to_map(disp)`` resizes a raster displacement bilinearly to the image and returns the map
+    ``(B, H, W, 2)`` in image pixels. The raster (:func:`_raster`) holds every detail the fluid can make, so
+    large images cost one resize per map, not a composition at full resolution.
     """
     H, W = size
     B = velocities.shape[0]
-    pix = identity_map(size, device=velocities.device, dtype=velocities.dtype).permute(0, 3, 1, 2)  # (1, 2, H, W)
-    lo = torch.tensor([-0.5, -0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    hi = torch.tensor([W - 0.5, H - 0.5], device=pix.device, dtype=pix.dtype).view(1, 2, 1, 1)
-    scale, shift = _pixel_affine(H, W, velocities)
+    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
+    raster = _raster(size, h, w)
+    Hr, Wr = raster
+    like = velocities
+    pix = identity_map(raster, device=like.device, dtype=like.dtype).permute(0, 3, 1, 2).contiguous()  # (1, 2, Hr, Wr)
+    lo = torch.tensor([-0.5, -0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([Wr - 0.5, Hr - 0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
+    scale, shift = _pixel_affine(Hr, Wr, like)
+    ratio = torch.tensor([W / Wr, H / Hr], device=like.device, dtype=like.dtype).view(1, 1, 1, 2)
+    ident = identity_map(size, device=like.device, dtype=like.dtype)  # (1, H, W, 2)
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
         n = substeps(velocities[:, t], dt * duration)
         for _ in range(n):
-            at = torch.clamp(pix - _displacement(velocities[:, t], size, dt * duration / n), lo, hi)
-            disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, H, W)
+            at = torch.clamp(pix - _displacement(velocities[:, t], raster, dt * duration / n), lo, hi)
+            disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, Hr, Wr)
         return disp
 
-    return compose
+    def to_map(disp: Tensor) -> Tensor:
+        if raster == size:
+            return disp.permute(0, 2, 3, 1) + ident
+        up = F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
+        return torch.addcmul(ident, up.permute(0, 2, 3, 1), ratio)  # one pass, (B, H, W, 2) contiguous
+
+    return compose, to_map, raster
+
+
+def _iter_displacements(
+    velocities: Tensor, size: tuple[int, int], dt: float, times: Sequence[float] | None
+) -> tuple[Iterator[Tensor], Callable[[Tensor], Tensor], tuple[int, int]]:
+    """The backward maps as raster displacements (see :func:`iter_backward_maps`), and ``to_map`` and the raster."""
+    check_tensor("velocities", velocities, ndim=5)
+    H, W = check_size("size", size)
+    B, T = velocities.shape[:2]
+    frame_times = _frame_times(T, times)
+    advance, to_map, raster = _map_composer(velocities, (H, W), dt)
+
+    def run() -> Iterator[Tensor]:
+        disp = velocities.new_zeros(B, 2, *raster)  # g_t(x) - x at integer step `done`, raster pixels
+        done = 0
+        for s in frame_times:
+            while done + 1 <= s:
+                disp = advance(disp, done, 1.0)
+                done += 1
+            yield disp if s == done else advance(disp, done, s - done)
+
+    return run(), to_map, raster
 
 
 def iter_backward_maps(
@@ -185,26 +231,18 @@ def iter_backward_maps(
         dt: the roll-out's time step.
         times: non-decreasing times in steps, within ``[0, T]`` (default ``0, 1, ..., T``).
     """
-    check_tensor("velocities", velocities, ndim=5)
-    H, W = check_size("size", size)
-    B, T = velocities.shape[:2]
-    times = _frame_times(T, times)
-    advance = _map_composer(velocities, (H, W), dt)
-    ident = identity_map((H, W), device=velocities.device, dtype=velocities.dtype)  # (1, H, W, 2)
-    disp = velocities.new_zeros(B, 2, H, W)  # g_t(x) - x at integer step `done`
-    done = 0
-    for s in times:
-        while done + 1 <= s:
-            disp = advance(disp, done, 1.0)
-            done += 1
-        current = disp if s == done else advance(disp, done, s - done)
-        yield current.permute(0, 2, 3, 1) + ident
+    displacements, to_map, _ = _iter_displacements(velocities, size, dt, times)
+    for disp in displacements:
+        yield to_map(disp)
 
 
 def backward_maps(
     velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Sequence[float] | None = None
 ) -> Tensor:
-    """Backward coordinate maps of a roll-out, advected at the image's resolution.
+    """Backward coordinate maps of a roll-out, advected semi-Lagrangian on the maps' working raster.
+
+    The raster is the image itself, or :data:`OVERSAMPLE` points per fluid cell and axis when the image is
+    larger; the maps are resized from there to ``size`` bilinearly.
 
     Args:
         velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities (fluid cells per time unit), as returned
@@ -239,21 +277,19 @@ def maps_to_end(
     H, W = check_size("size", size)
     B, T = velocities.shape[:2]
     times = _frame_times(T, times)
-    compose = _map_composer(velocities, (H, W), dt)
-    ident = identity_map((H, W), device=velocities.device, dtype=velocities.dtype)  # (1, H, W, 2)
+    compose, to_map, raster = _map_composer(velocities, (H, W), dt)
 
     def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
         return compose(disp, t, -fraction)  # read ahead: trace forward over the step's remaining time
 
-    disp = velocities.new_zeros(B, 2, H, W)  # K_t(z) - z at integer step `done`
+    disp = velocities.new_zeros(B, 2, *raster)  # K_t(z) - z at integer step `done`, raster pixels
     done = T
     out: list[Tensor] = []
     for s in reversed(times):
         while done - 1 >= s:
             disp = pull(disp, done - 1, 1.0)
             done -= 1
-        current = disp if s == done else pull(disp, done - 1, done - s)
-        out.append(current.permute(0, 2, 3, 1) + ident)
+        out.append(to_map(disp if s == done else pull(disp, done - 1, done - s)))
     return torch.stack(out[::-1], dim=1)
 
 
@@ -410,9 +446,17 @@ class FluidWarp(nn.Module):
         if vel.shape[0] != image.shape[0]:
             vel = vel.expand(image.shape[0], *vel.shape[1:])
         yield image
-        for t, m in enumerate(iter_backward_maps(vel, size, self.dt)):
-            if t > 0:
-                yield _warp_image(image, m, self.mode)
+        H, W = size
+        displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None)
+        # sampling grids straight from the raster: grid = identity + disp * 2 / raster size, normalised
+        ident = (identity_map(size, device=vel.device, dtype=vel.dtype) + 0.5) * vel.new_tensor([2 / W, 2 / H]) - 1
+        ratio = vel.new_tensor([2 / Wr, 2 / Hr])
+        next(displacements)  # map 0 is the identity: frame 0 is the input
+        for disp in displacements:
+            if (Hr, Wr) != size:
+                disp = F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
+            grid = torch.addcmul(ident, disp.permute(0, 2, 3, 1), ratio)
+            yield F.grid_sample(image, grid, mode=self.mode, padding_mode="border", align_corners=False)
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
