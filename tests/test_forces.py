@@ -10,7 +10,6 @@ from torchfluidwarp.forces import (
     ControlGrid,
     SumForces,
     ViscosityBrushes,
-    conditioning_scale,
     viscosity_from_mask,
 )
 from torchfluidwarp.grid import FluidGrid
@@ -90,15 +89,3 @@ def test_viscosity_maps():
 def test_bad_brushes(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Brushes(**kwargs)
-
-
-def test_control_grid_scale_multiplies_each_step(gen):
-    init = torch.randn(1, 4, 2, 3, 3, generator=gen)
-    plain = ControlGrid(4, 3, init=init)(FluidGrid(8, 8), 4, 1.0, (8, 8))
-    scale = conditioning_scale(4)
-    scaled = ControlGrid(4, 3, init=init, scale=scale)(FluidGrid(8, 8), 4, 1.0, (8, 8))
-    torch.testing.assert_close(scaled, plain * scale.view(1, 4, 1, 1, 1))
-    # late steps are scaled up: (T / (T - t))^2
-    torch.testing.assert_close(scale, torch.tensor([1.0, 16 / 9, 4.0, 16.0]))
-    with pytest.raises(ValueError, match="scale"):
-        ControlGrid(4, 3, scale=torch.ones(3))

@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 
 from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor
 from torchfluidwarp.fluid import Viscosity
-from torchfluidwarp.forces import ControlGrid, conditioning_scale
+from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.warp import FluidWarp
 
@@ -204,7 +204,7 @@ def fit_keyframes(
         raise ValueError(f"weights must be non-negative with shape ({M},) or ({B}, {M}), got {tuple(w.shape)}")
 
     warp = FluidWarp(grid, steps, dt, viscosity, image_size=(H, W), compressible=compressible).to(dtype)
-    module = ControlGrid(steps, control, batch=B, scale=conditioning_scale(steps)) if forces is None else forces
+    module = ControlGrid(steps, control, batch=B) if forces is None else forces
     module = module.to(dtype)
     params = [p for p in module.parameters() if p.requires_grad]
     if not params:

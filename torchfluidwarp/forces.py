@@ -24,7 +24,6 @@ __all__ = [
     "Brushes",
     "SumForces",
     "ControlGrid",
-    "conditioning_scale",
     "CellForces",
     "ViscosityBrushes",
     "viscosity_from_mask",
@@ -142,20 +141,11 @@ class ControlGrid(nn.Module):
         steps: ``T``.
         control: ``(K_y, K_x)`` control points per step (each at least 2).
         batch: number of independent problems ``B``.
-        init: optional initial values of ``weight`` ``(B, T, 2, K_y, K_x)``; zero by default.
-        scale: optional per-step factors ``(T,)``: the force of step ``t`` is ``scale[t] * weight[:, t]``
-            (default 1). :func:`~torchfluidwarp.control.fit_keyframes` uses :func:`conditioning_scale`.
+        init: optional initial values ``(B, T, 2, K_y, K_x)``; zero by default.
     """
 
-    scale: Tensor
-
     def __init__(
-        self,
-        steps: int,
-        control: tuple[int, int] | int = (5, 5),
-        batch: int = 1,
-        init: Tensor | None = None,
-        scale: Tensor | None = None,
+        self, steps: int, control: tuple[int, int] | int = (5, 5), batch: int = 1, init: Tensor | None = None
     ) -> None:
         super().__init__()
         ky, kx = check_size("control", control, minimum=2)
@@ -164,35 +154,15 @@ class ControlGrid(nn.Module):
             init = torch.zeros(batch, steps, 2, ky, kx)
         check_tensor("init", init, shape=[batch, steps, 2, ky, kx])
         self.weight = nn.Parameter(init.detach().clone())
-        scale = torch.ones(steps) if scale is None else check_tensor("scale", scale, shape=[steps])
-        self.register_buffer("scale", scale.detach().clone().to(self.weight.dtype))
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         B, T, _, ky, kx = self.weight.shape
         if steps != T:
             raise ValueError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
-        weight = self.weight * self.scale.view(1, T, 1, 1, 1)
         fine = F.interpolate(
-            weight.reshape(B, T * 2, ky, kx), size=FluidGrid.of(grid).shape, mode="bicubic", align_corners=True
+            self.weight.reshape(B, T * 2, ky, kx), size=FluidGrid.of(grid).shape, mode="bicubic", align_corners=True
         )
         return fine.view(B, T, 2, *fine.shape[-2:])
-
-
-def conditioning_scale(steps: int) -> Tensor:
-    """Per-step factors ``(T / (T - t))^2``, ``t = 0..T-1``: the :class:`ControlGrid` ``scale`` of a keyframe fit.
-
-    A force applied at step ``t`` keeps moving the points for the remaining ``T - t`` steps, so the objective
-    is far more sensitive to early forces than to late ones, and L-BFGS, which starts from a scalar Hessian
-    guess, spends many iterations balancing them. Scaling the late steps' parameters up evens this out; on
-    the paper's set-up it cut the evaluations of a fit by about a third (``benchmarks/bench_keyframes.py``).
-
-    Example:
-        >>> conditioning_scale(4)
-        tensor([ 1.0000,  1.7778,  4.0000, 16.0000])
-    """
-    steps = check_int("steps", steps)
-    t = torch.arange(steps, dtype=torch.float64)
-    return ((steps / (steps - t)) ** 2).float()
 
 
 class CellForces(nn.Module):
