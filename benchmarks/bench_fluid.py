@@ -557,6 +557,40 @@ def report_memory(mem: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     return "\n".join(out), targets
 
 
+def plot_scaling(path: str, rows: list[ScalingRow], title: str) -> None:
+    """ms per step against grid size, forward and forward + backward, log-log, written to ``path`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+    for mu, color in zip(sorted({r.viscosity for r in rows}), ["#1b9e77", "#d95f02", "#7570b3"]):
+        rs = sorted((r for r in rows if r.viscosity == mu), key=lambda r: r.grid)
+        n = [r.grid for r in rs]
+        ax.plot(n, [r.forward_ms_per_step for r in rs], "o-", color=color, label=f"forward, viscosity {mu:g}")
+        ax.plot(
+            n,
+            [r.forward_backward_ms_per_step for r in rs],
+            "s--",
+            color=color,
+            label=f"forward + backward, viscosity {mu:g}",
+        )
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xticks(sorted({r.grid for r in rows}), [f"{g}^2" for g in sorted({r.grid for r in rows})])
+    ax.set_xlabel("grid (cells)")
+    ax.set_ylabel("ms per step (median)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
 # ----------------------------------------------------------------------------------------------- main
 
 
@@ -566,6 +600,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--quick", action="store_true", help="smoke mode: small grids, few steps and repeats")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--plot", metavar="PATH.png", help="also plot ms per step against grid size to PATH.png")
     parser.add_argument(
         "--threads",
         type=int,
@@ -620,6 +655,10 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(time_grid(n, steps, mu, reps))
     text_s, targets_s = report_scaling(rows, overhead_grid)
     print("\n" + text_s, flush=True)
+    if args.plot:
+        title = f"Fluid step, float32, {info['torch_threads']} thread(s), {info['cpu']}, {info['date'][:10]}"
+        plot_scaling(args.plot, rows, title)
+        print(f"plot written to {args.plot}", flush=True)
 
     memory = memory_benchmark(
         mem["n"],

@@ -1,0 +1,722 @@
+"""Benchmark: the paper's keyframe fit, torchfluidwarp against PhiFlow 3.4 (torch backend), timed in one run.
+
+The set-up is the one of ``bench_keyframes.py`` (the paper's morphing fit): a 64x64 fluid over a 64x64-pixel
+frame in a closed box (solid walls), 10 steps with ``dt = 1``, no viscosity, 14 points whose targets lie 5 to
+10 px away, forces parametrised by a 5x5x2 control grid per step (500 parameters), the objective
+``1/2 sum_i ||p_i(T) - q_i||^2`` (px^2), and L-BFGS with a strong-Wolfe line search, started from zero forces.
+The instance is ``bench_keyframes.flow_instance`` (``--seed``, default 0: the "flow seed 0" instance of that
+benchmark), whose targets are where a random brush-driven flow carries the sources, so they are reachable. That
+flow is torchfluidwarp's own: its targets are reachable exactly by torchfluidwarp's discretisation and only
+approximately by PhiFlow's, though both use the same scheme (below) and the brushes are not the control grid.
+
+Both fits stop once every point is within ``--tolerance`` px (0.05; this implies a mean error below it), or
+after ``--max-iter`` L-BFGS iterations, or after ``--time-cap-s`` of wall time.
+
+* **torchfluidwarp**: ``fit_keyframes(source, target, image_size=(64, 64), grid=(64, 64), steps=10,
+  control=(5, 5), tolerance=0.05, dtype=float64)``. Its gradient is autograd through the solver, with the
+  pressure solve's implicit adjoint.
+* **PhiFlow 3.4**, torch backend (``phi.torch.flow``), float64, eager. Per step:
+  ``v + dt * resample(f, to=v)``; ``advect.semi_lagrangian(v, v, dt)``; ``fluid.make_incompressible(v)``
+  with ``Solve(rel_tol=1e-9, abs_tol=1e-9)``, whose method is PhiFlow's default ``'auto'`` (``--phiflow-solve``
+  picks another method; ``--phiflow-tol 0`` keeps PhiFlow's own tolerance, 1e-12 in float64, with which its
+  closed-box direct solve fails its own residual check and raises ``Diverged``); then the points with
+  ``advect.points``. ``v`` is a ``StaggeredGrid`` with ``extrapolation.ZERO`` (solid walls). PhiFlow 3.4 ships
+  ``euler`` and ``rk4`` integrators; both advections get a midpoint (RK2) integrator written with PhiFlow's
+  ``sample`` in the same pluggable slot, because torchfluidwarp traces back and carries points with the
+  midpoint rule. The forces are the control grid upsampled to the cell centres *bicubically*
+  (``F.interpolate(..., mode="bicubic", align_corners=True)``, as torchfluidwarp's ``ControlGrid`` does), wrapped
+  in a ``CenteredGrid`` and resampled (linearly) to the faces, which averages the two cells of each face as
+  torchfluidwarp does. The gradient is plain torch autograd through PhiFlow's torch graph (the control is a
+  torch leaf tensor; PhiFlow's linear solves attach their own implicit gradient solve). The L-BFGS loop is a
+  copy of ``fit_keyframes``'s: the same ``torch.optim.LBFGS`` settings, stopping rule and best-iterate restore.
+  That copy is also run on torchfluidwarp's simulator, to show that it behaves as ``fit_keyframes``.
+
+Reported: wall and CPU time of each fit (medians over repeats), evaluations (objective + gradient), time per
+evaluation, final mean and max error, and the ratio PhiFlow / torchfluidwarp; the paper's 5 minutes, as the
+issue quotes it (not measured), as a reference row. Before the fits: one objective-and-gradient evaluation of
+each library at zero forces (warm-up, timed separately, and the cosine between the two gradients: the same
+objective should give nearly the same gradient), and one evaluation of PhiFlow inside a ``math.SolveTape`` that
+records which pressure solver PhiFlow actually ran in the closed box (the tape may disable optimisations, so it
+is kept out of the timed fits). After the fits: each library's fitted control replayed in the other library.
+
+Needs ``pip install "phiflow>=3.4,<3.5"`` (or ``pip install -e ".[bench]"``). Run from the repository root:
+``python benchmarks/bench_phiflow.py --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import statistics
+import sys
+import time
+import warnings
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from bench_keyframes import (
+    FRAME,
+    PAPER_SECONDS,
+    Instance,
+    describe_load,
+    flow_instance,
+    machine,
+    machine_load,
+    source_fingerprint,
+    table,
+)
+from torch import Tensor
+
+import torchfluidwarp
+from torchfluidwarp.control import fit_keyframes
+from torchfluidwarp.warp import FluidWarp
+
+CONTROL = (5, 5)
+DT = 1.0
+
+
+# ----------------------------------------------------------------------------------------------- the fit loop
+
+
+@dataclass
+class FitRun:
+    """One fit (one repeat) of one library."""
+
+    library: str
+    seconds: float
+    cpu_seconds: float
+    evaluations: int
+    mean_error: float
+    max_error: float
+    reached: bool
+    stopped: str  # "targets reached", "L-BFGS stopped", "max_iter", "time cap", "non-finite loss"
+    final_loss: float
+
+    @property
+    def ms_per_evaluation(self) -> float:
+        return 1e3 * self.seconds / max(self.evaluations, 1)
+
+
+class _Stop(Exception):
+    pass
+
+
+def lbfgs_fit(
+    library: str,
+    params: list[Tensor],
+    endpoints: Callable[[], Tensor],
+    target: Tensor,
+    tolerance: float,
+    max_iter: int,
+    time_cap_s: float,
+    errors: tuple[type[Exception], ...] = (),
+) -> FitRun:
+    """``fit_keyframes``'s L-BFGS loop around any simulator: ``endpoints()`` gives the ``(M, 2)`` end points, px.
+
+    The optimiser settings, the stopping rule (every point within ``tolerance``, checked when the loss improves)
+    and the restore of the best iterate are those of :func:`torchfluidwarp.control.fit_keyframes`; the clock
+    starts after the optimiser is built and stops after the final forward, as ``KeyframeFit.seconds`` does.
+    ``errors`` raised by the simulator stop the fit instead of the run.
+    """
+    optimizer = torch.optim.LBFGS(
+        params,
+        lr=1.0,
+        max_iter=max_iter,
+        max_eval=max_iter * 2,
+        history_size=20,
+        tolerance_grad=1e-12,
+        tolerance_change=1e-14,
+        line_search_fn="strong_wolfe",
+    )
+    history: list[float] = []
+    best_loss, best_state = math.inf, None
+    start, cpu0 = time.perf_counter(), time.process_time()
+
+    def closure() -> Tensor:
+        nonlocal best_loss, best_state
+        optimizer.zero_grad()
+        end = endpoints()
+        loss = 0.5 * ((end - target) ** 2).sum()
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise _Stop("non-finite loss")
+        loss.backward()
+        history.append(value)
+        if value < best_loss:
+            best_loss, best_state = value, [p.detach().clone() for p in params]
+            if float((end.detach() - target).norm(dim=-1).max()) <= tolerance:
+                raise _Stop("targets reached")
+        if time.perf_counter() - start > time_cap_s:
+            raise _Stop("time cap")
+        return loss
+
+    try:
+        optimizer.step(closure)
+        n_iter = optimizer.state[optimizer._params[0]].get("n_iter", 0)  # type: ignore[attr-defined]
+        stopped = "L-BFGS stopped" if n_iter < max_iter else "max_iter"
+    except _Stop as stop:
+        stopped = str(stop)
+    except errors as exc:  # the simulator gave up (e.g. a failed linear solve): keep the best iterate
+        stopped = f"{type(exc).__name__} raised"
+    if best_state is not None:
+        with torch.no_grad():
+            for p, v in zip(params, best_state):
+                p.copy_(v)
+    with torch.no_grad():
+        err = (endpoints() - target).norm(dim=-1)
+    return FitRun(
+        library=library,
+        seconds=time.perf_counter() - start,
+        cpu_seconds=time.process_time() - cpu0,
+        evaluations=len(history),
+        mean_error=float(err.mean()),
+        max_error=float(err.max()),
+        reached=bool(err.max() <= tolerance),
+        stopped=stopped,
+        final_loss=best_loss,
+    )
+
+
+# ----------------------------------------------------------------------------------------------- the simulators
+
+
+def upsample(control: Tensor, grid: tuple[int, int]) -> Tensor:
+    """Control ``(T, 2, K_y, K_x)`` -> forces ``(T, 2, h, w)`` at the cell centres, as ``ControlGrid`` does it."""
+    return F.interpolate(control, size=grid, mode="bicubic", align_corners=True)
+
+
+class TorchfluidwarpSim:
+    """torchfluidwarp's forward map: control ``(T, 2, K_y, K_x)`` -> end points ``(M, 2)`` px."""
+
+    def __init__(self, source: Tensor, grid: tuple[int, int], steps: int) -> None:
+        self.source, self.grid = source, grid
+        self.warp = FluidWarp(grid, steps, DT, image_size=FRAME).to(source.dtype)
+
+    def endpoints(self, control: Tensor) -> Tensor:
+        return self.warp.advect_points(self.source[None], upsample(control, self.grid)[None])[0, -1]
+
+    def pressure_iterations(self, control: Tensor) -> list[int]:
+        with torch.no_grad():
+            out = self.warp.rollout(upsample(control, self.grid)[None])
+        return [p for _, p in out.iterations]
+
+
+class PhiFlowSim:
+    """The same fluid written with PhiFlow 3.4's torch backend (see the module doc)."""
+
+    def __init__(self, source: Tensor, grid: tuple[int, int], steps: int, method: str, tolerance: float) -> None:
+        import phi.torch.flow as pf  # the torch backend becomes PhiFlow's default
+        from phi.field import sample
+
+        self.pf, self.steps, self.grid = pf, steps, grid
+        # None: make_incompressible's own default Solve(); tolerance 0: that Solve's own tolerance
+        self.solve = (
+            None
+            if method == "auto" and tolerance == 0
+            else pf.Solve(method, rel_tol=tolerance or None, abs_tol=tolerance or None)
+        )
+        h, w = grid
+        H, W = FRAME
+        self.scale = torch.tensor([w / W, h / H], dtype=source.dtype)
+        # PhiFlow's box is [0, w] x [0, h] with cell centres at i + 0.5: a pixel centre x goes to (x + 0.5) w / W
+        self.source = pf.tensor((source + 0.5) * self.scale, pf.instance("points"), pf.channel(vector="x,y"))
+        self.bounds = pf.Box(x=w, y=h)
+
+        def midpoint(data: Any, velocity: Any, dt: float, v0: Any = None) -> Any:
+            # RK2 (explicit midpoint), in the form of PhiFlow's own integrators (phi.physics.advect.rk4)
+            if v0 is None:
+                v0 = sample(velocity, data.geometry, at=data.sampled_at, boundary=data.boundary)
+            v_half = sample(velocity, data.points + 0.5 * dt * v0, at=data.sampled_at, boundary=data.boundary)
+            return data.points + dt * v_half
+
+        self.integrator = midpoint
+
+    def incompressible(self, v: Any) -> Any:
+        if self.solve is None:
+            return self.pf.fluid.make_incompressible(v)[0]  # as a user would call it
+        return self.pf.fluid.make_incompressible(v, (), self.solve)[0]
+
+    def endpoints(self, control: Tensor) -> Tensor:
+        pf = self.pf
+        h, w = self.grid
+        fine = upsample(control, self.grid)  # (T, 2, h, w)
+        v = pf.StaggeredGrid(0, pf.extrapolation.ZERO, self.bounds, x=w, y=h)
+        pts = self.source
+        for t in range(self.steps):
+            values = pf.tensor(fine[t].permute(2, 1, 0), pf.spatial("x,y"), pf.channel(vector="x,y"))
+            force = pf.CenteredGrid(values, pf.extrapolation.ZERO, self.bounds, x=w, y=h)
+            v = v + DT * pf.resample(force, to=v)
+            v = pf.advect.semi_lagrangian(v, v, DT, integrator=self.integrator)
+            v = self.incompressible(v)
+            pts = pf.advect.points(pts, v, DT, integrator=self.integrator)
+        return pts.native("points,vector") / self.scale - 0.5
+
+    def solver_report(self, control: Tensor) -> dict[str, Any]:
+        """Which pressure solver PhiFlow runs, recorded by ``math.SolveTape``.
+
+        First a forward with ``make_incompressible``'s own default ``Solve()`` (it may raise PhiFlow's
+        ``ConvergenceException``: its message is recorded), then an objective and gradient with the fit's solve.
+        """
+        pf = self.pf
+        saved, self.solve = self.solve, None
+        with warnings.catch_warnings(), pf.math.SolveTape() as tape:
+            warnings.simplefilter("ignore")
+            try:
+                self.endpoints(control.detach())
+                default_outcome = "no error"
+            except pf.math.ConvergenceException as exc:
+                default_outcome = f"{type(exc).__name__}: {exc}"
+            finally:
+                self.solve = saved
+        default_run = {"outcome": default_outcome, "solves_run": len(tape), **self._describe(list(tape))}
+        c = control.detach().clone().requires_grad_()
+        with warnings.catch_warnings(record=True) as caught, pf.math.SolveTape() as tape:
+            warnings.simplefilter("always")
+            end = self.endpoints(c)
+            n_forward = len(tape)
+            end.pow(2).sum().backward()
+        infos = list(tape)
+        msgs = Counter(f"{w.category.__name__}: {str(w.message).splitlines()[0][:160]}" for w in caught)
+        default_solve = pf.fluid.make_incompressible.__defaults__
+        return {
+            "make_incompressible_default_solve": repr(next(d for d in default_solve if isinstance(d, pf.Solve))),
+            "default_solve_run": default_run,
+            "fit_solve": "make_incompressible's default" if self.solve is None else repr(self.solve),
+            "forward": self._describe(infos[:n_forward]),
+            "gradient": self._describe(infos[n_forward:]),
+            "warnings": dict(msgs),
+        }
+
+    @staticmethod
+    def _describe(infos: list[Any]) -> dict[str, Any]:
+        """Summary of ``SolveInfo`` records."""
+        residuals = [float(m) for i in infos for m in re.findall(r"norm\(residual\)=([0-9.eE+-]+)", str(i.msg))]
+        return {
+            "solves": len(infos),
+            "requested": sorted({repr(i.solve) for i in infos}),
+            "method_setting": sorted({i.solve.method for i in infos}),
+            "implementation": sorted({str(i.method) for i in infos}),
+            "rank_deficiency": sorted({str(i.solve.rank_deficiency) for i in infos}),
+            "iterations": sorted({int(i.iterations.max) for i in infos}),
+            "converged": all(bool(i.converged.all) for i in infos),
+            "max_residual_norm": max(residuals) if residuals else math.nan,
+            "median_solve_ms": 1e3 * statistics.median(float(i.solve_time) for i in infos) if infos else math.nan,
+        }
+
+
+def gradient_at(endpoints: Callable[[Tensor], Tensor], control: Tensor, target: Tensor) -> tuple[Tensor, float]:
+    """The objective's gradient at ``control`` and the wall time of that evaluation."""
+    c = control.detach().clone().requires_grad_()
+    t0 = time.perf_counter()
+    (0.5 * ((endpoints(c) - target) ** 2).sum()).backward()
+    return c.grad, time.perf_counter() - t0
+
+
+# ----------------------------------------------------------------------------------------------- report
+
+
+def summary(runs: list[FitRun]) -> dict[str, Any]:
+    return {
+        "library": runs[0].library,
+        "repeats": len(runs),
+        "seconds": statistics.median(r.seconds for r in runs),
+        "cpu_seconds": statistics.median(r.cpu_seconds for r in runs),
+        "evaluations": statistics.median(r.evaluations for r in runs),
+        "ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in runs),
+        "mean_error": statistics.median(r.mean_error for r in runs),
+        "max_error": statistics.median(r.max_error for r in runs),
+        "reached": f"{sum(r.reached for r in runs)}/{len(runs)}",
+        "stopped": "; ".join(sorted(Counter(r.stopped for r in runs))),
+        "same_each_repeat": len({(r.evaluations, round(r.mean_error, 10)) for r in runs}) == 1,
+    }
+
+
+def markdown(headers: list[str], rows: list[list[str]], left: tuple[int, ...] = (0,)) -> str:
+    align = ["---" if i in left else "---:" for i in range(len(headers))]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(align) + "|"]
+    return "\n".join([*lines, *("| " + " | ".join(r) + " |" for r in rows)])
+
+
+def report_table(rows: dict[str, dict[str, Any]], labels: dict[str, str], ours: str) -> str:
+    base = rows[ours]
+    out = [
+        [
+            "paper (as quoted in the issue, not measured)",
+            "-",
+            f"{PAPER_SECONDS:.0f}",
+            "-",
+            "-",
+            "-",
+            "-",
+            "-",
+            "-",
+            "-",
+            f"{PAPER_SECONDS / base['seconds']:.0f}x",
+        ]
+    ]
+    for key, s in rows.items():
+        out.append(
+            [
+                labels[key],
+                str(s["repeats"]),
+                f"{s['seconds']:.2f}",
+                f"{s['cpu_seconds']:.2f}",
+                f"{s['evaluations']:g}",
+                f"{s['ms_per_evaluation']:.1f}",
+                f"{s['mean_error']:.4f}",
+                f"{s['max_error']:.4f}",
+                s["reached"],
+                s["stopped"],
+                f"{s['seconds'] / base['seconds']:.1f}x",
+            ]
+        )
+    return markdown(
+        [
+            "fit",
+            "repeats",
+            "fit s (median)",
+            "CPU s",
+            "evals",
+            "ms/eval",
+            "mean err px",
+            "max err px",
+            "reached",
+            "stopped by",
+            "time / torchfluidwarp",
+        ],
+        out,
+        left=(0, 9),
+    )
+
+
+def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], title: str) -> None:
+    """Bar chart of fit wall time (log axis): the paper's quoted 5 minutes, PhiFlow and torchfluidwarp."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = ["paper\n(5 min, quoted,\nnot measured)"] + list(names.values())
+    secs = [PAPER_SECONDS] + [rows[k]["seconds"] for k in names]
+    notes = ["300 s"] + [
+        f"{rows[k]['seconds']:.1f} s: {rows[k]['evaluations']:g} evals x {rows[k]['ms_per_evaluation']:.0f} ms,\n"
+        f"mean err {rows[k]['mean_error']:.3f} px, max {rows[k]['max_error']:.3f} px"
+        + ("" if rows[k]["reached"].startswith(str(rows[k]["repeats"])) else f" (not reached: {rows[k]['stopped']})")
+        for k in names
+    ]
+    fig, ax = plt.subplots(figsize=(8.0, 0.9 * len(labels) + 1.3), dpi=120)
+    bars = ax.barh(range(len(labels)), secs, color=["#9e9e9e", "#d95f02", "#1b9e77"][: len(labels)])
+    for bar, note in zip(bars, notes):
+        ax.text(bar.get_width() * 1.1, bar.get_y() + bar.get_height() / 2, note, va="center", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlim(min(secs) / 2, max(secs) * 30)
+    ax.set_yticks(range(len(labels)), labels, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("wall time of the keyframe fit, s (log scale)")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="smoke mode: 32x32 fluid, 5 steps, 6 points, short caps")
+    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--plot", metavar="PATH.png", help="also write a bar chart of the fit times to PATH.png")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="the flow instance (default 0)")
+    parser.add_argument("--repeats", type=int, help="torchfluidwarp fits (default 3; --quick 1)")
+    parser.add_argument("--phiflow-repeats", type=int, default=1, help="PhiFlow fits (default 1)")
+    parser.add_argument("--tolerance", type=float, default=0.05, help="px: stop once every point is within it")
+    parser.add_argument("--max-iter", type=int, help="L-BFGS iterations at most (default 200; --quick 50)")
+    parser.add_argument("--time-cap-s", type=float, help="wall-time cap of one fit (default 600; --quick 60)")
+    parser.add_argument(
+        "--phiflow-solve",
+        default="auto",
+        help="method of PhiFlow's pressure Solve (default 'auto', the method of make_incompressible's default Solve())",
+    )
+    parser.add_argument(
+        "--phiflow-tol",
+        type=float,
+        default=1e-9,
+        help="rel_tol and abs_tol of PhiFlow's pressure Solve (default 1e-9; 0: PhiFlow's own, 1e-12 in float64, "
+        "with which its direct solve fails its own residual check on these flows)",
+    )
+    args = parser.parse_args(argv)
+    repeats = args.repeats or (1 if args.quick else 3)
+    max_iter = args.max_iter or (50 if args.quick else 200)
+    cap = args.time_cap_s or (60.0 if args.quick else 600.0)
+    if min(args.threads, repeats, args.phiflow_repeats, max_iter) < 1 or not (args.tolerance > 0 and cap > 0):
+        parser.error("--threads, --repeats, --phiflow-repeats, --max-iter must be >= 1; --tolerance, --time-cap-s > 0")
+    try:
+        import phi
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import phi.torch.flow  # noqa: F401
+    except ImportError as exc:
+        print(f'bench_phiflow: PhiFlow is needed: pip install "phiflow>=3.4,<3.5" ({exc})', file=sys.stderr)
+        return 2
+
+    torch.set_num_threads(args.threads)
+    grid, steps, points = ((32, 32), 5, 6) if args.quick else ((64, 64), 10, 14)
+    dtype = torch.float64
+    phi.math.set_global_precision(64)
+    info = machine()
+    info.update(phiflow=phi.__version__, load_start=machine_load(), sources_sha256=source_fingerprint())
+    print(
+        f"bench_phiflow: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with {info['torch_threads']} "
+        f"thread(s), PhiFlow {info['phiflow']}, Python {info['python']}, {info['date']}"
+        + (" [--quick]" if args.quick else ""),
+        flush=True,
+    )
+    print(
+        f"torchfluidwarp from {os.path.dirname(torchfluidwarp.__file__)}, sources sha256 {info['sources_sha256']}; "
+        f"at the start: {describe_load(info['load_start'])}"
+    )
+    n_params = 2 * steps * CONTROL[0] * CONTROL[1]
+    print(
+        f"set-up: {grid[0]}x{grid[1]} fluid in a closed box, {FRAME[1]}x{FRAME[0]} px frame, {steps} steps, dt {DT:g}, "
+        f"{points} points, control {CONTROL[0]}x{CONTROL[1]} ({n_params} parameters), float64, tolerance "
+        f"{args.tolerance:g} px (every point), max_iter {max_iter}, time cap {cap:g} s per fit",
+        flush=True,
+    )
+    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+    t_total = time.perf_counter()
+
+    log("  instance ...")
+    inst: Instance = flow_instance(args.seed, points, grid, steps)
+    src, tgt = inst.tensors(dtype)
+    print(
+        f"instance: {inst.name}, {len(inst.source)} points, displacement {inst.min_displacement:.2f} to "
+        f"{inst.max_displacement:.2f} px, min spacing {inst.min_spacing:.2f} px, targets at least "
+        f"{inst.min_wall_distance_target:.2f} px from the walls"
+    )
+
+    ours = TorchfluidwarpSim(src, grid, steps)
+    theirs = PhiFlowSim(src, grid, steps, args.phiflow_solve, args.phiflow_tol)
+    zero = torch.zeros(steps, 2, *CONTROL, dtype=dtype)
+
+    # warm-ups (one-time costs kept out of the fits: kernels, caches, torch's first LBFGS constructor)
+    log("  warm-up ...")
+    fit_keyframes(src[:1], src[:1] + 1.0, image_size=FRAME, grid=8, steps=2, control=(3, 3), max_iter=3, progress=False)
+    g_ours, t_ours = gradient_at(ours.endpoints, zero, tgt)
+    g_ours, t_ours = gradient_at(ours.endpoints, zero, tgt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        g_phi, t_phi_first = gradient_at(theirs.endpoints, zero, tgt)
+        g_phi, t_phi = gradient_at(theirs.endpoints, zero, tgt)
+    cosine = float(F.cosine_similarity(g_ours.flatten(), g_phi.flatten(), dim=0))
+    norm_ratio = float(g_phi.norm() / g_ours.norm())
+    print(
+        f"\nGradient at zero forces (objective + gradient, one evaluation): torchfluidwarp {1e3 * t_ours:.0f} ms, "
+        f"PhiFlow {1e3 * t_phi:.0f} ms (its first call {1e3 * t_phi_first:.0f} ms); cosine between the two "
+        f"gradients {cosine:.6f}, |g PhiFlow| / |g torchfluidwarp| {norm_ratio:.6f}",
+        flush=True,
+    )
+
+    log("  PhiFlow's solver, recorded with math.SolveTape ...")
+    solver = theirs.solver_report(zero + 0.01)
+    ours_iters = ours.pressure_iterations(zero + 0.01)
+    fw, gr, dflt = solver["forward"], solver["gradient"], solver["default_solve_run"]
+    print("\nPressure solve in the closed box (control 0.01 everywhere; SolveTape records every solve)")
+    print(
+        f"  PhiFlow make_incompressible's default solve argument: Solve({solver['make_incompressible_default_solve']})"
+    )
+    print(
+        f"  with it, a forward: {dflt['solves_run']} of {steps} solves ran, method {dflt['method_setting']}, "
+        f"implementation {dflt['implementation']}, residual norms up to {dflt['max_residual_norm']:.3g}; "
+        f"outcome: {dflt['outcome']}"
+    )
+    print(f"  the fit's solve: {solver['fit_solve']}")
+    print(
+        f"  PhiFlow, forward: {fw['solves']} solves, Solve {fw['requested']}, i.e. method {fw['method_setting']}, "
+        f"ran {fw['implementation']}, rank_deficiency {fw['rank_deficiency']}, iterations {fw['iterations']}, "
+        f"converged {fw['converged']}, residual norms up to {fw['max_residual_norm']:.3g}, median "
+        f"{fw['median_solve_ms']:.1f} ms per solve"
+    )
+    print(
+        f"  PhiFlow, gradient: {gr['solves']} solves, method {gr['method_setting']}, ran {gr['implementation']}, "
+        f"converged {gr['converged']}"
+    )
+    for msg, n in solver["warnings"].items():
+        print(f"  PhiFlow warning (x{n}): {msg}")
+    print(
+        "  torchfluidwarp: pressure by its exact DCT Neumann solve (its CG's preconditioner), implicit adjoint; "
+        f"iterations per step {sorted(set(ours_iters))}",
+        flush=True,
+    )
+
+    labels = {
+        "fit_keyframes": "torchfluidwarp `fit_keyframes`",
+        "ours_loop": "torchfluidwarp, this script's copy of the loop",
+        "phiflow": f"PhiFlow {phi.__version__} (torch backend, eager, pressure: {'/'.join(fw['implementation'])})",
+    }
+    runs: dict[str, list[FitRun]] = {k: [] for k in labels}
+    fitted: dict[str, Tensor] = {}
+    for rep in range(max(repeats, args.phiflow_repeats)):
+        if rep < repeats:
+            log(f"  torchfluidwarp fit_keyframes, repeat {rep + 1}/{repeats} ...")
+            cpu0 = time.process_time()
+            fit = fit_keyframes(
+                src,
+                tgt,
+                image_size=FRAME,
+                grid=grid,
+                steps=steps,
+                control=CONTROL,
+                max_iter=max_iter,
+                tolerance=args.tolerance,
+                dtype=dtype,
+                progress=False,
+            )
+            err = fit.error[0]
+            runs["fit_keyframes"].append(
+                FitRun(
+                    library="torchfluidwarp",
+                    seconds=fit.seconds,
+                    cpu_seconds=time.process_time() - cpu0,
+                    evaluations=fit.evaluations,
+                    mean_error=float(err.mean()),
+                    max_error=float(err.max()),
+                    reached=fit.reached,
+                    stopped="targets reached" if fit.reached else ("L-BFGS stopped" if fit.converged else "max_iter"),
+                    final_loss=min(fit.loss_history) if fit.loss_history else math.nan,
+                )
+            )
+            fitted["ours"] = fit.forces.weight.detach()[0]
+            log(f"  torchfluidwarp, the script's loop, repeat {rep + 1}/{repeats} ...")
+            c = zero.clone().requires_grad_()
+            runs["ours_loop"].append(
+                lbfgs_fit("torchfluidwarp", [c], lambda: ours.endpoints(c), tgt, args.tolerance, max_iter, cap)
+            )
+        if rep < args.phiflow_repeats:
+            log(f"  PhiFlow, repeat {rep + 1}/{args.phiflow_repeats} (about 1 minute per 10 evaluations) ...")
+            c = zero.clone().requires_grad_()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                runs["phiflow"].append(
+                    lbfgs_fit(
+                        "phiflow",
+                        [c],
+                        lambda: theirs.endpoints(c),
+                        tgt,
+                        args.tolerance,
+                        max_iter,
+                        cap,
+                        errors=(theirs.pf.math.ConvergenceException,),
+                    )
+                )
+            fitted["phiflow"] = c.detach()
+
+    rows = {k: summary(v) for k, v in runs.items()}
+    print(
+        f"\nKeyframe fit, {inst.name}: wall time of the fit (median over repeats), CPU time of this process, "
+        "evaluations (objective + gradient), final errors (px)\n"
+    )
+    print(report_table(rows, labels, "fit_keyframes"))
+    ratio = {
+        "seconds": rows["phiflow"]["seconds"] / rows["fit_keyframes"]["seconds"],
+        "cpu_seconds": rows["phiflow"]["cpu_seconds"] / rows["fit_keyframes"]["cpu_seconds"],
+        "ms_per_evaluation": rows["phiflow"]["ms_per_evaluation"] / rows["fit_keyframes"]["ms_per_evaluation"],
+        "evaluations": rows["phiflow"]["evaluations"] / rows["fit_keyframes"]["evaluations"],
+    }
+    print(
+        f"\nPhiFlow / torchfluidwarp: fit time {ratio['seconds']:.1f}x, CPU time {ratio['cpu_seconds']:.1f}x, "
+        f"time per evaluation {ratio['ms_per_evaluation']:.1f}x, evaluations {ratio['evaluations']:.2f}x"
+    )
+    print(
+        f"paper (5 min, quoted) / torchfluidwarp: {PAPER_SECONDS / rows['fit_keyframes']['seconds']:.0f}x; "
+        f"paper / PhiFlow: {PAPER_SECONDS / rows['phiflow']['seconds']:.1f}x"
+    )
+
+    # each fitted control replayed in the other library: how far apart the two discretisations are
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cross = {}
+        for name, u in fitted.items():
+            a, b = ours.endpoints(u), theirs.endpoints(u)
+            cross[name] = {
+                "torchfluidwarp_mean_error": float((a - tgt).norm(dim=-1).mean()),
+                "phiflow_mean_error": float((b - tgt).norm(dim=-1).mean()),
+                "endpoint_gap_max_px": float((a - b).norm(dim=-1).max()),
+                "endpoint_gap_mean_px": float((a - b).norm(dim=-1).mean()),
+            }
+    print("\nEach fitted control replayed in both libraries (mean error to the targets, px; end-point gap, px)")
+    print(
+        table(
+            ["control fitted by", "torchfluidwarp mean err", "PhiFlow mean err", "gap mean", "gap max"],
+            [
+                [
+                    k,
+                    f"{v['torchfluidwarp_mean_error']:.4f}",
+                    f"{v['phiflow_mean_error']:.4f}",
+                    f"{v['endpoint_gap_mean_px']:.4f}",
+                    f"{v['endpoint_gap_max_px']:.4f}",
+                ]
+                for k, v in cross.items()
+            ],
+        )
+    )
+    info["load_end"] = machine_load()
+    total = time.perf_counter() - t_total
+    print(f"\nat the end: {describe_load(info['load_end'])}; total {total:.0f} s")
+    if source_fingerprint() != info["sources_sha256"]:
+        print("WARNING: the torchfluidwarp sources changed during the run")
+
+    if args.plot:
+        title = (
+            f"Keyframe fit ({inst.name}): {grid[0]}x{grid[1]} fluid, {steps} steps, {n_params} parameters, "
+            f"{points} points, float64\n1 torch thread, {info['cpu']}, {info['date'][:16].replace('T', ' ')}"
+        )
+        impl = "/".join(fw["implementation"]).replace("scipy.sparse.linalg.", "scipy ")
+        names = {
+            "phiflow": f"PhiFlow {phi.__version__}\n(torch backend, eager,\npressure: {impl})",
+            "fit_keyframes": "torchfluidwarp\nfit_keyframes",
+        }
+        plot(args.plot, rows, names, title)
+        print(f"plot written to {args.plot}")
+    if args.json:
+        result = {
+            "machine": info,
+            "args": vars(args),
+            "instance": asdict(inst),
+            "gradient_at_zero": {
+                "cosine": cosine,
+                "norm_ratio": norm_ratio,
+                "torchfluidwarp_s": t_ours,
+                "phiflow_s": t_phi,
+                "phiflow_first_s": t_phi_first,
+            },
+            "solver": {"phiflow": solver, "torchfluidwarp_pressure_iterations": ours_iters},
+            "runs": {k: [asdict(r) for r in v] for k, v in runs.items()},
+            "summary": rows,
+            "ratio_phiflow_over_torchfluidwarp": ratio,
+            "cross": cross,
+            "paper_seconds_quoted": PAPER_SECONDS,
+            "total_s": total,
+        }
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(result, f, indent=2, default=str)
+        os.replace(tmp, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
