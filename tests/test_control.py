@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from torchfluidwarp.control import fit_keyframes, keyframe_loss
+from torchfluidwarp.control import fit_keyframes, keyframe_loss, velocity_gradient_energy
 from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.warp import FluidWarp
 
@@ -103,3 +103,20 @@ def test_bad_inputs(kwargs, match):
     args = {"image_size": (32, 32), "grid": 8, "steps": 4, "progress": False, **kwargs}
     with pytest.raises(ValueError, match=match):
         fit_keyframes(args.pop("source"), args.pop("target"), **args)
+
+
+def test_smoothness_calms_the_fitted_flow(gen):
+    src = torch.tensor([[10.0, 10.0], [21.0, 11.0], [12.0, 22.0], [20.0, 20.0]])
+    tgt = src + torch.tensor([[3.0, 0.0], [-3.0, 0.0], [0.0, 3.0], [0.0, -3.0]])  # a spin: vortices help
+    kw = dict(image_size=(32, 32), grid=16, steps=4, control=(4, 4), progress=False, max_iter=100)
+    energy = []
+    for smoothness in (0.0, 20.0):
+        fit = fit_keyframes(src, tgt, smoothness=smoothness, **kw)
+        with torch.no_grad():
+            energy.append(float(velocity_gradient_energy(fit.warp.rollout(fit.forces).velocities)))
+    assert energy[1] < 0.7 * energy[0]
+    zero = torch.zeros(2, 3, 2, 9, 9)
+    assert float(velocity_gradient_energy(zero)) == 0.0
+    shear = zero.clone()
+    shear[:, :, 0, :8, :] = torch.arange(8.0).view(8, 1)  # u = y: du/dy = 1 on 8 x 9 faces, over 64 cells
+    torch.testing.assert_close(velocity_gradient_energy(shear), torch.tensor(2 * 3 * 7 * 9 / 64.0))
