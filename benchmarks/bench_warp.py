@@ -93,7 +93,7 @@ def _clock() -> tuple[float, float]:
 
 def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> dict[str, tuple[float, float]]:
     """One pass of every measurement: ``{piece: (wall s, CPU s)}`` summed over the ``T`` frames."""
-    from torchfluidwarp.warp import _displacement, _warp_image  # private: what iter_frames runs
+    from torchfluidwarp.warp import _displacement, _raster, _warp_image  # private: what iter_frames runs
 
     size = (image.shape[-2], image.shape[-1])
     T = warp.steps
@@ -123,10 +123,11 @@ def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> dict[str, tu
             add("maps", c0, c1)
             add("resample", c1, c2)
             add("public_resample", c2, c3)
-        # the back-trace displacement inside (b), once per step
+        # the back-trace displacement inside (b), once per step, on the maps' working raster
+        raster = _raster(size, *warp.grid.shape)
         c0 = _clock()
         for t in range(T):
-            _displacement(vel[:, t], size, warp.dt)
+            _displacement(vel[:, t], raster, warp.dt)
         add("displacement", c0, _clock())
         # end to end
         n = 0
@@ -493,6 +494,44 @@ def parse_threads(text: str) -> list[int]:
     return values
 
 
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    try:
+        sizes = [tuple(int(v) for v in item.lower().split("x")) for item in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"sizes are written HxW[,HxW...], e.g. 600x600, got {text!r}") from None
+    if any(len(s) != 2 or min(s) < 8 for s in sizes):
+        raise argparse.ArgumentTypeError(f"each size needs H and W >= 8, got {text!r}")
+    return sizes  # type: ignore[return-value]
+
+
+def plot_fps(path: str, rows: list[Row], subtitle: str) -> None:
+    """Frames per second (end to end) and the split per frame against image size, one line per thread count."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)
+    for n in sorted({r.threads for r in rows}):
+        rs = sorted((r for r in rows if r.threads == n), key=lambda r: r.height * r.width)
+        mp = [r.height * r.width / 1e6 for r in rs]
+        ax.plot(mp, [r.fps for r in rs], "o-", label=f"{n} thread(s)")
+        for r, x in zip(rs, mp):
+            ax.annotate(f"{r.width}x{r.height}", (x, r.fps), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        if n == min(r.threads for r in rows):
+            for key, label in [("fluid_ms", "(a) fluid"), ("maps_ms", "(b) map"), ("resample_ms", "(c) resample")]:
+                bx.plot(mp, [getattr(r, key) for r in rs], "o-", label=f"{label}, {n} thread(s)")
+    ax.axhline(60, color="grey", ls="--", lw=1, label="target 60 fps")
+    ax.set(xlabel="image size (megapixels)", ylabel="frames per second (end to end)", xscale="log", yscale="log")
+    bx.set(xlabel="image size (megapixels)", ylabel="ms per frame", xscale="log", yscale="log")
+    ax.legend(fontsize=8)
+    bx.legend(fontsize=8)
+    fig.suptitle(f"FluidWarp.iter_frames, 64x64 fluid, RGB float32 ({subtitle})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
@@ -509,12 +548,18 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--frames", type=int, help="fluid steps T per loop (default 30; --quick 6)")
     parser.add_argument("--repeats", type=int, help="interleaved repeats (default 5; --quick 2)")
+    parser.add_argument(
+        "--sizes",
+        type=parse_sizes,
+        help="image sizes HxW, comma-separated (default 600x600,1080x1920; --quick 120x120,108x192)",
+    )
+    parser.add_argument("--plot", metavar="PATH.png", help="also plot frames per second against image size")
     args = parser.parse_args(argv)
     frames = args.frames or (6 if args.quick else 30)
     repeats = args.repeats or (2 if args.quick else 5)
     if frames < 1 or repeats < 1:
         parser.error(f"--frames and --repeats must be >= 1, got {frames} and {repeats}")
-    sizes = [(120, 120), (108, 192)] if args.quick else [TARGET_SIZE, (1080, 1920)]
+    sizes = args.sizes or ([(120, 120), (108, 192)] if args.quick else [TARGET_SIZE, (1080, 1920)])
 
     info = machine()
     info["threads"] = args.threads
@@ -563,6 +608,9 @@ def main(argv: list[str] | None = None) -> int:
             "at the start; any subprocess imported the new code)"
         )
 
+    if args.plot:
+        plot_fps(args.plot, rows, f"{info['cpu']}, torch {info['torch']}, {info['date'][:10]}")
+        print(f"plot written to {args.plot}")
     if args.json:
         result = {
             "machine": info,

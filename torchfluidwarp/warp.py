@@ -94,13 +94,11 @@ def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> 
 def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode) -> Tensor:
     """:func:`warp_image` for internal callers whose coordinates are finite by construction."""
     H, W = image.shape[-2:]
-    B, Ho, Wo = coords.shape[:3]
-    pts = coords.reshape(B, -1, 2).transpose(1, 2)  # (B, 2, N)
-    scale, shift = _pixel_affine(H, W, coords)
-    out = _sample(
-        image, pts.to(image.dtype), scale.to(image.dtype), shift.to(image.dtype), align_corners=False, mode=mode
-    )
-    return out.view(B, image.shape[1], Ho, Wo)
+    scale, shift = _pixel_affine(H, W, image)
+    grid = torch.addcmul(shift.view(1, 1, 1, 2), coords.to(image.dtype), scale.view(1, 1, 1, 2))
+    # grid_sample reads a channels-last image about 1.5x faster on CPUs; the result comes back contiguous
+    src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
+    return F.grid_sample(src, grid, mode=mode, padding_mode="border", align_corners=False).contiguous()
 
 
 def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
@@ -109,20 +107,25 @@ def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
 
 
 OVERSAMPLE = 4
-"""The back-trace is evaluated exactly on a raster of up to this many points per fluid cell and axis, and
-interpolated bilinearly from there to larger images (the velocity has no finer detail to resolve)."""
+"""The maps are composed on a raster of up to this many points per fluid cell and axis, and resized
+bilinearly from there to larger images (the fluid makes no finer detail)."""
+
+TRACE_OVERSAMPLE = 2
+"""Each step's back-trace is evaluated exactly on a raster of up to this many points per fluid cell and axis
+and interpolated bilinearly from there: the velocity is bilinear between its faces, so the displacement of
+one step is smooth within a cell."""
 
 
 def _displacement(velocity: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     """Back-trace displacement ``x - back(x)`` at every pixel, in pixels: ``(B, 2, H, W)``.
 
     The midpoint back-trace through the staggered velocity is evaluated exactly at the pixel centres of a
-    raster of ``min(H, OVERSAMPLE * h) x min(W, OVERSAMPLE * w)`` (the image itself when it is small) covering
-    the same rectangle, then resized to ``(H, W)`` bilinearly (``align_corners=False``).
+    raster of ``min(H, TRACE_OVERSAMPLE * h) x min(W, TRACE_OVERSAMPLE * w)`` (the image itself when it is
+    small) covering the same rectangle, then resized to ``(H, W)`` bilinearly (``align_corners=False``).
     """
     h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
     H, W = size
-    raster = (min(H, OVERSAMPLE * h), min(W, OVERSAMPLE * w))
+    raster = (min(H, TRACE_OVERSAMPLE * h), min(W, TRACE_OVERSAMPLE * w))
     geo = _geo(h, w, velocity)
     c = _cell_scale(raster, h, w, velocity)
     pix = identity_map(raster, device=velocity.device, dtype=velocity.dtype).reshape(1, -1, 2).transpose(1, 2)
@@ -451,12 +454,15 @@ class FluidWarp(nn.Module):
         # sampling grids straight from the raster: grid = identity + disp * 2 / raster size, normalised
         ident = (identity_map(size, device=vel.device, dtype=vel.dtype) + 0.5) * vel.new_tensor([2 / W, 2 / H]) - 1
         ratio = vel.new_tensor([2 / Wr, 2 / Hr])
+        # grid_sample reads a channels-last image about 1.5x faster on CPUs; the frames come back contiguous
+        src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
         next(displacements)  # map 0 is the identity: frame 0 is the input
         for disp in displacements:
             if (Hr, Wr) != size:
                 disp = F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
             grid = torch.addcmul(ident, disp.permute(0, 2, 3, 1), ratio)
-            yield F.grid_sample(image, grid, mode=self.mode, padding_mode="border", align_corners=False)
+            frame = F.grid_sample(src, grid, mode=self.mode, padding_mode="border", align_corners=False)
+            yield frame.contiguous()
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
