@@ -142,7 +142,7 @@ def velocity_gradient_energy(velocities: Tensor) -> Tensor:
     u = velocities[:, :, 0, :h, :]  # (B, T, h, w + 1), walls included (they are zero)
     v = velocities[:, :, 1, :, :w]  # (B, T, h + 1, w)
     terms = [u.diff(dim=-1), u.diff(dim=-2), v.diff(dim=-1), v.diff(dim=-2)]
-    return sum((d**2).flatten(2).sum(-1) for d in terms).sum() / (h * w)  # type: ignore[return-value]
+    return torch.stack([(d**2).sum() for d in terms]).sum() / (h * w)
 
 
 def fit_keyframes(
