@@ -247,9 +247,10 @@ def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
     ext = _extend(velocity)
     back = _backtrace(ext, geo["faces"].expand(velocity.shape[0], -1, -1), dt, geo)
     nu = h * (w - 1)
-    both = _velocity_at(ext, back, geo)  # both components at every face's foot: one call, half of it used
-    u_new = both[:, 0, :nu].view(-1, h, w - 1)
-    v_new = both[:, 1, nu:].view(-1, h - 1, w)
+    # each component at its own faces' feet (one call for both would sample, and differentiate, twice the points)
+    comp = ext.view(-1, 2, 1, h + 1, w + 1)
+    u_new = _sample(comp[:, 0], back[..., :nu], geo["s2"][:, 0], geo["t2"][:, 0]).view(-1, h, w - 1)
+    v_new = _sample(comp[:, 1], back[..., nu:], geo["s2"][:, 1], geo["t2"][:, 1]).view(-1, h - 1, w)
     return _pack(F.pad(u_new, (1, 1)), F.pad(v_new, (0, 0, 1, 1)))
 
 
