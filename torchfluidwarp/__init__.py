@@ -19,7 +19,7 @@ integers (``align_corners=False``); fluid quantities in fluid cells and time ste
 
 from torchfluidwarp._version import __version__
 from torchfluidwarp.alignment import estimate_alignment
-from torchfluidwarp.control import KeyframeFit, fit_keyframes, keyframe_loss
+from torchfluidwarp.control import KeyframeFit, fit_keyframes, keyframe_loss, velocity_gradient_energy
 from torchfluidwarp.fluid import (
     advect,
     advect_points,
@@ -83,6 +83,7 @@ __all__ = [
     "fit_keyframes",
     "KeyframeFit",
     "keyframe_loss",
+    "velocity_gradient_energy",
     "morph",
     "MorphResult",
     "estimate_alignment",
