@@ -54,7 +54,11 @@ def main() -> None:
         pb[k] = [pb[k][0] + float(rng.uniform(-4, 4)), pb[k][1] + float(rng.uniform(-4, 4))]
         wall, cpu, meta = once(pb)
         latencies.append(wall)
-        print(f"warm {i}: {wall:.2f} s (cpu {cpu:.2f} s), mean error {meta['mean_error']:.2f} px", flush=True)
+        split = ", ".join(f"{k} {v:.2f}" for k, v in meta["seconds"].items())
+        print(
+            f"warm {i}: {wall:.2f} s (cpu {cpu:.2f} s), mean error {meta['mean_error']:.2f} px; morph s: {split}",
+            flush=True,
+        )
     print(
         f"warm latency median {statistics.median(latencies):.2f} s, min {min(latencies):.2f}, max {max(latencies):.2f}"
     )
