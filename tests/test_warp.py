@@ -146,3 +146,24 @@ def test_maps_beyond_the_raster_are_resized_and_frames_match(gen):
     det = jacobian_determinant(maps[:, 1:].reshape(-1, *size, 2))
     assert det.min() > 0
     assert abs(float(det.mean()) - 1) < 0.01
+
+
+def test_prefetched_frames_equal_the_plain_loop_and_stop_early(gen):
+    size = (40, 30)
+    warp = FluidWarp((10, 8), steps=5)
+    brushes = _random_brushes(gen, 2, size, amplitude=1.0, frequency=0.1)
+    image = torch.rand(1, 3, *size, generator=gen)
+    with torch.no_grad():
+        plain = torch.stack(list(warp.iter_frames(image, brushes, prefetch=False)))
+        ahead = torch.stack(list(warp.iter_frames(image, brushes, prefetch=True)))
+    assert plain.shape[0] == 6
+    torch.testing.assert_close(ahead, plain, atol=0, rtol=0)
+    frames = warp.iter_frames(image, brushes)
+    first_two = [next(frames), next(frames)]
+    frames.close()  # a consumer that stops early leaves no worker behind
+    torch.testing.assert_close(first_two[1], plain[1], atol=0, rtol=0)
+    # the worker builds the grids with the caller's grad mode: frames stay differentiable in the image
+    image.requires_grad_(True)
+    last = list(warp.iter_frames(image, brushes))[-1]
+    last.sum().backward()
+    assert image.grad is not None and float(image.grad.abs().sum()) > 0

@@ -16,6 +16,8 @@ covers the same rectangle whatever the image's resolution.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from typing import Literal
 
 import torch
@@ -436,11 +438,18 @@ class FluidWarp(nn.Module):
         frames = _warp_image(rep, maps.reshape(B * T, *maps.shape[2:]), self.mode).view(B, T, *image.shape[1:])
         return torch.cat([image.unsqueeze(1), frames], dim=1)
 
-    def iter_frames(self, image: Tensor, forces: ForceSource) -> Iterator[Tensor]:
+    def iter_frames(self, image: Tensor, forces: ForceSource, *, prefetch: bool = True) -> Iterator[Tensor]:
         """Yield the frames ``(B, C, H, W)`` one at a time (``T + 1`` of them): long animations in little memory.
 
         The fluid is rolled out first (cheap at fluid resolution); each frame is then resampled on demand, so a
         caller can show progress.
+
+        Args:
+            image: ``(B, C, H, W)``.
+            forces: as for :meth:`forward`.
+            prefetch: build the next frame's sampling grid in a worker thread while this frame is resampled and
+                consumed (PyTorch releases the GIL inside its operators, so on two cores the two overlap).
+                ``False`` does everything in the calling thread.
         """
         check_tensor("image", image, ndim=4)
         size = (image.shape[-2], image.shape[-1])
@@ -453,16 +462,31 @@ class FluidWarp(nn.Module):
         # sampling grids straight from the raster: grid = identity + disp * 2 / raster size, normalised
         ident = (identity_map(size, device=vel.device, dtype=vel.dtype) + 0.5) * vel.new_tensor([2 / W, 2 / H]) - 1
         ratio = vel.new_tensor([2 / Wr, 2 / Hr])
+        grad = torch.is_grad_enabled()  # grad mode is per thread: the worker follows the caller's
+
+        def next_grid() -> Tensor | None:
+            with torch.set_grad_enabled(grad):
+                disp = next(displacements, None)
+                if disp is None:
+                    return None
+                if (Hr, Wr) != size:
+                    disp = F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
+                return torch.addcmul(ident, disp.permute(0, 2, 3, 1), ratio)
+
         # grid_sample reads a channels-last image about 1.5x faster on CPUs, which repays the one copy over
         # a whole animation (not over one call); the frames come back contiguous
         src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
         next(displacements)  # map 0 is the identity: frame 0 is the input
-        for disp in displacements:
-            if (Hr, Wr) != size:
-                disp = F.interpolate(disp, size=size, mode="bilinear", align_corners=False)
-            grid = torch.addcmul(ident, disp.permute(0, 2, 3, 1), ratio)
-            frame = F.grid_sample(src, grid, mode=self.mode, padding_mode="border", align_corners=False)
-            yield frame.contiguous()
+        with ThreadPoolExecutor(max_workers=1) if prefetch else nullcontext() as pool:
+            pending = pool.submit(next_grid) if pool is not None else None
+            while True:
+                grid = pending.result() if pending is not None else next_grid()
+                if grid is None:
+                    return
+                if pool is not None:
+                    pending = pool.submit(next_grid)
+                frame = F.grid_sample(src, grid, mode=self.mode, padding_mode="border", align_corners=False)
+                yield frame.contiguous()
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
