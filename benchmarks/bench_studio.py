@@ -1,6 +1,7 @@
 """Studio preview latency: 512x512 pair, 20 points, warm (after the first fit), request to frame returned.
 
 Usage: ``python benchmarks/bench_studio.py [PREVIEW_SIZE]`` (default 320, the studio's own preview size).
+Like ``torchfluidwarp studio``, it runs torch with one thread.
 It drives the studio's JSON API in-process (Starlette's test client): one cold preview, then six warm ones,
 each after moving one of B's points by up to 4 px, as a user dragging a point would.
 """
@@ -24,6 +25,7 @@ SETTINGS = {"grid": 32, "steps": 8, "control": 6, "compressible": 0.5}
 
 def main() -> None:
     warnings.simplefilter("ignore")
+    torch.set_num_threads(1)  # as `torchfluidwarp studio` does (studio/server.py)
     preview_size = int(sys.argv[1]) if len(sys.argv) > 1 else 320
     print("torch threads", torch.get_num_threads(), "preview_size", preview_size, flush=True)
     images = {"a": (load_sample("astronaut"), "astronaut.png"), "b": (load_sample("cat"), "cat.png")}

@@ -19,6 +19,7 @@ import webbrowser
 from collections.abc import Iterator
 from pathlib import Path
 
+import torch
 from torch import Tensor
 
 from torchfluidwarp.io import read_image, read_points
@@ -129,6 +130,10 @@ def run(args: argparse.Namespace) -> int:
             "learns the address with its token can see your images",
             file=sys.stderr,
         )
+    # the studio's fits are small (a 32 x 32 fluid): one torch thread runs a warm preview in about half the
+    # time that two threads take from the server's worker thread (benchmarks/bench_studio.py); this process
+    # is the studio's own, so its thread count is ours to set
+    torch.set_num_threads(1)
     token = secrets.token_urlsafe(24)
     config = StudioConfig(token=token, allowed_hosts=loopback_hosts(port, args.host), save_dir=save_dir)
     app = create_app(config, images=images, points=points)
