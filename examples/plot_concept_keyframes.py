@@ -58,7 +58,7 @@ print(f"{fit.evaluations} objective + gradient evaluations in {fit.seconds:.1f} 
 # ``fit.trajectories`` is ``(B, T + 1, M, 2)``: every point at every step, in pixels. The right panel is the
 # last frame of the fitted warp, ``fit.animate(photo)``.
 with torch.no_grad():
-    frames = fit.animate(photo.double()).float()[0]  # (T + 1, 3, H, W)
+    frames = fit.animate(photo)[0]  # (T + 1, 3, H, W)
 paths = fit.trajectories[0].detach()  # (T + 1, M, 2)
 
 fig, axes = plt.subplots(1, 2, figsize=(11, 6.2), layout="constrained")

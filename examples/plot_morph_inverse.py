@@ -20,7 +20,6 @@ the time each method took, and measures how far apart A's and B's landmarks land
 # Both photos and their 23 landmarks at 256 x 256 (pixel centres at integers: ``x' = (x + 0.5) s - 0.5``);
 # a 32 x 32 fluid, 10 steps, the demo's ``compressible=0.5`` and a short fit budget.
 import matplotlib.pyplot as plt
-import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.data import load_sample, load_sample_points

@@ -58,7 +58,7 @@ def test_two_keyframes_are_both_met():
     )
     for t, err in fit.keyframe_errors:
         assert err.max() <= 0.02, f"keyframe {t}: {err.max():.3f} px"
-    torch.testing.assert_close(fit.trajectories[:, 3], mid[None].double(), atol=0.02, rtol=0)
+    torch.testing.assert_close(fit.trajectories[:, 3], mid[None], atol=0.02, rtol=0)
 
 
 def test_the_returned_warp_replays_the_fitted_forces():
@@ -67,8 +67,8 @@ def test_the_returned_warp_replays_the_fitted_forces():
         src, src + torch.tensor([2.0, 1.0]), image_size=(32, 32), grid=16, steps=4, control=3, progress=False
     )
     with torch.no_grad():
-        replay = fit.warp.advect_points(src[None].double(), fit.forces)
-        frames = fit.animate(torch.rand(1, 3, 32, 32, dtype=torch.float64))
+        replay = fit.warp.advect_points(src[None], fit.forces)
+        frames = fit.animate(torch.rand(1, 3, 32, 32))
     torch.testing.assert_close(replay[:, -1], fit.points)
     assert frames.shape == (1, 5, 3, 32, 32)
 
