@@ -58,7 +58,7 @@ def misalignment(result) -> float:
     mid = result.frames.shape[0] // 2
     step = int(round(float(result.times[mid])))
     where = result.fit.trajectories[0, step].detach()  # (23, 2) frame pixels
-    grid = (where + 0.5) / S * 2 - 1  # align_corners=False
+    grid = ((where + 0.5) / S * 2 - 1).to(result.maps_b.dtype)  # align_corners=False
     read = F.grid_sample(
         result.maps_b[mid].permute(2, 0, 1)[None], grid[None, None], align_corners=False, padding_mode="border"
     )[0, :, 0].T  # (23, 2): where the frame reads B at A's landmarks
