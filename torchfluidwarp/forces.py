@@ -10,6 +10,7 @@ brushes and control grids are differentiable and can be fitted.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -130,6 +131,20 @@ class SumForces(nn.Module):
         return sum(p(grid, steps, dt, image_size) for p in self.parts)  # type: ignore[return-value]
 
 
+@functools.lru_cache(maxsize=32)
+def _bicubic_axis(k: int, n: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    """Memo of a pure function: the ``(n, k)`` matrix of ``F.interpolate(..., mode="bicubic", align_corners=True)``
+    from ``k`` to ``n`` samples along one axis.
+
+    Bicubic resizing is separable, so ``R_y @ W @ R_x.T`` equals it exactly on a ``(K_y, K_x)`` grid, and costs two
+    small matrix products forward and backward instead of the resize kernels (6% of a keyframe gradient).
+    """
+    with torch.inference_mode(False), torch.no_grad():
+        basis = torch.eye(k, device=device, dtype=dtype).view(k, 1, k, 1).expand(k, 1, k, 4)
+        rows = F.interpolate(basis, size=(n, 4), mode="bicubic", align_corners=True)  # constant along the width
+        return rows[:, 0, :, 0].T.contiguous()
+
+
 class ControlGrid(nn.Module):
     """A coarse grid of force values per time step, smoothly upsampled to the fluid grid: the default control.
 
@@ -159,10 +174,9 @@ class ControlGrid(nn.Module):
         B, T, _, ky, kx = self.weight.shape
         if steps != T:
             raise ValueError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
-        fine = F.interpolate(
-            self.weight.reshape(B, T * 2, ky, kx), size=FluidGrid.of(grid).shape, mode="bicubic", align_corners=True
-        )
-        return fine.view(B, T, 2, *fine.shape[-2:])
+        h, w = FluidGrid.of(grid).shape
+        like = self.weight
+        return _bicubic_axis(ky, h, like.device, like.dtype) @ like @ _bicubic_axis(kx, w, like.device, like.dtype).T
 
 
 class CellForces(nn.Module):
