@@ -276,7 +276,7 @@ def morph(
         smoothness: how strongly the fit avoids shear and vortices, in fluid cells^2 per pixel^2 of landmark
             error (:func:`~torchfluidwarp.control.velocity_gradient_energy`, scaled by the square of the
             pixels per fluid cell). Vortices stretch the picture into spirals finer than a pixel, whose maps
-            then fold; 5 kept the maps of the bundled pair fold-free at about 1.5 px mean landmark error.
+            then fold; 5 keeps the maps of the bundled pair fold-free with ``compressible=0.5``.
             ``0`` fits the points as closely as the flow allows.
         max_iter, tolerance: L-BFGS iterations and the per-point accuracy (pixels) at which the fit stops.
         margin: the fluid fills a box around the points (A's and their targets) grown by this fraction of its
