@@ -36,7 +36,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor, describe
 from torchfluidwarp.forces import cell_centres
 from torchfluidwarp.grid import FluidGrid
-from torchfluidwarp.warp import OVERSAMPLE, FluidWarp, _carry, identity_map, iter_backward_maps, warp_image
+from torchfluidwarp.warp import FluidWarp, _carry, _raster, identity_map, iter_backward_maps, warp_image
 
 __all__ = [
     "MAX_SHEAR",
@@ -196,11 +196,6 @@ def min_quad_determinant(coords: Tensor, size: tuple[int, int]) -> Tensor:
     return torch.stack(dets).amin(0).flatten(1).amin(1) / area
 
 
-def _raster(size: tuple[int, int], velocities: Tensor) -> tuple[int, int]:
-    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
-    return min(size[0], OVERSAMPLE * h), min(size[1], OVERSAMPLE * w)
-
-
 def raster_map(velocities: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     """The backward map of the last step on the composition raster: ``(B, h_r, w_r, 2)`` in pixels of ``size``.
 
@@ -208,7 +203,7 @@ def raster_map(velocities: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     the map is composed on it step by step (:func:`~torchfluidwarp.warp.iter_backward_maps`).
     """
     H, W = size
-    raster = _raster(size, velocities)
+    raster = _raster(size, velocities.shape[-2] - 1, velocities.shape[-1] - 1)
     back = next(iter_backward_maps(velocities, raster, dt, times=[velocities.shape[1]]))  # raster pixels
     if raster == (H, W):
         return back
@@ -232,9 +227,9 @@ def fluid_warp_map(params: FluidWarpParams, size: tuple[int, int] | None = None)
     """The backward map of each sample's last step: ``(B, H, W, 2)`` source positions in pixels.
 
     The map is composed on a raster of at most ``OVERSAMPLE`` points per fluid cell and axis
-    (:func:`raster_map`), then its displacement is resized bilinearly to ``(H, W)`` once: the velocity has no
-    finer detail, and this is several times cheaper than composing at full size (0.13 px at most from the
-    full-size map at 512 x 512 with a 32 x 32 grid).
+    (:func:`raster_map`), then its displacement is resized bilinearly to ``(H, W)`` once, as
+    :func:`~torchfluidwarp.warp.iter_backward_maps` does for a full-size map; the raster map is kept in the draw
+    (its folds are checked there), so this costs one resize.
 
     Args:
         params: a draw.
