@@ -33,12 +33,10 @@ machine affects both alike. Run ``python benchmarks/bench_fluid.py --help`` for 
 from __future__ import annotations
 
 import argparse
-import datetime
 import gc
 import json
 import math
 import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -50,6 +48,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from _common import machine, table, verdict
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, ConvergenceWarning, FluidSimulator
@@ -355,35 +354,6 @@ def memory_benchmark(
 
 
 # ----------------------------------------------------------------------------------------------- report
-
-
-def machine() -> dict[str, Any]:
-    """What the figures were measured on."""
-    model = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {
-        "cpu": model,
-        "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(),
-        "torch": torch.__version__,
-        "platform": platform.platform(),
-        "date": datetime.datetime.now().isoformat(timespec="seconds"),
-    }
-
-
-def table(headers: list[str], rows: list[list[str]]) -> str:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
-    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
-    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
-
-
-def verdict(ok: bool) -> str:
-    return "met" if ok else "NOT met"
 
 
 def report_scaling(rows: list[ScalingRow], overhead_grid: int) -> tuple[str, dict[str, Any]]:

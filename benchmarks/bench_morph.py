@@ -55,11 +55,9 @@ JSON records a digest of the package's sources. Run ``python benchmarks/bench_mo
 from __future__ import annotations
 
 import argparse
-import datetime
 import hashlib
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -69,6 +67,8 @@ from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
+from _common import machine as common_machine
+from _common import table, verdict
 from kornia.geometry.transform import get_tps_transform, warp_image_tps, warp_points_tps
 from torch import Tensor
 
@@ -455,37 +455,15 @@ def sources_digest() -> str:
 
 
 def machine() -> dict[str, Any]:
-    """What the figures were measured on."""
-    model = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
+    """What the figures were measured on, with the versions this comparison depends on."""
     import kornia
 
     return {
-        "cpu": model,
-        "cpu_count": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        "python": platform.python_version(),
-        "torch": torch.__version__,
+        **common_machine(),
         "kornia": kornia.__version__,
         "torchfluidwarp": torchfluidwarp.__version__,
         "torchfluidwarp_sources_sha256": sources_digest(),
-        "platform": platform.platform(),
-        "date": datetime.datetime.now().isoformat(timespec="seconds"),
     }
-
-
-def table(headers: list[str], rows: list[list[str]]) -> str:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
-    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
-    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
-
-
-def verdict(ok: bool) -> str:
-    return "met" if ok else "NOT met"
 
 
 def pct(x: float) -> str:

@@ -1,0 +1,79 @@
+"""Helpers every benchmark script shares: what machine the figures come from, how busy it was, and plain tables.
+
+The scripts run as ``python benchmarks/bench_*.py``, so this module is importable as ``_common``.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+from typing import Any
+
+import torch
+
+__all__ = ["machine", "machine_load", "describe_load", "source_fingerprint", "table", "verdict"]
+
+
+def machine() -> dict[str, Any]:
+    """What the figures were measured on."""
+    model = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {
+        "cpu": model,
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+        "date": datetime.datetime.now().isoformat(timespec="seconds"),
+    }
+
+
+def machine_load() -> dict[str, Any]:
+    """Load average and, where the kernel has it, CPU pressure (PSI ``some avg60``: share of time that some task
+    waited for a CPU): how busy the shared machine was."""
+    out: dict[str, Any] = {"loadavg": os.getloadavg()}
+    try:
+        with open("/proc/pressure/cpu") as f:
+            fields = dict(kv.split("=") for kv in f.readline().split()[1:])
+        out["cpu_pressure_some_avg60"] = float(fields["avg60"])
+    except (OSError, KeyError, ValueError):
+        pass
+    return out
+
+
+def describe_load(load: dict[str, Any]) -> str:
+    text = "load average " + " ".join(f"{x:.2f}" for x in load["loadavg"])
+    if "cpu_pressure_some_avg60" in load:
+        text += f", CPU pressure {load['cpu_pressure_some_avg60']:.0f}% (some, avg60)"
+    return text
+
+
+def source_fingerprint() -> str:
+    """sha256 (12 hex digits) of the installed ``torchfluidwarp`` sources: ties the figures to a code state."""
+    import hashlib
+    import pathlib
+
+    import torchfluidwarp
+
+    root = pathlib.Path(torchfluidwarp.__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(headers), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def verdict(ok: bool) -> str:
+    return "met" if ok else "NOT met"
