@@ -7,7 +7,9 @@ through that map. Everything goes through the public API:
 
 * **end to end**: :meth:`FluidWarp.iter_frames` consumed frame by frame (it rolls the fluid out first, then
   advances the map and resamples one frame per ``next``). Frames per second = ``T`` new frames over the wall
-  time of the whole loop (frame 0, the input itself, is not counted).
+  time of the whole loop (frame 0, the input itself, is not counted). It runs twice: as shipped (the next
+  sampling grid is prefetched in a worker thread) and with ``prefetch=False`` (everything in the calling
+  thread), side by side in every repeat.
 * **the split** (ms per frame):
 
   (a) fluid step: :meth:`FluidWarp.rollout` over ``T`` steps (brush forces included), divided by ``T``;
@@ -82,7 +84,7 @@ def make_image(size: tuple[int, int]) -> Tensor:
 # ----------------------------------------------------------------------------------------------- timing
 
 
-PIECES = ("fluid", "maps", "resample", "public_resample", "displacement", "end_to_end")
+PIECES = ("fluid", "maps", "resample", "public_resample", "displacement", "end_to_end", "serial")
 
 
 def _clock() -> tuple[float, float]:
@@ -134,6 +136,11 @@ def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> dict[str, tu
         for _frame in warp.iter_frames(image, brushes):
             n += 1
         add("end_to_end", c0, _clock())
+        # end to end with everything in the calling thread: what the worker thread's prefetch brings
+        c0 = _clock()
+        for _frame in warp.iter_frames(image, brushes, prefetch=False):
+            pass
+        add("serial", c0, _clock())
     if n != T + 1:
         raise RuntimeError(f"iter_frames yielded {n} frames, expected {T + 1}")
     return {k: (v[0], v[1]) for k, v in acc.items()}
@@ -157,6 +164,7 @@ class Row:
     sum_ms: float
     end_to_end_ms: float
     fps: float
+    serial_fps: float
     fluid_cpu: float
     maps_cpu: float
     displacement_cpu: float
@@ -192,6 +200,7 @@ def summarise(
         sum_ms=w["fluid"] + w["maps"] + w["resample"],
         end_to_end_ms=w["end_to_end"],
         fps=1e3 / w["end_to_end"],
+        serial_fps=1e3 / w["serial"],
         fluid_cpu=c["fluid"],
         maps_cpu=c["maps"],
         displacement_cpu=c["displacement"],
@@ -258,6 +267,7 @@ def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[
                 "a+b+c",
                 "end to end",
                 "fps",
+                "fps, prefetch=False",
                 "warp_image",
                 "max disp px",
             ],
@@ -275,6 +285,7 @@ def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[
                     f"{r.sum_ms:.2f}",
                     f"{r.end_to_end_ms:.2f}",
                     f"{r.fps:.1f}",
+                    f"{r.serial_fps:.1f}",
                     f"{r.public_resample_ms:.2f}",
                     f"{r.max_displacement_px:.1f}",
                 ]
