@@ -235,7 +235,7 @@ def fit_keyframes(
         lr=1.0,
         max_iter=max_iter,
         max_eval=max_iter * 2,
-        history_size=100,  # a long memory: 27% fewer evaluations than 20 on the paper's set-up
+        history_size=100,  # a long memory: bench_keyframes.py's median evaluations fell from 48 (with 20) to 39
         tolerance_grad=1e-12,
         tolerance_change=1e-14,
         line_search_fn="strong_wolfe",
