@@ -24,7 +24,11 @@ Three measurements, all float32 on CPU, all through the public API (:class:`torc
 
    The unrolled run is given a memory and time budget. It starts on the full step count and checks itself after
    every step; if it would overrun, it stops, and both the adjoint and the unrolled run are repeated on the
-   number of steps that fits, and the report says so.
+   number of steps that fits, and the report says so. Then the unrolled forward runs once more on the full
+   step count with a pack hook that *counts* what autograd saves for backward and drops it (the run stays
+   small, and no backward is possible): autograd through the unrolled CG would hold all those bytes when its
+   backward starts, so they are a lower bound on its peak memory, compared with the adjoint's whole measured
+   peak RSS growth on the same steps.
 
 Timings are medians of several repeats, forward and forward + backward interleaved so that other load on the
 machine affects both alike. Run ``python benchmarks/bench_fluid.py --help`` for the options.
@@ -43,6 +47,7 @@ import subprocess
 import sys
 import time
 import warnings
+import weakref
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -221,14 +226,20 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     base_maxrss, base_now = _maxrss_kib(), _status_kib("VmRSS")
 
     saved_bytes, seen = 0, set()
+    count_only = spec.get("count_only", False)
 
-    def pack(t: Tensor) -> Tensor:
+    def pack(t: Tensor) -> Tensor | None:
         nonlocal saved_bytes
         storage = t.untyped_storage()
-        if storage.data_ptr() not in seen:  # saved tensors stay alive until backward, so pointers are unique
-            seen.add(storage.data_ptr())
+        key = storage.data_ptr()
+        if key not in seen:  # kept tensors stay alive until backward, so pointers are unique
+            seen.add(key)
             saved_bytes += storage.nbytes()
-        return t
+            if count_only:
+                # the tensor is dropped below: once the computation frees it, its address may be reused by a
+                # new tensor, which real autograd (holding the old one) would have placed elsewhere
+                weakref.finalize(t if t._base is None else t._base, seen.discard, key)
+        return None if count_only else t
 
     t_start = time.perf_counter()
     done = 0
@@ -237,7 +248,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
         # after each step: would the whole roll-out (forward, then a backward) overrun the budget?
         nonlocal done
         done += 1
-        if backward != "unrolled" or done == steps:
+        if backward != "unrolled" or done == steps or count_only:
             return
         grow_gib = (_status_kib("VmRSS") - base_now) / 2**20
         elapsed = time.perf_counter() - t_start
@@ -265,6 +276,15 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
             )
             return result
         t_fwd = time.perf_counter() - t_start
+        if count_only:
+            result.update(
+                saved_for_backward_mib=saved_bytes / 2**20,
+                forward_s=t_fwd,
+                counted_peak_rss_growth_mib=(_status_kib("VmHWM") - base_now) / 1024 if hwm_reset else math.nan,
+                pressure_iters_per_step=statistics.mean(p for _, p in out.iterations),
+                viscosity_iters_per_step=statistics.mean(i for i, _ in out.iterations),
+            )
+            return result
         t0 = time.perf_counter()
         loss_of(out).backward()
         t_bwd = time.perf_counter() - t0
@@ -332,6 +352,14 @@ def memory_benchmark(
         log(f"  memory: the unrolled run would overrun its budget; both configs again on {compare_steps} steps ...")
         runs["adjoint_short"] = run_child({**base, "steps": compare_steps, "rtol": rtol, "backward": "implicit"})
         unrolled = run_child({**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled"})
+        log(f"  memory: unrolled on {compare_steps} steps again, counting what it saves (checks the count) ...")
+        runs["unrolled_counted_short"] = run_child(
+            {**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
+        )
+        log(f"  memory: unrolled on all {steps} steps, counting what it saves (dropped, no backward) ...")
+        runs["unrolled_counted"] = run_child(
+            {**base, "steps": steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
+        )
     runs["unrolled"] = unrolled
     adjoint_cmp = runs.get("adjoint_short", runs["adjoint"])
     summary: dict[str, Any] = {
@@ -350,6 +378,16 @@ def memory_benchmark(
             tight_rss_ratio=_ratio(tight["peak_rss_growth_mib"], loose["peak_rss_growth_mib"]),
             tight_saved_ratio=_ratio(tight["saved_for_backward_mib"], loose["saved_for_backward_mib"]),
         )
+        counted = runs.get("unrolled_counted")
+        if counted is not None and not counted.get("failed"):
+            summary.update(
+                counted_saved_mib=counted["saved_for_backward_mib"],
+                counted_vs_adjoint_rss=_ratio(counted["saved_for_backward_mib"], loose["peak_rss_growth_mib"]),
+                counted_vs_adjoint_saved=_ratio(counted["saved_for_backward_mib"], loose["saved_for_backward_mib"]),
+                count_check=_ratio(
+                    runs["unrolled_counted_short"]["saved_for_backward_mib"], unrolled["saved_for_backward_mib"]
+                ),
+            )
     return {"summary": summary, "runs": runs}
 
 
@@ -522,6 +560,24 @@ def report_memory(mem: dict[str, Any]) -> tuple[str, dict[str, Any]]:
             f"growth {s['tight_rss_ratio']:.2f}x, saved {s['tight_saved_ratio']:.2f}x (target: unchanged, "
             f"within 10% RSS / 1% saved) -> {verdict(met_t)}"
         )
+        if "counted_saved_mib" in s:
+            c = runs["unrolled_counted"]
+            met_c = s["counted_vs_adjoint_rss"] >= 10
+            targets["adjoint_vs_unrolled_full_steps"] = {
+                "unrolled_saved_mib_lower_bound": s["counted_saved_mib"],
+                "ratio_lower_bound": s["counted_vs_adjoint_rss"],
+                "met": met_c,
+                "steps": s["requested_steps"],
+            }
+            out.append(
+                f"unrolled on all {s['requested_steps']} steps, saved tensors counted and dropped: "
+                f"{s['counted_saved_mib']:.1f} MiB saved for backward ({c['forward_s']:.0f} s of forward, "
+                f"{c['pressure_iters_per_step']:.1f} pressure iterations per step); autograd would hold all of it "
+                f"when its backward starts, so its peak is at least {s['counted_vs_adjoint_rss']:.1f}x the "
+                f"adjoint's peak RSS growth ({s['counted_vs_adjoint_saved']:.1f}x its saved bytes) "
+                f"(target: >= 10x) -> {verdict(met_c)}; the count, checked on {s['compared_steps']} steps against the "
+                f"run that kept its tensors: {s['count_check']:.5f}x"
+            )
     else:
         out.append("a memory run failed; see the JSON for its stderr")
     return "\n".join(out), targets
@@ -590,6 +646,7 @@ def main(argv: list[str] | None = None) -> int:
         default=150.0,
         help="projected run time above which the unrolled memory run is shortened",
     )
+    parser.add_argument("--memory-only", action="store_true", help="skip the timings; run only the memory part")
     parser.add_argument("--_child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -619,13 +676,13 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     rows = []
-    for n, steps, reps in plan:
+    for n, steps, reps in [] if args.memory_only else plan:
         for mu in (0.0, CONSTANT_VISCOSITY):
             log(f"  scaling: {n}^2, viscosity {mu:g}, {steps} steps x {reps} repeats ...")
             rows.append(time_grid(n, steps, mu, reps))
-    text_s, targets_s = report_scaling(rows, overhead_grid)
+    text_s, targets_s = report_scaling(rows, overhead_grid) if rows else ("", {})
     print("\n" + text_s, flush=True)
-    if args.plot:
+    if args.plot and rows:
         title = f"Fluid step, float32, {info['torch_threads']} thread(s), {info['cpu']}, {info['date'][:10]}"
         plot_scaling(args.plot, rows, title)
         print(f"plot written to {args.plot}", flush=True)
