@@ -1,8 +1,10 @@
 """Benchmark of morphing: the fluid morph against a thin-plate-spline morph, on the bundled face pair.
 
 The pair is the bundled astronaut (a photograph of a human face) and cat (a photograph of a cat's face), both
-512 x 512, with their 23 corresponding points (:func:`torchfluidwarp.data.load_sample_points`). Everything runs
-in float32 on CPU, in one process, so every figure below comes from the same run:
+512 x 512, with their 23 corresponding points (:func:`torchfluidwarp.data.load_sample_points`). With
+``--pair faces`` it is two real photographs of human faces, 512 x 512 with 41 landmarks each (``face_pair.py``
+says where they come from), and the middle frames are written as ``morph_faces_mid_*.png``. Everything runs in
+float32 on CPU, in one process, so every figure below comes from the same run:
 
 1. **Fluid morph** (:func:`torchfluidwarp.morph.morph`, default settings otherwise) with ``inverse="flow"`` and
    ``inverse="paper"``, each with ``compressible=False`` and ``compressible=0.5`` (the setting recommended for
@@ -87,10 +89,21 @@ TIME_TARGET_FRAMES, TIME_TARGET_SIZE = 30, 512
 # ----------------------------------------------------------------------------------------------- inputs
 
 
-def load_pair(size: int | None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The bundled pair ``(1, 3, H, W)`` x 2 and their points ``(M, 2)`` x 2, optionally resized to ``size``."""
-    a, b = load_sample(SAMPLE_A), load_sample(SAMPLE_B)
-    pa, pb = load_sample_points(SAMPLE_A), load_sample_points(SAMPLE_B)
+PAIRS = {"bundled": f"{SAMPLE_A} -> {SAMPLE_B}", "faces": "two human faces cropped from a photograph (face_pair.py)"}
+
+
+def load_pair(size: int | None, pair: str = "bundled") -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """A pair ``(1, 3, H, W)`` x 2 and their points ``(M, 2)`` x 2, optionally resized to ``size``.
+
+    ``"bundled"``: the library's sample pair; ``"faces"``: :func:`face_pair.load_face_pair`.
+    """
+    if pair == "faces":
+        from face_pair import load_face_pair
+
+        a, b, pa, pb = load_face_pair()
+    else:
+        a, b = load_sample(SAMPLE_A), load_sample(SAMPLE_B)
+        pa, pb = load_sample_points(SAMPLE_A), load_sample_points(SAMPLE_B)
     if size is not None and size != a.shape[-1]:
         scale = size / a.shape[-1]
         a, b = (
@@ -714,6 +727,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--quick", action="store_true", help="smoke mode: the pair at 128x128, 6 frames, 15 fit iterations, 1 repeat"
     )
+    parser.add_argument(
+        "--pair",
+        choices=sorted(PAIRS),
+        default="bundled",
+        help="the bundled astronaut -> cat pair (default) or two real human faces (see face_pair.py)",
+    )
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
     parser.add_argument("--images", metavar="DIR", help="write the middle frames as PNGs into DIR")
     parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; 1 with --quick)")
@@ -734,7 +753,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"{name} must be >= {low}, got {value}")
 
     torch.set_num_threads(args.threads)
-    a, b, pa, pb = load_pair(size)
+    a, b, pa, pb = load_pair(size, args.pair)
     size = a.shape[-1]
     info = machine()
     load_before = os.getloadavg()
@@ -745,13 +764,14 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     print(
-        f"pair: {SAMPLE_A} -> {SAMPLE_B}, {size}x{size}, {pa.shape[0]} points; {frames} frames, "
+        f"pair: {PAIRS[args.pair]}, {size}x{size}, {pa.shape[0]} points; {frames} frames, "
         f"{repeats} repeat(s); load average before: {' '.join(f'{x:.2f}' for x in load_before)}; "
         f"torchfluidwarp {info['torchfluidwarp']} sources {info['torchfluidwarp_sources_sha256']}",
         flush=True,
     )
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
 
+    prefix = "morph" if args.pair == "bundled" else f"morph_{args.pair}"
     t_start = time.perf_counter()
     probe = graph_probe(a, b, pa, pb)
     for kind in TPS_KINDS:
@@ -775,7 +795,7 @@ def main(argv: list[str] | None = None) -> int:
                 row.peak_rss_growth_mib = growth
                 rows[cfg] = row
                 if compressible == IMAGE_COMPRESSIBLE:
-                    mids[f"morph_mid_fluid_{inverse}.png"] = res.frames[frames // 2].clone()
+                    mids[f"{prefix}_mid_fluid_{inverse}.png"] = res.frames[frames // 2].clone()
             elif float(res.fit.error.mean()) != rows[cfg].fit_error_px:
                 rows[cfg].deterministic = False
             del res
@@ -790,7 +810,7 @@ def main(argv: list[str] | None = None) -> int:
                 tps_rows[kind] = tps_row(kind, a, b, pa, pb, frames, tps_frames)
                 tps_rows[kind].peak_rss_growth_mib = growth
                 if kind == "kornia":
-                    mids["morph_mid_tps.png"] = tps_frames[frames // 2].clone()
+                    mids[f"{prefix}_mid_tps.png"] = tps_frames[frames // 2].clone()
     tps = [tps_rows[kind] for kind in TPS_KINDS]
     for t in tps:
         t.seconds_all, t.seconds = tps_times[t.kind], statistics.median(tps_times[t.kind])
