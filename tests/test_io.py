@@ -360,3 +360,15 @@ def test_mp4_round_trip_frame_count(tmp_path, gen):
 def test_json_written_as_points_object(tmp_path):
     write_points(tmp_path / "p.json", POINTS[:1])
     assert json.loads((tmp_path / "p.json").read_text()) == {"points": [[12.5, 40.25]]}
+
+
+def test_frames_convert_in_chunks_identically(monkeypatch, tmp_path):
+    # 7 frames in chunks of 2 (the last one short): the same bytes as one conversion of everything
+    frames = torch.rand(7, 3, 5, 6, generator=torch.Generator().manual_seed(3))
+    frames[0, 0, 0, 0], frames[1, 0, 0, 0] = -0.2, 1.3  # clamped
+    expected = (frames.double().clamp(0, 1) * 255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    monkeypatch.setattr(tio, "_CONVERT_BYTES", 2 * 8 * 3 * 5 * 6)
+    np.testing.assert_array_equal(tio._uint8_frames(frames, "frames"), expected)
+    write_animation(tmp_path / "out/", frames, fps=5)
+    last = iio.imread(sorted((tmp_path / "out").iterdir())[6])
+    np.testing.assert_array_equal(last, expected[6])

@@ -193,14 +193,23 @@ def _convert_channels(image: Tensor, channels: int | None) -> Tensor:
     return torch.cat([rgb, alpha], dim=1)
 
 
+_CONVERT_BYTES = 64 * 2**20
+"""Frames are converted to uint8 in chunks of about this many bytes of float64, not all at once (300 frames
+of 1920 x 1080 RGB would take 15 GB as float64)."""
+
+
 def _uint8_frames(frames: Tensor, name: str) -> np.ndarray:
     """``(T, C, H, W)`` floats in ``[0, 1]`` -> ``(T, H, W, C)`` uint8, after validating them."""
     check_tensor(name, frames, ndim=4)
     t, c, h, w = frames.shape
     if c not in (1, 3, 4) or min(t, h, w) < 1:
         raise ValueError(f"{name} must have C in 1, 3, 4 and non-empty T, H, W; got shape {tuple(frames.shape)}")
-    scaled = frames.detach().to("cpu", torch.float64).clamp(0.0, 1.0).mul(255.0).round()
-    return scaled.to(torch.uint8).permute(0, 2, 3, 1).contiguous().numpy()
+    out = torch.empty(t, h, w, c, dtype=torch.uint8)
+    chunk = max(1, _CONVERT_BYTES // (8 * c * h * w))  # frames per float64 chunk: memory stays bounded
+    for i in range(0, t, chunk):
+        part = frames[i : i + chunk].detach().to("cpu", torch.float64).clamp(0.0, 1.0).mul(255.0).round()
+        out[i : i + chunk] = part.to(torch.uint8).permute(0, 2, 3, 1)
+    return out.numpy()
 
 
 def _first_line(exc: BaseException) -> str:
