@@ -6,6 +6,7 @@ and nothing non-finite can travel on to ``grid_sample`` (whose CPU backward cras
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -17,6 +18,17 @@ def describe(x: object) -> str:
     if isinstance(x, Tensor):
         return f"tensor of shape {tuple(x.shape)} and dtype {x.dtype}"
     return f"{type(x).__name__} {x!r}"
+
+
+def all_finite(x: Tensor) -> bool:
+    """Whether every element of ``x`` is finite.
+
+    A NaN or inf anywhere makes the float64 sum non-finite, and one reduction is several times cheaper than
+    ``isfinite(x).all()`` on the small tensors checked once per fluid step. Only when the sum is not finite is
+    the elementwise test run, so a sum that merely overflows cannot raise a false alarm.
+    """
+    x = x.detach()
+    return math.isfinite(float(x.sum(dtype=torch.float64))) or bool(torch.isfinite(x).all())
 
 
 def check_tensor(
@@ -55,7 +67,7 @@ def check_tensor(
         if x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
             want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
             raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
-    if finite and x.numel() and not bool(torch.isfinite(x).all()):
+    if finite and x.numel() and not all_finite(x):
         raise ValueError(f"{name} contains non-finite values (NaN or inf); shape {tuple(x.shape)}")
     return x
 

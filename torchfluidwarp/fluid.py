@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import check_positive, check_tensor
+from torchfluidwarp._checks import all_finite, check_positive, check_tensor
 from torchfluidwarp.grid import FluidGrid, interior_mask
 from torchfluidwarp.linalg import CGConfig, implicit_solve
 from torchfluidwarp.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
@@ -95,7 +95,7 @@ def grid_sample_checked(image: Tensor, grid: Tensor, mode: str = "bilinear", ali
     Raises:
         FloatingPointError: ``grid`` holds NaN or inf (typically a flow that blew up).
     """
-    if not bool(torch.isfinite(grid).all()):
+    if not all_finite(grid):
         raise FloatingPointError(
             "non-finite sampling positions: the flow produced NaN or inf (forces or dt too large?)"
         )

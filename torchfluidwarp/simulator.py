@@ -13,7 +13,7 @@ from typing import cast
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_positive, check_tensor
+from torchfluidwarp._checks import all_finite, check_positive, check_tensor
 from torchfluidwarp.fluid import (
     Viscosity,
     _advect_points,
@@ -238,13 +238,14 @@ class FluidSimulator(nn.Module):
         mu = self.current_viscosity(B, image_size)
         vels, iters = [], []
         traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
-        for t in range(T):
-            velocity, it = self.step(velocity, forces[:, t], mu)
+        # unbind: one backward node for all steps (T selects would each scatter into a full-size zero tensor)
+        for t, force in enumerate(forces.unbind(1)):
+            velocity, it = self.step(velocity, force, mu)
             vels.append(velocity)
             iters.append(it)
             if points is not None:
                 traj.append(_advect_points(traj[-1], velocity, self.dt))
-            if not bool(torch.isfinite(velocity).all()):
+            if not all_finite(velocity):
                 raise FloatingPointError(f"the flow blew up at step {t}: non-finite velocity (forces or dt too large?)")
         pts = torch.stack(traj, 1).transpose(2, 3) if points is not None else None
         return FluidRollout(torch.stack(vels, 1), pts, iters)

@@ -150,15 +150,28 @@ def solve_pressure_poisson(b: Tensor) -> Tensor:
         eigenvalue 1, i.e. this inverts ``-L p + mean(p)``: a zero-mean ``b`` gets the zero-mean solution.
     """
     h, w = b.shape[-2:]
-    eig = laplacian_eigenvalues(h, "neumann", b)[:, None] + laplacian_eigenvalues(w, "neumann", b)[None, :]
-    coef = _forward(_forward(b, "neumann", -1), "neumann", -2)
-    coef = coef / torch.where(eig > 0, eig, 1.0)
+    coef = _forward(_forward(b, "neumann", -1), "neumann", -2) * _pressure_gain(h, w, b.device, b.dtype)
     return _inverse(_inverse(coef, "neumann", -2), "neumann", -1)
+
+
+@functools.lru_cache(maxsize=64)
+def _eigenvalues_2d(ny: int, nx: int, kind_y: str, kind_x: str, device: torch.device, dtype: torch.dtype) -> Tensor:
+    """Memo of a pure function: the ``(ny, nx)`` eigenvalues of ``-L`` for the given axis kinds."""
+    with torch.inference_mode(False), torch.no_grad():
+        return _axis(ny, kind_y, device, dtype)[1][:, None] + _axis(nx, kind_x, device, dtype)[1][None, :]
+
+
+@functools.lru_cache(maxsize=32)
+def _pressure_gain(h: int, w: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    """Memo of a pure function: ``1 / e`` per cosine mode of the ``(h, w)`` Neumann Laplacian (1 for ``e = 0``)."""
+    with torch.inference_mode(False), torch.no_grad():
+        eig = _eigenvalues_2d(h, w, "neumann", "neumann", device, dtype)
+        return 1.0 / torch.where(eig > 0, eig, 1.0)
 
 
 def _solve_component(b: Tensor, alpha: Tensor, kind_y: str, kind_x: str) -> Tensor:
     ny, nx = b.shape[-2:]
-    eig = laplacian_eigenvalues(ny, kind_y, b)[:, None] + laplacian_eigenvalues(nx, kind_x, b)[None, :]
+    eig = _eigenvalues_2d(ny, nx, kind_y, kind_x, b.device, b.dtype)
     coef = _forward(_forward(b, kind_x, -1), kind_y, -2) / (1 + alpha.reshape(-1, 1, 1) * eig)
     return _inverse(_inverse(coef, kind_y, -2), kind_x, -1)
 
@@ -193,6 +206,6 @@ def neumann_filter(b: Tensor, gain: Callable[[Tensor], Tensor]) -> Tensor:
             against ``(B, 1, h, w)``.
     """
     h, w = b.shape[-2:]
-    eig = laplacian_eigenvalues(h, "neumann", b)[:, None] + laplacian_eigenvalues(w, "neumann", b)[None, :]
+    eig = _eigenvalues_2d(h, w, "neumann", "neumann", b.device, b.dtype)
     coef = _forward(_forward(b, "neumann", -1), "neumann", -2) * gain(eig)
     return _inverse(_inverse(coef, "neumann", -2), "neumann", -1)

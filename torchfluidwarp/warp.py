@@ -316,8 +316,8 @@ def _carry(velocities: Tensor, points: Tensor, size: tuple[int, int], dt: float)
     c = _cell_scale(size, h, w, points)
     p = (points.transpose(1, 2) + 0.5) * c - 0.5
     traj = [p]
-    for t in range(velocities.shape[1]):
-        traj.append(_advect_points(traj[-1], velocities[:, t], dt))
+    for velocity in velocities.unbind(1):
+        traj.append(_advect_points(traj[-1], velocity, dt))
     return ((torch.stack(traj, dim=1) + 0.5) / c.unsqueeze(1) - 0.5).transpose(2, 3)
 
 
