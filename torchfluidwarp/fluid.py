@@ -60,9 +60,13 @@ def _pack(u: Tensor, v: Tensor) -> Tensor:
 
 
 def divergence(velocity: Tensor) -> Tensor:
-    """Discrete divergence of a staggered velocity, per cell: ``(B, 1, h, w)`` in 1 / time unit."""
-    u, v = _split(velocity)
-    return (u[..., 1:] - u[..., :-1] + v[:, 1:] - v[:, :-1]).unsqueeze(1)
+    """Discrete divergence of a staggered velocity, per cell: ``(B, 1, h, w)`` in 1 / time unit.
+
+    ``u[j, i + 1] - u[j, i] + v[j + 1, i] - v[j, i]``, as one 2x2 convolution (the padding row and column get
+    zero weight).
+    """
+    stencil = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)["div_stencil"]
+    return F.conv2d(velocity, stencil)
 
 
 def gradient(p: Tensor) -> Tensor:
@@ -131,7 +135,20 @@ def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[
         su, tu = affine(w + 1, h + 1, -0.5, 0.0)
         sv, tv = affine(w + 1, h + 1, 0.0, -0.5)
         sc, tc = affine(w, h, 0.0, 0.0)
+        # flat indices into a staggered (2, h + 1, w + 1) velocity: the extended layout of _extend (u's padding
+        # row repeats its last row, v's padding column its last column), and the interior faces in the order of
+        # "faces" below (u's, then v's)
+        flat = torch.arange(2 * (h + 1) * (w + 1), device=device).view(2, h + 1, w + 1)
+        ext_u, ext_v = flat[0].clone(), flat[1].clone()
+        ext_u[h] = flat[0, h - 1]
+        ext_v[:, w] = flat[1, :, w - 1]
         return {
+            "extend_index": torch.stack([ext_u, ext_v]).flatten(),
+            "face_index": torch.cat([flat[0, :h, 1:w].flatten(), flat[1, 1:h, :w].flatten()]),
+            # divergence as one 2x2 convolution: cell (j, i) reads u at (j, i), (j, i + 1) and v at (j, i), (j + 1, i)
+            "div_stencil": torch.tensor(
+                [[[[-1.0, 1.0], [0.0, 0.0]], [[-1.0, 0.0], [1.0, 0.0]]]], device=device, dtype=dtype
+            ),
             "lo": col(-0.5, -0.5),
             "hi": col(w - 0.5, h - 0.5),
             "s2": torch.stack([su, sv], dim=1),  # (1, component, xy, 1)
@@ -164,14 +181,12 @@ def _extend(velocity: Tensor) -> Tensor:
 
     The padding row of ``u`` and the padding column of ``v`` repeat their last row / column, so that bilinear
     sampling with border padding holds each component constant beyond its outermost nodes: one
-    ``grid_sample`` call then samples both components (see :func:`_velocity_at`).
+    ``grid_sample`` call then samples both components (see :func:`_velocity_at`). One gather, whose backward is
+    one scatter-add (slicing and concatenating cost several autograd nodes).
     """
     h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
-    u = velocity[:, 0:1, :h]
-    v = velocity[:, 1:2, :, :w]
-    u = torch.cat([u, u[:, :, h - 1 :]], dim=2)
-    v = torch.cat([v, v[..., w - 1 :]], dim=3)
-    return torch.cat([u, v], dim=1).view(-1, 1, h + 1, w + 1)
+    index = _geo(h, w, velocity)["extend_index"]
+    return velocity.reshape(velocity.shape[0], -1).index_select(1, index).view(-1, 1, h + 1, w + 1)
 
 
 def _velocity_at(extended: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:
@@ -180,8 +195,14 @@ def _velocity_at(extended: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Te
     ``extended`` is :func:`_extend` of the velocity. Points outside the box sample its border values, as if
     clamped into it.
     """
-    B, _, N = points.shape
-    g = torch.addcmul(geo["t2"], points.unsqueeze(1), geo["s2"])  # (B, component, xy, N)
+    return _components_at(extended, points.unsqueeze(1), geo)
+
+
+def _components_at(extended: Tensor, points: Tensor, geo: dict[str, Tensor]) -> Tensor:
+    """Each velocity component at its own channel-first points ``(B, 2 components, 2, N)`` (or ``(B, 1, 2, N)``
+    for both at the same points): ``(B, 2, N)``, in one ``grid_sample`` over the ``2B`` extended images."""
+    B, _, _, N = points.shape
+    g = torch.addcmul(geo["t2"], points, geo["s2"])  # (B, component, xy, N)
     g = g.transpose(2, 3).reshape(2 * B, N, 1, 2)
     out = F.grid_sample(extended, g, mode="bilinear", padding_mode="border", align_corners=True)
     return out.view(B, 2, N)
@@ -246,12 +267,17 @@ def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
     geo = _geo(h, w, velocity)
     ext = _extend(velocity)
     back = _backtrace(ext, geo["faces"].expand(velocity.shape[0], -1, -1), dt, geo)
-    nu = h * (w - 1)
-    # each component at its own faces' feet (one call for both would sample, and differentiate, twice the points)
-    comp = ext.view(-1, 2, 1, h + 1, w + 1)
-    u_new = _sample(comp[:, 0], back[..., :nu], geo["s2"][:, 0], geo["t2"][:, 0]).view(-1, h, w - 1)
-    v_new = _sample(comp[:, 1], back[..., nu:], geo["s2"][:, 1], geo["t2"][:, 1]).view(-1, h - 1, w)
-    return _pack(F.pad(u_new, (1, 1)), F.pad(v_new, (0, 0, 1, 1)))
+    nu, nv = h * (w - 1), (h - 1) * w
+    # each component only at its own faces' feet, both in one grid_sample: the shorter list of feet is padded
+    # with copies of its last point (sampled, then dropped) when h != w
+    n = max(nu, nv)
+    feet_u, feet_v = back[..., :nu], back[..., nu:]
+    if nu != nv:
+        feet_u, feet_v = (F.pad(f, (0, n - f.shape[-1]), mode="replicate") for f in (feet_u, feet_v))
+    sampled = _components_at(ext, torch.stack([feet_u, feet_v], dim=1), geo)  # (B, 2, n)
+    values = torch.cat([sampled[:, 0, :nu], sampled[:, 1, :nv]], dim=1)
+    out = values.new_zeros(values.shape[0], 2 * (h + 1) * (w + 1)).index_copy(1, geo["face_index"], values)
+    return out.view(-1, 2, h + 1, w + 1)
 
 
 MAX_STRAIN_PER_SUBSTEP = 0.25

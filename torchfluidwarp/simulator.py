@@ -36,8 +36,10 @@ class AddForce(nn.Module):
         super().__init__()
         self.dt = check_positive("dt", dt)
 
-    def forward(self, velocity: Tensor, force: Tensor) -> Tensor:
-        return velocity + self.dt * faces_from_cells(force)
+    def forward(self, velocity: Tensor, force: Tensor, staggered: bool = False) -> Tensor:
+        """``velocity`` ``(B, 2, h + 1, w + 1)`` plus ``dt`` times ``force``: cell-centred ``(B, 2, h, w)``, or
+        already on the faces ``(B, 2, h + 1, w + 1)`` with ``staggered=True``."""
+        return velocity + self.dt * (force if staggered else faces_from_cells(force))
 
 
 class Advect(nn.Module):
@@ -115,13 +117,16 @@ class StableFluidsStep(nn.Module):
         self.keep_divergence = keep
         self.project = None if keep == 1.0 else Project(pressure, adjoint)
 
-    def forward(self, velocity: Tensor, force: Tensor, viscosity: Viscosity) -> tuple[Tensor, tuple[int, int]]:
-        """Advance ``velocity`` ``(B, 2, h + 1, w + 1)`` by one step under ``force`` ``(B, 2, h, w)``.
+    def forward(
+        self, velocity: Tensor, force: Tensor, viscosity: Viscosity, staggered: bool = False
+    ) -> tuple[Tensor, tuple[int, int]]:
+        """Advance ``velocity`` ``(B, 2, h + 1, w + 1)`` by one step under ``force`` ``(B, 2, h, w)`` (or the
+        force already averaged onto the faces, ``(B, 2, h + 1, w + 1)``, with ``staggered=True``).
 
         Returns:
             the new staggered velocity and the CG iteration counts ``(viscosity, pressure)``.
         """
-        v = self.advect(self.add_force(velocity, force))
+        v = self.advect(self.add_force(velocity, force, staggered))
         v, it_visc = self.diffuse(v, viscosity)
         it_p = 0
         if self.project is not None:
@@ -238,9 +243,11 @@ class FluidSimulator(nn.Module):
         mu = self.current_viscosity(B, image_size)
         vels, iters = [], []
         traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
-        # unbind: one backward node for all steps (T selects would each scatter into a full-size zero tensor)
-        for t, force in enumerate(forces.unbind(1)):
-            velocity, it = self.step(velocity, force, mu)
+        # all steps' forces onto the faces at once, then unbind: one backward node each for the whole schedule
+        # (per-step selects would each scatter their gradient into a full-size zero tensor)
+        on_faces = faces_from_cells(forces.flatten(0, 1)).view(B, T, 2, h + 1, w + 1)
+        for t, force in enumerate(on_faces.unbind(1)):
+            velocity, it = self.step(velocity, force, mu, staggered=True)
             vels.append(velocity)
             iters.append(it)
             if points is not None:
