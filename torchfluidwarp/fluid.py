@@ -291,15 +291,15 @@ def substeps(velocity: Tensor, dt: float) -> int:
     The largest velocity difference between neighbouring faces of a staggered velocity ``(B, 2, h+1, w+1)``
     bounds its velocity gradient (cells per time unit per cell). Most gentle flows need one sub-step.
     """
-    u, v = _split(velocity.detach())
-    grads = [
-        (u[..., 1:] - u[..., :-1]).abs().amax(),
-        (u[:, 1:] - u[:, :-1]).abs().amax(),
-        (v[..., 1:] - v[..., :-1]).abs().amax(),
-        (v[:, 1:] - v[:, :-1]).abs().amax(),
-    ]
-    strain = float(torch.stack(grads).max()) * abs(dt)
-    return max(1, math.ceil(strain / MAX_STRAIN_PER_SUBSTEP))
+    return _substeps(_extend(velocity.detach()), dt)
+
+
+def _substeps(extended: Tensor, dt: float) -> int:
+    # on the extended layout (see _extend) the differences between neighbours along both axes are exactly the
+    # staggered ones: the repeated padding row / column adds zero differences
+    with torch.no_grad():
+        strain = torch.maximum(extended.diff(dim=-1).abs().amax(), extended.diff(dim=-2).abs().amax())
+    return max(1, math.ceil(float(strain) * abs(dt) / MAX_STRAIN_PER_SUBSTEP))
 
 
 def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
@@ -314,9 +314,9 @@ def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
 def _advect_points(points: Tensor, velocity: Tensor, dt: float, n: int | None = None) -> Tensor:
     """Channel-first version: ``(B, 2, M)`` in, ``(B, 2, M)`` out, in ``n`` sub-steps (default: :func:`substeps`)."""
     geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
-    n = substeps(velocity, dt) if n is None else n
-    h = dt / n
     ext = _extend(velocity)
+    n = _substeps(ext, dt) if n is None else n
+    h = dt / n
     for _ in range(n):
         mid = points + (0.5 * h) * _velocity_at(ext, points, geo)
         points = _clamp(points + h * _velocity_at(ext, mid, geo), geo)
