@@ -210,7 +210,9 @@ def fit_images(
         regularization: weight on ``||u||^2`` (default 0: off).
         max_iter: L-BFGS iterations per level (an int, or one per level).
         compressible: skip the pressure projection.
-        dtype: dtype of the fit (float64 by default, as for :func:`~torchfluidwarp.control.fit_keyframes`).
+        dtype: dtype of the fit. float64 by default: the image losses and the registration figures in
+            ``docs/benchmarks.md`` were measured in float64 (:func:`~torchfluidwarp.control.fit_keyframes`, whose
+            point loss was measured in both, defaults to float32).
         progress: show a tqdm bar per level with the loss.
 
     Returns:
