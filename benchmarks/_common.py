@@ -1,4 +1,5 @@
-"""Helpers every benchmark script shares: what machine the figures come from, how busy it was, and plain tables.
+"""Helpers every benchmark script shares: what machine the figures come from, how busy it was, peak memory,
+plain tables, and results written atomically.
 
 The scripts run as ``python benchmarks/bench_*.py``, so this module is importable as ``_common``.
 """
@@ -6,13 +7,25 @@ The scripts run as ``python benchmarks/bench_*.py``, so this module is importabl
 from __future__ import annotations
 
 import datetime
+import json
 import os
 import platform
 from typing import Any
 
 import torch
 
-__all__ = ["machine", "machine_load", "describe_load", "source_fingerprint", "table", "verdict"]
+__all__ = [
+    "machine",
+    "machine_load",
+    "describe_load",
+    "source_fingerprint",
+    "status_kib",
+    "reset_peak",
+    "table",
+    "verdict",
+    "write_json",
+    "save_figure",
+]
 
 
 def machine() -> dict[str, Any]:
@@ -69,6 +82,34 @@ def source_fingerprint() -> str:
     return digest.hexdigest()[:12]
 
 
+def status_kib(field: str) -> float:
+    """A ``/proc/self/status`` memory field (``VmRSS``, ``VmHWM``) in KiB."""
+    with open("/proc/self/status") as f:
+        return float(next(line.split()[1] for line in f if line.startswith(field + ":")))
+
+
+def reset_peak() -> bool:
+    """Return freed heap to the OS and reset this process's ``VmHWM`` to its current RSS (Linux >= 4.0).
+
+    ``ru_maxrss`` cannot be reset, and a process started by ``exec`` inherits its parent's peak RSS into
+    it (the kernel carries the old address space's high-water mark over), so a child's ``ru_maxrss`` never
+    reads below the parent's RSS at launch. ``VmHWM`` after this reset is the peak of this process alone.
+    Returns whether the reset worked.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
 def table(headers: list[str], rows: list[list[str]]) -> str:
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
     line = lambda cells: "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
@@ -77,3 +118,21 @@ def table(headers: list[str], rows: list[list[str]]) -> str:
 
 def verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
+
+
+def write_json(path: str, result: Any, default: Any = None) -> None:
+    """Write ``result`` as indented JSON to ``path`` through a temporary file, so a crash never leaves half a file."""
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(result, f, indent=2, default=default)
+    os.replace(tmp, path)
+
+
+def save_figure(fig: Any, path: str) -> None:
+    """Save a matplotlib figure to ``path`` through a temporary file, and close it."""
+    import matplotlib.pyplot as plt
+
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)

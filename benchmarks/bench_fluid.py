@@ -53,7 +53,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import machine, table, verdict
+from _common import machine, reset_peak, save_figure, status_kib, table, verdict, write_json
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, ConvergenceWarning, FluidSimulator
@@ -165,35 +165,8 @@ def time_grid(n: int, steps: int, viscosity: float, repeats: int) -> ScalingRow:
 # ----------------------------------------------------------------------------------------------- memory
 
 
-def _status_kib(field: str) -> float:
-    """A ``/proc/self/status`` memory field (``VmRSS``, ``VmHWM``) in KiB."""
-    with open("/proc/self/status") as f:
-        return float(next(line.split()[1] for line in f if line.startswith(field + ":")))
-
-
 def _maxrss_kib() -> float:
     return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)  # KiB on Linux
-
-
-def _reset_peak() -> bool:
-    """Return freed heap to the OS and reset this process's ``VmHWM`` to its current RSS (Linux >= 4.0).
-
-    ``ru_maxrss`` cannot be reset, and a process started by ``exec`` inherits its parent's peak RSS into
-    it (the kernel carries the old address space's high-water mark over), so a child's ``ru_maxrss`` never
-    reads below the parent's RSS at launch. ``VmHWM`` after this reset is the peak of this process alone.
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 class _OverBudget(Exception):
@@ -222,8 +195,8 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     del sim, forces, points
     sim, forces, points, mu = build(n, steps)
     gc.collect()
-    hwm_reset = _reset_peak()
-    base_maxrss, base_now = _maxrss_kib(), _status_kib("VmRSS")
+    hwm_reset = reset_peak()
+    base_maxrss, base_now = _maxrss_kib(), status_kib("VmRSS")
 
     saved_bytes, seen = 0, set()
     count_only = spec.get("count_only", False)
@@ -250,7 +223,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
         done += 1
         if backward != "unrolled" or done == steps or count_only:
             return
-        grow_gib = (_status_kib("VmRSS") - base_now) / 2**20
+        grow_gib = (status_kib("VmRSS") - base_now) / 2**20
         elapsed = time.perf_counter() - t_start
         if grow_gib / done * steps > spec["mem_budget_gib"] or elapsed / done * steps * 1.5 > spec["time_budget_s"]:
             raise _OverBudget(grow_gib, elapsed)
@@ -280,7 +253,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
             result.update(
                 saved_for_backward_mib=saved_bytes / 2**20,
                 forward_s=t_fwd,
-                counted_peak_rss_growth_mib=(_status_kib("VmHWM") - base_now) / 1024 if hwm_reset else math.nan,
+                counted_peak_rss_growth_mib=(status_kib("VmHWM") - base_now) / 1024 if hwm_reset else math.nan,
                 pressure_iters_per_step=statistics.mean(p for _, p in out.iterations),
                 viscosity_iters_per_step=statistics.mean(i for i, _ in out.iterations),
             )
@@ -291,7 +264,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     result.update(
         maxrss_growth_mib=(_maxrss_kib() - base_maxrss) / 1024,
         peak_measure="VmHWM" if hwm_reset else "ru_maxrss",
-        peak_rss_growth_mib=((_status_kib("VmHWM") - base_now) if hwm_reset else (_maxrss_kib() - base_maxrss)) / 1024,
+        peak_rss_growth_mib=((status_kib("VmHWM") - base_now) if hwm_reset else (_maxrss_kib() - base_maxrss)) / 1024,
         baseline_rss_mib=base_now / 1024,
         baseline_maxrss_mib=base_maxrss / 1024,
         saved_for_backward_mib=saved_bytes / 2**20,
@@ -611,10 +584,7 @@ def plot_scaling(path: str, rows: list[ScalingRow], title: str) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------- main
@@ -712,10 +682,7 @@ def main(argv: list[str] | None = None) -> int:
             "targets": {**targets_s, **targets_m},
             "total_s": total,
         }
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=2)
-        os.replace(tmp, args.json)
+        write_json(args.json, result)
     return 0
 
 

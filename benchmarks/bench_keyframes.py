@@ -52,7 +52,17 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import torch
-from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict
+from _common import (
+    describe_load,
+    machine,
+    machine_load,
+    reset_peak,
+    source_fingerprint,
+    status_kib,
+    table,
+    verdict,
+    write_json,
+)
 from torch import Tensor
 
 from torchfluidwarp.control import fit_keyframes, keyframe_loss
@@ -376,27 +386,6 @@ def time_gradient(
 # ----------------------------------------------------------------------------------------------- memory
 
 
-def _status_kib(name: str) -> float:
-    with open("/proc/self/status") as f:
-        return float(next(line.split()[1] for line in f if line.startswith(name + ":")))
-
-
-def _reset_peak() -> bool:
-    """Return freed heap to the OS and reset this process's ``VmHWM`` to its current RSS (Linux >= 4.0)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
-
-
 def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     """One fit in this (fresh) process; peak RSS growth over a baseline taken just before it."""
     torch.set_num_threads(spec["threads"])
@@ -419,8 +408,8 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     first_call_s, first_fit_s = time.perf_counter() - t0, tiny.seconds
     src, tgt = inst.tensors(dtype)
     gc.collect()
-    hwm_reset = _reset_peak()
-    base = _status_kib("VmRSS")
+    hwm_reset = reset_peak()
+    base = status_kib("VmRSS")
     fit = fit_keyframes(
         src,
         tgt,
@@ -433,7 +422,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
         dtype=dtype,
         progress=False,
     )
-    peak = _status_kib("VmHWM")
+    peak = status_kib("VmHWM")
     return {
         **{k: v for k, v in spec.items() if k != "instance"},
         "instance": inst.name,
@@ -972,10 +961,7 @@ def main(argv: list[str] | None = None) -> int:
             "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
             "total_s": total,
         }
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=2)
-        os.replace(tmp, args.json)
+        write_json(args.json, result)
     return 0
 
 

@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import os
 import statistics
 import sys
@@ -70,7 +69,7 @@ from typing import Any, Literal
 import torch
 import torch.nn.functional as F
 from _common import machine as common_machine
-from _common import table, verdict
+from _common import status_kib, table, verdict, write_json
 from kornia.geometry.transform import get_tps_transform, warp_image_tps, warp_points_tps
 from torch import Tensor
 
@@ -437,24 +436,19 @@ def tps_row(kind: TpsKind, a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, frames:
 # ----------------------------------------------------------------------------------------------- helpers
 
 
-def _status_kib(name: str) -> float:
-    with open("/proc/self/status") as f:
-        return float(next(line.split()[1] for line in f if line.startswith(name + ":")))
-
-
-def reset_peak() -> float:
+def peak_baseline() -> float:
     """Reset ``VmHWM`` to the current RSS (Linux); return the RSS in KiB (0 where unsupported)."""
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
-        return _status_kib("VmRSS")
+        return status_kib("VmRSS")
     except (OSError, StopIteration):
         return 0.0
 
 
 def peak_growth_mib(base_kib: float) -> float:
     try:
-        return (_status_kib("VmHWM") - base_kib) / 1024 if base_kib else float("nan")
+        return (status_kib("VmHWM") - base_kib) / 1024 if base_kib else float("nan")
     except (OSError, StopIteration):
         return float("nan")
 
@@ -784,7 +778,7 @@ def main(argv: list[str] | None = None) -> int:
     for rep in range(repeats):
         for inverse, compressible in FLUID_CONFIGS:
             log(f"  repeat {rep + 1}/{repeats}: {label(inverse, compressible)} ...")
-            base = reset_peak()
+            base = peak_baseline()
             res, wall = run_fluid(a, b, pa, pb, inverse, compressible, frames, max_iter)
             growth = peak_growth_mib(base)
             cfg = (inverse, compressible)
@@ -801,7 +795,7 @@ def main(argv: list[str] | None = None) -> int:
             del res
         for kind in TPS_KINDS:
             log(f"  repeat {rep + 1}/{repeats}: {tps_label(kind)} ...")
-            base = reset_peak()
+            base = peak_baseline()
             t0 = time.perf_counter()
             tps_frames = tps_morph(kind, a, b, pa, pb, frames)
             tps_times[kind].append(time.perf_counter() - t0)
@@ -856,10 +850,7 @@ def main(argv: list[str] | None = None) -> int:
             "targets": targets,
             "total_s": total,
         }
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=2)
-        os.replace(tmp, args.json)
+        write_json(args.json, result)
     return 0
 
 

@@ -46,7 +46,6 @@ Needs ``pip install "phiflow>=3.4,<3.5"`` (or ``pip install -e ".[bench]"``). Ru
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import re
@@ -61,6 +60,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from _common import save_figure, write_json
 from bench_keyframes import (
     FRAME,
     PAPER_SECONDS,
@@ -422,10 +422,7 @@ def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], titl
     ax.set_xlabel("wall time of the keyframe fit, s (log scale)")
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------- main
@@ -711,10 +708,7 @@ def main(argv: list[str] | None = None) -> int:
             "paper_seconds_quoted": PAPER_SECONDS,
             "total_s": total,
         }
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=2, default=str)
-        os.replace(tmp, args.json)
+        write_json(args.json, result, default=str)
     return 0
 
 

@@ -34,8 +34,6 @@ under ``torch.profiler`` lists the operators of one end-to-end loop per image si
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
 import sys
 import time
@@ -43,7 +41,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
-from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict
+from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict, write_json
 from torch import Tensor
 
 from torchfluidwarp.forces import Brushes
@@ -570,10 +568,7 @@ def main(argv: list[str] | None = None) -> int:
             "targets": targets,
             "total_s": total,
         }
-        tmp = args.json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=2)
-        os.replace(tmp, args.json)
+        write_json(args.json, result)
     return 0
 
 
