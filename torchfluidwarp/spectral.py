@@ -107,11 +107,6 @@ def _axis(n: int, kind: str, device: torch.device, dtype: torch.dtype) -> tuple[
         return (mat.to(dtype) if n <= DENSE_MAX else None), eig.to(dtype)
 
 
-def laplacian_eigenvalues(n: int, kind: str, like: Tensor) -> Tensor:
-    """Eigenvalues of the 1-D negative Laplacian: ``'neumann'`` (DCT-II) or ``'dirichlet'`` (DST-I), length ``n``."""
-    return _axis(n, kind, like.device, like.dtype)[1]
-
-
 def _forward(x: Tensor, kind: str, dim: int) -> Tensor:
     n = x.shape[dim]
     mat = _axis(n, kind, x.device, x.dtype)[0]
