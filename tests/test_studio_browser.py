@@ -13,6 +13,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+import torch
 import torch.nn.functional as F
 from PIL import Image
 
@@ -26,7 +27,7 @@ if not CHROMIUM.exists():
         f"Chromium not found at {CHROMIUM}: install it with `apt-get install -y chromium`", allow_module_level=True
     )
 
-from torchfluidwarp.io import read_points  # noqa: E402
+from torchfluidwarp.io import read_image, read_points  # noqa: E402
 from torchfluidwarp.studio import StudioConfig, create_app, loopback_hosts, serve_in_thread  # noqa: E402
 from torchfluidwarp.studio.server import free_port  # noqa: E402
 
@@ -272,3 +273,38 @@ def test_screenshots(browser, tmp_path):
             context.close()
     for name in ("studio_morph.png", "studio_animate.png"):
         assert Image.open(DOCS_STATIC / name).size[0] >= 1000
+
+
+def test_newest_preview_survives_an_out_of_order_ticket(browser, tmp_path):
+    """The page's newest preview, refused as superseded because the server numbered another request after it
+    (parallel connections can arrive in either order), is sent again and drawn."""
+    images = {s: (read_image(pattern_png(tmp_path / f"{s}.png", seed)), f"{s}.png") for s, seed in (("a", 1), ("b", 2))}
+    points = {"a": torch.tensor(PAIRS_A, dtype=torch.float32), "b": torch.tensor(PAIRS_B, dtype=torch.float32)}
+    port = free_port()
+    app = create_app(
+        StudioConfig(token=TOKEN, allowed_hosts=loopback_hosts(port), preview_iter=5), images=images, points=points
+    )
+    worker = app.state.worker
+    with serve_in_thread(app, port=port):
+        context, page = open_page(browser, f"http://127.0.0.1:{port}", 1)
+        try:
+            set_value(page, "#set-grid", "16")
+            set_value(page, "#set-steps", "4")
+            wait_idle(page, 1)
+            page.wait_for_timeout(300)
+            wait_idle(page, 1)
+            previews = page.evaluate("() => window.studio.previews")
+            with worker._slot:  # the fit slot is busy, so the page's request waits for it with its ticket
+                before = worker.current("morph")
+                set_value(page, "#set-steps", "5")
+                deadline = time.monotonic() + 30
+                while worker.current("morph") == before and time.monotonic() < deadline:
+                    time.sleep(0.02)
+                assert worker.current("morph") == before + 1, "the page's preview did not reach the server"
+                worker.ticket("morph")  # a request the server numbered after the page's newest one
+            wait_idle(page, previews + 1)
+            assert worker.current("morph") >= before + 3  # the page sent its newest preview again
+            assert page.evaluate("() => window.studio.previews") == previews + 1
+            assert page.is_hidden("#error")
+        finally:
+            context.close()

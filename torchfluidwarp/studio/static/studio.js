@@ -35,10 +35,17 @@
     box.hidden = !message;
   }
 
+  // 409 and 410: the server saw a newer request (or dropped a stale result), so there is nothing to show
+  const isStale = (err) => !!err && (err.status === 409 || err.status === 410);
+
   function report(err) {
-    if (err && (err.status === 409 || err.status === 410)) return; // superseded by a newer request
+    if (isStale(err)) return;
     showError(err && err.message ? err.message : String(err));
   }
+
+  // The page's requests travel on parallel connections, so the server may number them out of order and call
+  // the page's newest request stale. The newest request is then sent again, a few times at most.
+  const STALE_RETRIES = 3;
 
   function status(text) { $('status').textContent = text; }
 
@@ -190,6 +197,7 @@
     frameImage: null, heatImage: null,
     drag: null,
     seq: 0,
+    staleRetries: 0,
   };
   const morphHistory = new History(() => morph.pairs, (v) => { morph.pairs = v; morph.selected = -1; pointsChanged(); });
 
@@ -375,7 +383,7 @@
   let refineRounds = 0;
   function schedulePreview(delay = 150, refine = false) {
     clearTimeout(previewTimer);
-    if (!refine) refineRounds = 0;
+    if (!refine) { refineRounds = 0; morph.staleRetries = 0; }
     previewTimer = setTimeout(requestPreview, delay);
   }
 
@@ -408,7 +416,13 @@
         refineRounds += 1;
         schedulePreview(REFINE_DELAY, true);
       }
+      morph.staleRetries = 0;
     } catch (err) {
+      if (seq === morph.seq && isStale(err) && morph.staleRetries < STALE_RETRIES) {
+        morph.staleRetries += 1;
+        schedulePreview(0, true);
+        return;
+      }
       if (seq === morph.seq) status('');
       report(err);
     } finally {
@@ -528,7 +542,7 @@
     regions: [],  // {position, radius, value}
     selected: -1,
     drag: null,
-    frames: [], playing: true, frame: 0, timer: 0, seq: 0, meta: null,
+    frames: [], playing: true, frame: 0, timer: 0, seq: 0, staleRetries: 0, meta: null,
   };
   app.morph = morph;
   app.anim = anim;
@@ -701,6 +715,7 @@
     const img = app.images.a ? app.images.a.name : 'photo.png';
     $('a-command').value = `torchfluidwarp animate ${img} -o ${stem(img, 'photo')}.gif --config ${stem(img, 'photo')}.json`;
     clearTimeout(animTimer);
+    anim.staleRetries = 0;
     animTimer = setTimeout(requestAnimPreview, 200);
   }
 
@@ -721,8 +736,18 @@
       $('anim-info').dataset.frames = String(meta.frames);
       app.animPreviews += 1;
       status(`animation ${((performance.now() - t0) / 1000).toFixed(2)} s`);
+      anim.staleRetries = 0;
       startPlaying();
-    } catch (err) { if (seq === anim.seq) status(''); report(err); }
+    } catch (err) {
+      if (seq === anim.seq && isStale(err) && anim.staleRetries < STALE_RETRIES) {
+        anim.staleRetries += 1;
+        clearTimeout(animTimer);
+        animTimer = setTimeout(requestAnimPreview, 0);
+        return;
+      }
+      if (seq === anim.seq) status('');
+      report(err);
+    }
   }
 
   function startPlaying() {
