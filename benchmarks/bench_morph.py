@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import inspect
 import os
 import statistics
 import sys
@@ -732,6 +733,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; 1 with --quick)")
     parser.add_argument("--frames", type=int, default=None, help="frames per morph (default 30; 6 with --quick)")
     parser.add_argument(
+        "--max-iter", type=int, default=None, help="L-BFGS iterations of each fit (default: morph's; 15 with --quick)"
+    )
+    parser.add_argument(
         "--threads",
         type=int,
         default=1,
@@ -739,10 +743,18 @@ def main(argv: list[str] | None = None) -> int:
         "multi-threaded calls stall whenever another process holds a core)",
     )
     args = parser.parse_args(argv)
-    size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, 200)
+    default_iter = inspect.signature(morph).parameters["max_iter"].default
+    size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, default_iter)
+    max_iter = args.max_iter if args.max_iter is not None else max_iter
     frames = args.frames if args.frames is not None else frames
     repeats = args.repeats if args.repeats is not None else repeats
-    for name, value, low in [("--repeats", repeats, 1), ("--frames", frames, 3), ("--threads", args.threads, 1)]:
+    checks = [
+        ("--repeats", repeats, 1),
+        ("--frames", frames, 3),
+        ("--threads", args.threads, 1),
+        ("--max-iter", max_iter, 1),
+    ]
+    for name, value, low in checks:
         if value < low:
             parser.error(f"{name} must be >= {low}, got {value}")
 

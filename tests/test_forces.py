@@ -48,12 +48,20 @@ def test_brushes_are_differentiable_in_their_parameters():
 
 def test_control_grid_is_linear_and_exact_at_its_nodes(gen):
     init = torch.randn(2, 3, 2, 4, 5, generator=gen)
-    cg = ControlGrid(3, (4, 5), batch=2, init=init)
+    cg = ControlGrid(3, (4, 5), batch=2, init=init, cumulative=False)
     f = cg(FluidGrid(13, 17), 3, 1.0, (13, 17))
     assert f.shape == (2, 3, 2, 13, 17)
     torch.testing.assert_close(f[..., 0, 0], init[..., 0, 0])
     torch.testing.assert_close(f[..., -1, -1], init[..., -1, -1])
     assert sum(p.numel() for p in ControlGrid(10, (5, 5)).parameters()) == 500
+
+
+def test_control_grid_cumulative_weights_are_running_sums_of_the_forces(gen):
+    init = torch.randn(2, 4, 2, 3, 3, generator=gen, dtype=torch.float64)
+    size = FluidGrid(9, 11)
+    plain = ControlGrid(4, (3, 3), batch=2, init=init, cumulative=False)(size, 4, 1.0, (9, 11))
+    summed = ControlGrid(4, (3, 3), batch=2, init=init.cumsum(1))(size, 4, 1.0, (9, 11))
+    torch.testing.assert_close(summed, plain)
 
 
 def test_sum_and_cell_forces(gen):

@@ -368,7 +368,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible:
         help=f"fraction of the divergent flow kept (0 = incompressible, 1 = no projection; default {compressible:g})",
     )
     p.add_argument(
-        "--max-iter", type=_bounded(int, 1, strict=False), default=150, help="L-BFGS iterations (default 150)"
+        "--max-iter", type=_bounded(int, 1, strict=False), default=100, help="L-BFGS iterations (default 100)"
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")

@@ -181,7 +181,8 @@ def fit_keyframes(
         forces: a force module to fit instead of the control grid (its parameters are optimised, starting
             from their current values: pass a previous fit's ``forces`` to warm-start).
         weights: optional ``(M,)`` or ``(B, M)`` per-point weights (default 1).
-        regularization: weight on ``||u||^2`` (default 0: off).
+        regularization: weight on ``||u||^2`` (default 0: off). The default control grid's ``u`` holds running
+            sums of the forces (:class:`ControlGrid`), so this penalises the speed the forces build up.
         smoothness: weight on :func:`velocity_gradient_energy` of the flow (pixels^2 per 1 / time unit^2;
             default 0: off). It trades accuracy at the points for a calmer flow without vortices; the morph
             uses it to keep its maps fold-free.

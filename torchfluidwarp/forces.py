@@ -152,15 +152,35 @@ class ControlGrid(nn.Module):
     bicubically with the corner values at the box's corners (``align_corners=True``), a linear map, so the
     fitted forces stay smooth. ``control=(5, 5)`` over 10 steps is the paper's 500 parameters.
 
+    With ``cumulative=True`` (the default) ``weight[:, t]`` is the running sum of the forces of steps
+    ``0..t``: the force of step ``t`` is ``weight[:, t] - weight[:, t - 1]``. Starting from rest, the flow at
+    step ``t`` is then about ``dt * weight[:, t]`` (advection and projection reshape it), so every control
+    value acts on the points with about the same leverage, where a force of step ``t`` moves them in
+    proportion to the ``T - t`` steps left. It is the same set of force schedules in other coordinates, but
+    L-BFGS needs fewer evaluations in them (``benchmarks/bench_keyframes.py``, ``bench_morph.py``), and a fit
+    without a penalty settles on a flow whose speed is spread evenly over the steps rather than one that
+    keeps accelerating. ``cumulative=False``: ``weight[:, t]`` is the force of step ``t`` itself.
+
     Args:
         steps: ``T``.
         control: ``(K_y, K_x)`` control points per step (each at least 2).
         batch: number of independent problems ``B``.
-        init: optional initial values ``(B, T, 2, K_y, K_x)``; zero by default.
+        init: optional initial values ``(B, T, 2, K_y, K_x)`` of ``weight``; zero by default.
+        cumulative: whether ``weight`` holds running sums of the forces (see above) or the forces.
+
+    Example:
+        >>> cg = ControlGrid(3, (2, 2), init=torch.ones(1, 3, 2, 2, 2))
+        >>> cg.control_forces()[0, :, 0, 0, 0]  # running sums 1, 1, 1: one kick at step 0, then coasting
+        tensor([1., 0., 0.], grad_fn=<SelectBackward0>)
     """
 
     def __init__(
-        self, steps: int, control: tuple[int, int] | int = (5, 5), batch: int = 1, init: Tensor | None = None
+        self,
+        steps: int,
+        control: tuple[int, int] | int = (5, 5),
+        batch: int = 1,
+        init: Tensor | None = None,
+        cumulative: bool = True,
     ) -> None:
         super().__init__()
         ky, kx = check_size("control", control, minimum=2)
@@ -169,6 +189,15 @@ class ControlGrid(nn.Module):
             init = torch.zeros(batch, steps, 2, ky, kx)
         check_tensor("init", init, shape=[batch, steps, 2, ky, kx])
         self.weight = nn.Parameter(init.detach().clone())
+        self.cumulative = bool(cumulative)
+
+    def extra_repr(self) -> str:
+        return f"steps={self.weight.shape[1]}, control={tuple(self.weight.shape[-2:])}, cumulative={self.cumulative}"
+
+    def control_forces(self) -> Tensor:
+        """The forces at the control points ``(B, T, 2, K_y, K_x)`` (cells per time unit^2)."""
+        w = self.weight
+        return torch.cat([w[:, :1], w.diff(dim=1)], dim=1) if self.cumulative else w
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         B, T, _, ky, kx = self.weight.shape
@@ -176,7 +205,8 @@ class ControlGrid(nn.Module):
             raise ValueError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
         h, w = FluidGrid.of(grid).shape
         like = self.weight
-        return _bicubic_axis(ky, h, like.device, like.dtype) @ like @ _bicubic_axis(kx, w, like.device, like.dtype).T
+        ry, rx = _bicubic_axis(ky, h, like.device, like.dtype), _bicubic_axis(kx, w, like.device, like.dtype)
+        return ry @ self.control_forces() @ rx.T
 
 
 class CellForces(nn.Module):
