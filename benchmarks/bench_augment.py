@@ -258,7 +258,14 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=32, help="draws per setting for the fold statistics")
     parser.add_argument("--quick", action="store_true", help="a smoke run: fewer repeats, draws and iterations")
     parser.add_argument("--json", help="also write the results to this file")
+    parser.add_argument(
+        "--only",
+        choices=["cost", "folds", "registration"],
+        action="append",
+        help="run only this part (repeatable; default: all three)",
+    )
     args = parser.parse_args()
+    parts = set(args.only or ["cost", "folds", "registration"])
     torch.set_num_threads(args.threads)
     if args.quick:
         args.repeats, args.draws = 3, 4
@@ -269,10 +276,13 @@ def main() -> None:
         "date": datetime.date.today().isoformat(),
         "threads": args.threads,
         "batch": args.batch,
-        "cost": bench_cost([224, 512], args.batch, args.repeats),
-        "folds": bench_folds(224, args.draws),
-        "registration": bench_registration((5, 5, 5) if args.quick else (20, 15, 25)),
     }
+    if "cost" in parts:
+        results["cost"] = bench_cost([224, 512], args.batch, args.repeats)
+    if "folds" in parts:
+        results["folds"] = bench_folds(224, args.draws)
+    if "registration" in parts:
+        results["registration"] = bench_registration((5, 5, 5) if args.quick else (20, 15, 25))
     results["seconds"] = time.perf_counter() - start
     print(f"total {results['seconds']:.0f} s")
     if args.json:
