@@ -189,8 +189,8 @@ def fit_keyframes(
         max_iter: maximum L-BFGS iterations.
         tolerance: pixels; the fit stops once every point is this close to its target.
         compressible: skip (``True``) or weight the pressure projection (see :class:`~torchfluidwarp.warp.FluidWarp`).
-        dtype: dtype of the fit. float32 (the default) reached the same errors in the same number of
-            evaluations as float64 on the paper's set-up, at about 0.8x the time per evaluation
+        dtype: dtype of the fit. float32 (the default) met the same tolerance as float64 on the paper's
+            set-up, within 3 evaluations either way, at about 0.8x the time per evaluation
             (``benchmarks/bench_keyframes.py``); float64 is there for tight tolerances and checks.
         progress: show a tqdm bar with the loss.
 
