@@ -1,3 +1,5 @@
+import sys
+
 import pytest
 import torch
 
@@ -76,3 +78,31 @@ def test_bad_inputs(pair):
         morph(a, b, POINTS_A, POINTS_B, inverse="magic", **KW)
     with pytest.raises(ValueError, match="points_b has a point outside"):
         morph(a, b, POINTS_A, POINTS_B + 100, **KW)
+
+
+def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(gen, monkeypatch):
+    feather = 4.0  # a narrow hand-over band, so that a 64-pixel frame has room beyond it
+    monkeypatch.setattr(sys.modules["torchfluidwarp.morph"], "FEATHER", feather)
+    # B's points spread 2.2 times as far as A's: the similarity pre-alignment magnifies, so the middle
+    # frames read B far beyond its edges near the frame's borders
+    a = _blobs((64, 64), POINTS_A.tolist(), gen)
+    centre = POINTS_A.mean(0)
+    points_b = (POINTS_A - centre) * 2.2 + centre
+    inside = ((points_b > 0) & (points_b < 63)).all()
+    assert inside, "the test's points must stay in the image"
+    b = _blobs((64, 64), points_b.tolist(), gen)
+    r = morph(a, b, POINTS_A, points_b, frames=5, compressible=0.5, **KW)
+    k = 2
+    x, y = r.maps_b[k, ..., 0], r.maps_b[k, ..., 1]
+    f = feather + 0.5  # B read more than the feather beyond its edge
+    far_b = (x < -f) | (x > 63 + f) | (y < -f) | (y > 63 + f)
+    xa, ya = r.maps[k, ..., 0], r.maps[k, ..., 1]
+    in_a = (xa > -0.5) & (xa < 63.5) & (ya > -0.5) & (ya < 63.5)
+    assert (far_b & in_a).sum() > 50, "the set-up must make B's map leave B"
+    sel = far_b & in_a
+    torch.testing.assert_close(r.frames[k][:, sel], r.forward_frames[k][:, sel], atol=1e-6, rtol=0)
+    # where both maps read inside their images, the frame is the plain cross-dissolve
+    both = in_a & (x > -0.5) & (x < 63.5) & (y > -0.5) & (y < 63.5)
+    w = float(r.times[k] / r.times[-1])
+    plain = torch.lerp(r.forward_frames[k], r.backward_frames[k], w)
+    torch.testing.assert_close(r.frames[k][:, both], plain[:, both], atol=1e-5, rtol=0)

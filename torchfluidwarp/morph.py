@@ -142,6 +142,33 @@ def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
     raise ValueError(f"blend must be 'linear' or 'smooth', got {blend!r}")
 
 
+FEATHER = 24.0
+"""Pixels: where a frame reads one image beyond its edge, the cross-dissolve hands over to the other image
+within this distance outside the edge (see :func:`_dissolve`)."""
+
+
+def _coverage(coords: Tensor, size: tuple[int, int]) -> Tensor:
+    """``(1, 1, H, W)`` in ``[0, 1]``: 1 where a map ``(1, H, W, 2)`` reads inside an image of ``size``, falling
+    linearly to 0 at :data:`FEATHER` pixels beyond its edge."""
+    H, W = size
+    x, y = coords[..., 0], coords[..., 1]
+    inside = torch.minimum(torch.minimum(x + 0.5, W - 0.5 - x), torch.minimum(y + 0.5, H - 0.5 - y))
+    return (1 + inside / FEATHER).clamp(0, 1).unsqueeze(1)
+
+
+def _dissolve(fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, w: float, size: tuple[int, int]) -> Tensor:
+    """Cross-dissolve ``(1 - w) fa + w fb``, except where a map reads beyond its image's edge.
+
+    There, sampling holds the edge pixels and smears them into streaks (the pre-alignment can reach far beyond
+    the other image); the weight moves to the image that is read inside, ``w' = w c_b / ((1 - w) c_a + w c_b)``
+    with the coverages ``c`` of :func:`_coverage`. Where both read inside, or both beyond, it is ``w``.
+    """
+    ca, cb = _coverage(map_a, size), _coverage(map_b, size)
+    den = (1 - w) * ca + w * cb
+    weight = torch.where(den > 0, w * cb / den.clamp(min=1e-12), torch.full_like(den, w))
+    return torch.lerp(fa, fb, weight)
+
+
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     """Read a map ``(1, H, W, 2)`` at pixel positions ``(1, H, W, 2)`` (bilinear).
 
@@ -222,8 +249,7 @@ def _render(
             map_a, k_at = _sample_map(g[:, k], z), _sample_map(k_maps[k], z)
         map_b = apply_alignment(M, k_at.double()).to(a.dtype)
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
-        wk = float(weights[k])
-        out.append(torch.lerp(fa, fb, wk))
+        out.append(_dissolve(fa, fb, map_a, map_b, float(weights[k]), size))
         fwd.append(fa)
         bwd.append(fb)
         maps_a.append(map_a)
@@ -268,7 +294,9 @@ def morph(
         align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
             or ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
-        blend: cross-dissolve schedule, ``"linear"`` (the paper's) or ``"smooth"`` (ease in and out).
+        blend: cross-dissolve schedule, ``"linear"`` (the paper's) or ``"smooth"`` (ease in and out). Where a
+            frame reads one image beyond its edge, the other image is shown instead (over :data:`FEATHER`
+            pixels), rather than the first image's edge pixels smeared into streaks.
         compressible: ``True`` to let regions change area (skips the projection) or a weight in ``[0, 1]``;
             use it when corresponding regions differ in size beyond what the global alignment explains (e.g. a
             human face and a cat's: the cat's chin sits much closer to its mouth; ``0.5`` works well there).
