@@ -44,8 +44,15 @@
   }
 
   // The page's requests travel on parallel connections, so the server may number them out of order and call
-  // the page's newest request stale. The newest request is then sent again, a few times at most.
+  // the page's newest request stale. The newest request is then sent again, a few times at most: `state` is
+  // `morph` or `anim` (its `seq` numbers the requests), `resend` sends the request again.
   const STALE_RETRIES = 3;
+  function resentStale(state, seq, err, resend) {
+    if (seq !== state.seq || !isStale(err) || state.staleRetries >= STALE_RETRIES) return false;
+    state.staleRetries += 1;
+    resend();
+    return true;
+  }
 
   function status(text) { $('status').textContent = text; }
 
@@ -418,11 +425,7 @@
       }
       morph.staleRetries = 0;
     } catch (err) {
-      if (seq === morph.seq && isStale(err) && morph.staleRetries < STALE_RETRIES) {
-        morph.staleRetries += 1;
-        schedulePreview(0, true);
-        return;
-      }
+      if (resentStale(morph, seq, err, () => schedulePreview(0, true))) return;
       if (seq === morph.seq) status('');
       report(err);
     } finally {
@@ -739,12 +742,8 @@
       anim.staleRetries = 0;
       startPlaying();
     } catch (err) {
-      if (seq === anim.seq && isStale(err) && anim.staleRetries < STALE_RETRIES) {
-        anim.staleRetries += 1;
-        clearTimeout(animTimer);
-        animTimer = setTimeout(requestAnimPreview, 0);
-        return;
-      }
+      const resend = () => { clearTimeout(animTimer); animTimer = setTimeout(requestAnimPreview, 0); };
+      if (resentStale(anim, seq, err, resend)) return;
       if (seq === anim.seq) status('');
       report(err);
     }
