@@ -308,8 +308,8 @@ def morph(
             ``0`` fits the points as closely as the flow allows.
         max_iter, tolerance: L-BFGS iterations and the per-point accuracy (pixels) at which the fit stops. With
             ``smoothness > 0`` the points are seldom all within ``tolerance``, so ``max_iter`` sets the fit's
-            time: on the bundled 512 x 512 pair, 100 iterations take about 5 s on two CPU cores, and 200 about
-            halve the landmark error at twice the time (``benchmarks/bench_morph.py``).
+            time: on the bundled 512 x 512 pair the fit's 100 iterations took 5.4 to 6.3 s on two CPU cores,
+            and 200 about halved the landmark error at about twice the time (``benchmarks/bench_morph.py``).
         margin: the fluid fills a box around the points (A's and their targets) grown by this fraction of its
             size on each side; the rest of the picture follows the pre-alignment only. The fluid's cells and
             control points then land where the features are, and the box may reach beyond the image so that
