@@ -1,10 +1,12 @@
 """A pair of real photographs of human faces for ``bench_morph.py --pair faces``, with their landmarks.
 
 This machine reaches only package registries, so the photograph comes from one: ``insightface`` 2.1's wheel on
-PyPI ships a group photo, ``insightface/data/images/t1.jpg`` (1280 x 886), as sample data. It is fetched once
-(pinned URL and SHA-256) into ``$TORCHFLUIDWARP_BENCH_CACHE`` (default ``~/.cache/torchfluidwarp-bench``) and never
-redistributed by this repository. Two faces are cropped from it, each a square twice the side of the face box
-that mediapipe's face detector found, and resized to 512 x 512 (antialiased bilinear).
+PyPI ships a group photo, ``insightface/data/images/t1.jpg`` (1280 x 886), as sample data. It is fetched once with
+``pip download insightface==2.1 --no-deps`` through pip's configured index (``morph_quality_data.py``, which
+checks the SHA-256 of the wheel and of the photo) into ``$TORCHFLUIDWARP_BENCH_CACHE`` (default
+``~/.cache/torchfluidwarp-bench``) and never redistributed by this repository. Two faces are cropped from it, each
+a square twice the side of the face box that mediapipe's face detector found, and resized to 512 x 512
+(antialiased bilinear).
 
 The landmarks in ``data/face_pair_landmarks.json`` (pixels of the 512 x 512 crops, pixel centres at integers)
 are 41 points of mediapipe's 468-point face mesh (jaw line, brows, eye corners and lids, nose, lips), detected
@@ -18,27 +20,16 @@ put ``DIR`` on ``PYTHONPATH``). They were not edited by hand.
 from __future__ import annotations
 
 import argparse
-import hashlib
-import io
 import json
-import os
 import sys
-import urllib.request
-import zipfile
 from pathlib import Path
 
-import imageio.v3 as iio
 import numpy as np
 import torch
 import torch.nn.functional as F
+from morph_quality_data import read_photo
 from torch import Tensor
 
-WHEEL_URL = (
-    "https://files.pythonhosted.org/packages/66/d4/7c030e73d3064e63fc7927fc9c0cb5b8c52e12a52442317e9d0ad3d7bb37/"
-    "insightface-2.1-py3-none-any.whl"
-)
-WHEEL_SHA256 = "dcd58ee79d99d689572477315f3149353afd65a36dc575f597cbb217a7bde399"
-MEMBER = "insightface/data/images/t1.jpg"
 SIZE = 512
 # face boxes (x, y, side) in t1.jpg's pixels, from mediapipe's full-range face detector (scores 0.81, 0.69)
 FACES = {"a": (63, 290, 98), "b": (457, 294, 116)}
@@ -54,23 +45,9 @@ MESH_POINTS = [
 LANDMARKS = Path(__file__).with_name("data") / "face_pair_landmarks.json"
 
 
-def cache_dir() -> Path:
-    return Path(os.environ.get("TORCHFLUIDWARP_BENCH_CACHE", Path.home() / ".cache" / "torchfluidwarp-bench"))
-
-
 def photo() -> np.ndarray:
     """``t1.jpg`` as ``(886, 1280, 3)`` uint8, fetched and checked on first use."""
-    path = cache_dir() / "t1.jpg"
-    if not path.exists():
-        with urllib.request.urlopen(WHEEL_URL, timeout=120) as response:
-            data = response.read()
-        digest = hashlib.sha256(data).hexdigest()
-        if digest != WHEEL_SHA256:
-            raise RuntimeError(f"{WHEEL_URL} has SHA-256 {digest}, expected {WHEEL_SHA256}")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(io.BytesIO(data)) as wheel:
-            path.write_bytes(wheel.read(MEMBER))
-    return iio.imread(path)
+    return read_photo("t1")
 
 
 def crops() -> dict[str, Tensor]:

@@ -1,0 +1,370 @@
+"""Real photographs of faces with held-out landmarks, for ``bench_morph_quality.py``.
+
+This machine reaches only package registries, so the photographs come from packages on PyPI, fetched with
+``pip download --no-deps`` through pip's configured index into ``$TORCHFLUIDWARP_BENCH_CACHE`` (default
+``~/.cache/torchfluidwarp-bench``), checked by SHA-256 (the archive and the photo inside it) and never
+redistributed by this repository:
+
+* ``insightface`` 2.1's wheel: ``insightface/data/images/t1.jpg`` (1280 x 886), a group photo of six people;
+  faces ``t1-1`` to ``t1-6``, left to right.
+* ``face_recognition`` 1.3.0's sdist: ``tests/test_images/biden.jpg``, ``obama.jpg``, ``obama2.jpg`` and
+  ``obama3.jpg``, one person each; faces ``biden``, ``obama``, ``obama2`` and ``obama3``.
+
+Each face is cropped as a square twice the side of the box that mediapipe's face detector found (shifted to lie
+inside the photo), and resized to 512 x 512 (antialiased bilinear). On each crop mediapipe's 468-point face mesh
+gives :data:`IBUG68`, a 68-point set laid out like iBUG's (jaw 17, brows 10, nose 9, eyes 12, mouth 20), and
+:data:`EXTRA`, 12 points on the forehead, temples and cheeks where iBUG has none. The landmarks, in pixels of the
+512 x 512 crops with pixel centres at integers, and the crop boxes are committed in
+``data/morph_quality_landmarks.json``, so that only the photos are fetched at run time. They were written by
+``python benchmarks/morph_quality_data.py --detect`` and not edited by hand. ``--detect`` needs
+``mediapipe==0.10.14`` (the last release whose wheel bundles the face-detection and face-mesh models)::
+
+    pip install --target /tmp/mp mediapipe==0.10.14
+    PYTHONPATH=/tmp/mp python benchmarks/morph_quality_data.py --detect
+
+``python benchmarks/morph_quality_data.py --show DIR`` draws every crop with its marked (green) and held-out
+(red: the iBUG third, orange: the extra points) landmarks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import re
+import subprocess
+import sys
+import tarfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+SIZE = 512
+CROP_FACTOR = 2.0
+LANDMARKS = Path(__file__).with_name("data") / "morph_quality_landmarks.json"
+
+
+@dataclass(frozen=True)
+class Archive:
+    """A package release on PyPI that ships photographs."""
+
+    requirement: str  # pinned, for pip download
+    filename: str  # the archive pip saves
+    sha256: str
+    sdist: bool  # fetched with --no-binary :all:
+
+
+@dataclass(frozen=True)
+class Photo:
+    archive: Archive
+    member: str  # path inside the archive
+    sha256: str
+
+
+INSIGHTFACE = Archive(
+    "insightface==2.1",
+    "insightface-2.1-py3-none-any.whl",
+    "dcd58ee79d99d689572477315f3149353afd65a36dc575f597cbb217a7bde399",
+    sdist=False,
+)
+FACE_RECOGNITION = Archive(
+    "face_recognition==1.3.0",
+    "face_recognition-1.3.0.tar.gz",
+    "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec",
+    sdist=True,
+)
+_FR = "face_recognition-1.3.0/tests/test_images/"
+PHOTOS: dict[str, Photo] = {
+    "t1": Photo(
+        INSIGHTFACE,
+        "insightface/data/images/t1.jpg",
+        "47f682e945b659f93a9e490b9c9c4a2a864abe64dace9e1a2893845ddfd69489",
+    ),
+    "biden": Photo(
+        FACE_RECOGNITION, _FR + "biden.jpg", "3c17508bb91554c637a2eabddfae790e5bb1caba93130814fc2ac50be9760c4c"
+    ),
+    "obama": Photo(
+        FACE_RECOGNITION, _FR + "obama.jpg", "0930e3aa8cae5920329c0c8cbc6a2ab70f47b0e67b432875beaa95cbf7e741f6"
+    ),
+    "obama2": Photo(
+        FACE_RECOGNITION, _FR + "obama2.jpg", "a7efcc907375274796f39646510704aa86672d59f6d5469d69af3c85590976a6"
+    ),
+    "obama3": Photo(
+        FACE_RECOGNITION, _FR + "obama3.jpg", "76ac6bf97c36dc2da0ad16a537d6a5ac1b10f48d49aac29a0cca9a17cdbc3ca3"
+    ),
+}
+
+# The faces in the order that the split alternates over: t1's six left to right, then the single portraits.
+FACES: tuple[str, ...] = ("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6", "biden", "obama", "obama2", "obama3")
+# Faces alternate between the halves, and a pair belongs to a half when both its faces do: the report half's
+# faces are never seen while tuning. Pairs across the halves are not used.
+SPLIT_FACES: dict[str, tuple[str, ...]] = {"tune": FACES[0::2], "report": FACES[1::2]}
+
+# mediapipe face-mesh indices of a 68-point set laid out like iBUG's 300-W annotation, "left" as seen in the image
+IBUG68: tuple[int, ...] = (
+    *(234, 93, 132, 58, 172, 136, 150, 176, 152, 400, 379, 365, 397, 288, 361, 323, 454),  # jaw 0-16
+    *(70, 63, 105, 66, 107),  # left brow 17-21, outer to inner
+    *(336, 296, 334, 293, 300),  # right brow 22-26, inner to outer
+    *(168, 197, 5, 4),  # nose bridge 27-30, top to tip
+    *(98, 97, 2, 326, 327),  # nostrils 31-35, left to right
+    *(33, 160, 158, 133, 153, 144),  # left eye 36-41: outer corner, upper lid, inner corner, lower lid
+    *(362, 385, 387, 263, 373, 380),  # right eye 42-47: inner corner, upper lid, outer corner, lower lid
+    *(61, 40, 37, 0, 267, 270, 291, 321, 314, 17, 84, 91),  # outer lips 48-59, clockwise from the left corner
+    *(78, 81, 13, 311, 308, 402, 14, 178),  # inner lips 60-67, clockwise from the left corner
+)
+# held out on every face: where iBUG's set has no point at all
+EXTRA: tuple[int, ...] = (
+    *(10, 151),  # forehead: top of the mesh (near the hairline), middle
+    *(67, 297),  # forehead, left and right
+    *(54, 284),  # upper temples
+    *(162, 389),  # temples at brow level
+    *(50, 280),  # cheekbones
+    *(207, 427),  # lower cheeks
+)
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("TORCHFLUIDWARP_BENCH_CACHE", Path.home() / ".cache" / "torchfluidwarp-bench"))
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def fetch_archive(archive: Archive) -> Path:
+    """The archive in the cache, downloaded by ``pip download --no-deps`` on first use and checked by SHA-256."""
+    folder = cache_dir() / "pip"
+    path = folder / archive.filename
+    if not path.exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, "-m", "pip", "download", "--no-deps", "--disable-pip-version-check", "-d", str(folder)]
+        cmd += ["--no-binary", ":all:"] if archive.sdist else ["--only-binary", ":all:"]
+        done = subprocess.run([*cmd, archive.requirement], capture_output=True, text=True)
+        if done.returncode != 0 or not path.exists():
+            raise RuntimeError(f"pip download {archive.requirement} failed:\n{done.stdout}{done.stderr}")
+    digest = _sha256(path.read_bytes())
+    if digest != archive.sha256:
+        raise RuntimeError(f"{path} has SHA-256 {digest}, expected {archive.sha256}; delete it and retry")
+    return path
+
+
+def photo_path(name: str) -> Path:
+    """A photograph of :data:`PHOTOS`, extracted from its archive into the cache and checked by SHA-256."""
+    photo = PHOTOS[name]
+    path = cache_dir() / Path(photo.member).name
+    if not path.exists() or _sha256(path.read_bytes()) != photo.sha256:
+        archive = fetch_archive(photo.archive)
+        if archive.name.endswith(".whl"):
+            with zipfile.ZipFile(archive) as z:
+                data = z.read(photo.member)
+        else:
+            with tarfile.open(archive) as t:
+                member = t.extractfile(photo.member)
+                if member is None:
+                    raise RuntimeError(f"{photo.member} is not a file in {archive}")
+                data = member.read()
+        digest = _sha256(data)
+        if digest != photo.sha256:
+            raise RuntimeError(f"{photo.member} in {archive} has SHA-256 {digest}, expected {photo.sha256}")
+        path.write_bytes(data)
+    return path
+
+
+def read_photo(name: str) -> np.ndarray:
+    """A photograph as ``(H, W, 3)`` uint8."""
+    return iio.imread(photo_path(name))[..., :3]
+
+
+def crop(image: np.ndarray, box: tuple[int, int, int]) -> Tensor:
+    """The square ``box = (x0, y0, side)`` of ``image`` ``(H, W, 3)`` uint8, as ``(1, 3, 512, 512)`` float32 in
+    ``[0, 1]``. A crop pixel ``p`` shows the photo's pixel ``(p + 0.5) * side / 512 - 0.5 + (x0, y0)``."""
+    x0, y0, side = box
+    t = torch.from_numpy(np.ascontiguousarray(image[y0 : y0 + side, x0 : x0 + side])).permute(2, 0, 1)
+    t = t.float().div(255).unsqueeze(0)
+    return F.interpolate(t, size=(SIZE, SIZE), mode="bilinear", align_corners=False, antialias=True).clamp(0, 1)
+
+
+def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -> tuple[int, int, int]:
+    """A square ``CROP_FACTOR`` times the face box ``(x, y, w, h)``, centred on it and shifted inside the photo."""
+    H, W = shape[:2]
+    side = min(round(CROP_FACTOR * max(w, h)), H, W)
+    x0 = min(max(round(x + w / 2 - side / 2), 0), W - side)
+    y0 = min(max(round(y + h / 2 - side / 2), 0), H - side)
+    return x0, y0, side
+
+
+@dataclass(frozen=True)
+class Face:
+    """One face crop and its landmarks, in pixels of the crop (pixel centres at integers)."""
+
+    name: str
+    image: Tensor  # (1, 3, 512, 512) float32 in [0, 1]
+    ibug: Tensor  # (68, 2)
+    extra: Tensor  # (len(EXTRA), 2)
+
+
+def load_landmarks() -> dict:
+    return json.loads(LANDMARKS.read_text())
+
+
+def load_faces(names: tuple[str, ...] | list[str] = FACES) -> dict[str, Face]:
+    """The face crops and their committed landmarks; only the photos are fetched."""
+    marks = load_landmarks()["faces"]
+    photos: dict[str, np.ndarray] = {}
+    out = {}
+    for name in names:
+        entry = marks[name]
+        if entry["photo"] not in photos:
+            photos[entry["photo"]] = read_photo(entry["photo"])
+        out[name] = Face(
+            name=name,
+            image=crop(photos[entry["photo"]], tuple(entry["box"])),
+            ibug=torch.tensor(entry["ibug68"], dtype=torch.float32),
+            extra=torch.tensor(entry["extra"], dtype=torch.float32),
+        )
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- detection
+
+
+def _face_boxes(image: np.ndarray, tiled: bool) -> list[tuple[float, float, float, float, float]]:  # pragma: no cover
+    """Face boxes ``(x, y, w, h, score)`` in the photo's pixels, by mediapipe's face detector.
+
+    A group photo is scanned in overlapping 400 x 400 tiles with the short-range model (the full-range model
+    finds only three of t1's six faces on the whole photo); detections are merged by their centres, and those
+    seen in a single tile only dropped. A portrait is passed whole to the full-range model.
+    """
+    import mediapipe as mp
+
+    H, W = image.shape[:2]
+    found: list[tuple[float, float, float, float, float]] = []
+    if tiled:
+        det = mp.solutions.face_detection.FaceDetection(model_selection=0)
+        det_min = 0.75
+        tile, stride = 400, 150
+        windows = [
+            (x, y)
+            for y in range(0, max(H - tile, 0) + stride, stride)
+            for x in range(0, max(W - tile, 0) + stride, stride)
+        ]
+    else:
+        det = mp.solutions.face_detection.FaceDetection(model_selection=1)
+        det_min = 0.5
+        tile, windows = max(H, W), [(0, 0)]
+    for x0, y0 in windows:
+        part = np.ascontiguousarray(image[y0 : y0 + tile, x0 : x0 + tile])
+        h, w = part.shape[:2]
+        for d in det.process(part).detections or []:
+            b = d.location_data.relative_bounding_box
+            if d.score[0] >= det_min:
+                found.append((b.xmin * w + x0, b.ymin * h + y0, b.width * w, b.height * h, float(d.score[0])))
+    clusters: list[list[tuple[float, float, float, float, float]]] = []
+    for box in sorted(found, key=lambda b: -b[4]):
+        cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+        for c in clusters:
+            ref = c[0]
+            if abs(cx - ref[0] - ref[2] / 2) < ref[2] / 2 and abs(cy - ref[1] - ref[3] / 2) < ref[3] / 2:
+                c.append(box)
+                break
+        else:
+            clusters.append([box])
+    # a face seen in one tile only is a false detection (a hand, a glass); every face of t1 is seen in 3 or more
+    clusters = [c for c in clusters if len(c) >= (2 if tiled else 1)]
+    merged = [tuple(float(np.median([b[i] for b in c])) for i in range(4)) + (max(b[4] for b in c),) for c in clusters]
+    return sorted(merged, key=lambda b: b[0])  # left to right
+
+
+def _mesh(mesh, image: Tensor) -> np.ndarray:  # pragma: no cover
+    """The 468 face-mesh points of the face nearest the centre of a crop ``(1, 3, 512, 512)``, crop pixels."""
+    rgb = np.ascontiguousarray((image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+    found = mesh.process(rgb).multi_face_landmarks
+    if not found:
+        raise RuntimeError("the face mesh found no face")
+    # mediapipe's normalised coordinates: 0 and 1 are the image's outer edges
+    meshes = [np.array([[p.x * SIZE - 0.5, p.y * SIZE - 0.5] for p in f.landmark]) for f in found]
+    return min(meshes, key=lambda m: float(np.linalg.norm(m.mean(0) - (SIZE - 1) / 2)))
+
+
+def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
+    import mediapipe as mp
+
+    mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=3)
+    faces: dict[str, dict] = {}
+    for photo in PHOTOS:
+        image = read_photo(photo)
+        boxes = _face_boxes(image, tiled=photo == "t1")
+        names = [f"t1-{i + 1}" for i in range(len(boxes))] if photo == "t1" else [photo]
+        if len(boxes) != len(names):
+            raise RuntimeError(f"{photo}: found {len(boxes)} faces, expected {len(names)}: {boxes}")
+        for name, (x, y, w, h, score) in zip(names, boxes):
+            box = square_box(x, y, w, h, image.shape)
+            points = _mesh(mesh, crop(image, box))
+            faces[name] = {
+                "photo": photo,
+                "box": list(box),
+                "detector_box": [round(v, 1) for v in (x, y, w, h)],
+                "detector_score": round(score, 3),
+                "ibug68": np.round(points[list(IBUG68)], 2).tolist(),
+                "extra": np.round(points[list(EXTRA)], 2).tolist(),
+            }
+            print(f"{name}: box {box}, detector score {score:.2f}")
+    missing = set(FACES) - set(faces)
+    if missing:
+        raise RuntimeError(f"faces not found: {sorted(missing)}")
+    return {
+        "about": (
+            "Landmarks of 512 x 512 face crops (pixels, pixel centres at integers), by mediapipe 0.10.14's face "
+            "mesh; box = (x0, y0, side) of the square crop in the photo's pixels. Written by "
+            "benchmarks/morph_quality_data.py --detect."
+        ),
+        "mesh_indices": {"ibug68": list(IBUG68), "extra": list(EXTRA)},
+        "faces": {name: faces[name] for name in FACES},
+    }
+
+
+def show(folder: str) -> None:
+    from PIL import Image, ImageDraw
+
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    for name, face in load_faces().items():
+        img = Image.fromarray((face.image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+        draw = ImageDraw.Draw(img)
+        for i, (x, y) in enumerate(face.ibug.tolist()):
+            color = (255, 40, 40) if i % 3 == 2 else (40, 255, 40)
+            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=color)
+            draw.text((x + 4, y - 4), str(i), fill=(255, 255, 0))
+        for x, y in face.extra.tolist():
+            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=(255, 160, 0))
+        draw.text((6, 6), name, fill=(255, 255, 255))
+        img.save(Path(folder) / f"{name}.png")
+    print(f"wrote {len(FACES)} crops to {folder}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--detect", action="store_true", help=f"detect the landmarks and write {LANDMARKS.name}")
+    parser.add_argument("--show", metavar="DIR", help="draw every crop and its landmarks into DIR")
+    args = parser.parse_args(argv)
+    if args.detect:
+        LANDMARKS.parent.mkdir(exist_ok=True)
+        tmp = LANDMARKS.with_suffix(".tmp")
+        # one point or one index list per line
+        text = re.sub(r"\[[-\d\s.,]+\]", lambda m: json.dumps(json.loads(m.group())), json.dumps(detect(), indent=1))
+        tmp.write_text(text + "\n")
+        os.replace(tmp, LANDMARKS)
+        print(f"wrote {LANDMARKS}")
+    if args.show:
+        show(args.show)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
