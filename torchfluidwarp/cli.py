@@ -322,7 +322,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------ morph and demo
 
 
-def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible: float) -> None:
+def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
     p.add_argument(
         "-o",
         "--output",
@@ -333,11 +333,18 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible:
     p.add_argument("--frames", type=_bounded(int, 2, strict=False), default=frames, help=f"frames (default {frames})")
     p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), default=15.0, help="frames per second (default 15)")
     p.add_argument(
+        "--method",
+        choices=["natural", "paper"],
+        default="natural",
+        help="natural (default: straight paths, a thin-plate spline between the points, compressible) or the "
+        "paper's incompressible keyframe fit",
+    )
+    p.add_argument(
         "--grid",
         metavar="N",
         type=_bounded(int, 4, strict=False),
         default=64,
-        help="fluid grid N x N cells over the points' region (default 64)",
+        help="fluid grid N x N cells (default 64)",
     )
     p.add_argument("--steps", type=_bounded(int, 1, strict=False), default=10, help="fluid steps (default 10)")
     p.add_argument(
@@ -345,7 +352,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible:
         metavar="K",
         type=_bounded(int, 2, strict=False),
         default=8,
-        help="control points per axis and step of the fitted forces (default 8)",
+        help="--method paper: control points per axis and step of the fitted forces (default 8)",
     )
     p.add_argument(
         "--align",
@@ -364,11 +371,22 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int, compressible:
         "--compressible",
         metavar="W",
         type=_bounded(float, 0.0, strict=False),
-        default=compressible,
-        help=f"fraction of the divergent flow kept (0 = incompressible, 1 = no projection; default {compressible:g})",
+        default=None,
+        help="fraction of the divergent flow kept (0 = incompressible, 1 = no projection; default 1 for natural, "
+        "0 for paper)",
     )
     p.add_argument(
-        "--max-iter", type=_bounded(int, 1, strict=False), default=100, help="L-BFGS iterations (default 100)"
+        "--smoothness",
+        metavar="S",
+        type=_bounded(float, 0.0, strict=False),
+        default=None,
+        help="how strongly the fit keeps the flow calm (default 10 for natural, 5 for paper; see morph())",
+    )
+    p.add_argument(
+        "--max-iter",
+        type=_bounded(int, 1, strict=False),
+        default=None,
+        help="L-BFGS iterations (default 30 for natural, 100 for paper)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
@@ -390,7 +408,7 @@ def _add_morph(commands: argparse._SubParsersAction) -> None:
     p.add_argument("image_b", metavar="B", help="target image (resized to A's size if needed)")
     p.add_argument("--points-a", required=True, metavar="FILE", help="A's points (.pts, .json or .csv)")
     p.add_argument("--points-b", required=True, metavar="FILE", help="B's points, same count and order")
-    _add_morph_options(p, frames=30, compressible=0.0)
+    _add_morph_options(p, frames=30)
     p.set_defaults(handler=_cmd_morph)
 
 
@@ -401,7 +419,7 @@ def _add_demo(commands: argparse._SubParsersAction) -> None:
         description="Morph the bundled public-domain samples (a photo of an astronaut into a "
         "photo of a cat, 23 corresponding points each) and write morph.gif.",
     )
-    _add_morph_options(p, frames=30, compressible=0.5)
+    _add_morph_options(p, frames=30)
     p.set_defaults(handler=_cmd_demo)
 
 
@@ -418,6 +436,7 @@ def _run_morph(
         points_a,
         points_b,
         frames=args.frames,
+        method=args.method,
         grid=args.grid,
         steps=args.steps,
         control=args.control,
@@ -425,6 +444,7 @@ def _run_morph(
         inverse=args.inverse,
         blend=args.blend,
         compressible=args.compressible,
+        smoothness=args.smoothness,
         max_iter=args.max_iter,
         progress=progress,
     )

@@ -20,12 +20,14 @@ from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.spline import tps_cardinal
 
 __all__ = [
     "Brushes",
     "SumForces",
     "ControlGrid",
     "CellForces",
+    "LandmarkForces",
     "ViscosityBrushes",
     "viscosity_from_mask",
     "cell_centres",
@@ -224,6 +226,98 @@ class CellForces(nn.Module):
                 f"and {steps} steps were asked for"
             )
         return self.weight
+
+
+def _fade(x: Tensor, lo: float, hi: float, end_lo: float, end_hi: float) -> Tensor:
+    """1 on ``[lo, hi]``, falling as a half cosine to 0 at ``end_lo < lo`` and ``end_hi > hi``."""
+    below = ((lo - x) / max(lo - end_lo, 1e-9)).clamp(0, 1)
+    above = ((x - hi) / max(end_hi - hi, 1e-9)).clamp(0, 1)
+    return 0.5 * (1 + torch.cos(math.pi * torch.maximum(below, above)))
+
+
+class LandmarkForces(nn.Module):
+    """Forces that give marked points chosen velocities, spread between them by a thin-plate spline.
+
+    The control vector is the points' velocities: ``weight[:, t]`` (plus ``velocities[:, t]``) is the velocity,
+    in pixels per time unit, that point ``i`` should have during step ``t`` at ``paths[t, i]``. The force of
+    step ``t`` is the thin-plate spline (:func:`~torchfluidwarp.spline.tps_cardinal`) through the change of
+    those velocities since step ``t - 1``, evaluated at the fluid's cells: a velocity set at step 0 is one
+    kick, after which an inviscid compressible fluid coasts, every particle on a straight line at constant
+    speed (Burgers' equation). So ``velocities = (target - source) / (T dt)`` on the straight paths makes the
+    marked points travel straight to their targets, and the rest of the picture moves as the spline between
+    them says; a fit (:func:`~torchfluidwarp.control.fit_keyframes`) only corrects ``weight``, and its
+    ``regularization`` then penalises the departure from straight, constant-speed paths.
+
+    Args:
+        paths: ``(T, M, 2)`` pixels: where each point is at the start of each step (the spline's centres).
+        velocities: ``(B|1, T, M, 2)`` base velocities, pixels per time unit (running sums, as ``weight``);
+            default zero.
+        batch: number of independent problems ``B``.
+        inside: optional ``(x0, y0, x1, y1)`` pixels: the forces act fully inside this rectangle and fade to
+            zero (a half cosine) at the image's edges, where the fluid's walls are. A morph puts the walls
+            outside the picture and the picture inside, so the walls leave no seam.
+
+    Example:
+        >>> paths = torch.tensor([[[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]]]).expand(2, 3, 2)
+        >>> f = LandmarkForces(paths, velocities=torch.ones(1, 2, 3, 2))
+        >>> f(FluidGrid(16, 16), steps=2, dt=1.0, image_size=(32, 32)).shape
+        torch.Size([1, 2, 2, 16, 16])
+    """
+
+    def __init__(
+        self,
+        paths: Tensor,
+        velocities: Tensor | None = None,
+        batch: int = 1,
+        inside: tuple[float, float, float, float] | None = None,
+    ) -> None:
+        super().__init__()
+        p = check_tensor("paths", paths, shape=[None, None, 2])
+        T, m = p.shape[:2]
+        if T < 1 or m < 3:
+            raise ValueError(f"paths must have shape (T, M, 2) with T >= 1 and M >= 3, got {tuple(p.shape)}")
+        batch = check_int("batch", batch)
+        base = torch.zeros(1, T, m, 2, dtype=p.dtype) if velocities is None else velocities
+        base = check_tensor("velocities", base, shape=[None, T, m, 2]).to(p.dtype)
+        self.register_buffer("paths", p.detach().clone())
+        self.register_buffer("velocities", base.detach().clone())
+        self.paths: Tensor
+        self.velocities: Tensor
+        self.weight = nn.Parameter(torch.zeros(batch, T, m, 2, dtype=p.dtype))
+        self.inside = None if inside is None else tuple(float(v) for v in inside)
+        self._basis: dict[tuple, Tensor] = {}  # (T, h w, M) per grid, image size, device and dtype
+
+    def extra_repr(self) -> str:
+        return f"steps={self.weight.shape[1]}, points={self.weight.shape[2]}, inside={self.inside}"
+
+    def basis(self, grid: FluidGrid, image_size: tuple[int, int]) -> Tensor:
+        """``(T, h w, M)``: each point's cardinal spline at the cells, per step, faded toward the walls."""
+        key = (grid.shape, image_size, self.paths.device, self.weight.dtype)
+        if key not in self._basis:
+            with torch.no_grad():
+                cells = cell_centres(grid, image_size, self.paths.double()).reshape(-1, 2)  # (h w, 2) pixels
+                fade = torch.ones(cells.shape[0], 1, dtype=torch.float64, device=cells.device)
+                if self.inside is not None:
+                    x0, y0, x1, y1 = self.inside
+                    H, W = image_size
+                    fade = (_fade(cells[:, 0], x0, x1, -0.5, W - 0.5) * _fade(cells[:, 1], y0, y1, -0.5, H - 0.5))[
+                        :, None
+                    ]
+                rows = [fade * tps_cardinal(centres, cells) for centres in self.paths.double()]
+                self._basis[key] = torch.stack(rows).to(self.weight.dtype)
+        return self._basis[key]
+
+    def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
+        B, T, m, _ = self.weight.shape
+        if steps != T:
+            raise ValueError(f"this LandmarkForces holds {T} steps, but {steps} were asked for")
+        g = FluidGrid.of(grid)
+        H, W = check_size("image_size", image_size)
+        v = self.velocities.to(self.weight.dtype) + self.weight  # (B, T, M, 2) pixels per time unit
+        kicks = torch.cat([v[:, :1], v.diff(dim=1)], dim=1)
+        to_cells = torch.tensor([g.width / W, g.height / H], dtype=v.dtype, device=v.device) / dt
+        field = torch.einsum("tnm,btmc->btcn", self.basis(g, (H, W)), kicks * to_cells)  # (B, T, 2, h w)
+        return field.reshape(B, T, 2, *g.shape)
 
 
 def viscosity_from_mask(

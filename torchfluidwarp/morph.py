@@ -14,6 +14,7 @@ point in the fluid's frame; image A is read at ``g_s(z)`` (the fluid's backward 
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -27,12 +28,14 @@ from torchfluidwarp._checks import check_int, check_positive, check_tensor
 from torchfluidwarp.alignment import AlignKind, apply_alignment, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.fluid import Viscosity
+from torchfluidwarp.forces import LandmarkForces
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.warp import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
 __all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest"]
 
 
+Method = Literal["natural", "paper"]
 InverseMethod = Literal["flow", "paper"]
 Blend = Literal["linear", "smooth"]
 
@@ -54,8 +57,8 @@ class MorphResult:
         alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
         times: ``(N,)`` the fluid time of each frame, in steps.
         seconds: wall time per phase: ``"fit"``, ``"inverse"``, ``"render"``, ``"total"``.
-        folded: fraction of the pixels of ``maps`` (all frames) whose Jacobian determinant is ``<= 0`` (0 for
-            a fold-free morph; :func:`morph` warns when it is not).
+        folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
+            ``<= 0`` (0 for a fold-free morph; :func:`morph` warns with their number when it is not).
     """
 
     frames: Tensor
@@ -140,6 +143,17 @@ def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
     if blend == "smooth":
         return u * u * (3 - 2 * u)  # smoothstep: ease in and out
     raise ValueError(f"blend must be 'linear' or 'smooth', got {blend!r}")
+
+
+PAD = 0.125
+"""The natural morph's fluid box reaches this fraction of the image's longer side beyond each edge: the walls,
+which no flow crosses, stay outside the picture, and the forces fade to zero between the picture and the walls."""
+
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "natural": {"compressible": True, "smoothness": 10.0, "max_iter": 30},
+    "paper": {"compressible": False, "smoothness": 5.0, "max_iter": 100},
+}
+"""Per-method defaults of :func:`morph`'s ``compressible``, ``smoothness`` and ``max_iter``."""
 
 
 FEATHER = 24.0
@@ -260,6 +274,71 @@ def _render(
     return frames_t, torch.cat(fwd), torch.cat(bwd), torch.cat(maps_a), torch.cat(maps_b), times, t_inv
 
 
+def _check_marks(pa: Tensor, pb: Tensor) -> None:
+    """Refuse marks that cannot be morphed, and warn about marks whose order crosses."""
+    for name, p in (("points_a", pa), ("points_b", pb)):
+        d = torch.cdist(p.double(), p.double())
+        d.fill_diagonal_(math.inf)
+        i, j = torch.nonzero(d < 1e-6, as_tuple=True)
+        pairs = [(int(a), int(b)) for a, b in zip(i, j) if a < b]
+        if pairs:
+            raise ValueError(
+                f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
+                "position; each feature must be marked once"
+            )
+    # a pair of marks crosses when the segment between them turns by more than 90 degrees relative to the
+    # rest of the marks, or when close marks (under a tenth of the spread) end up far apart (over half)
+    if pa.shape[0] >= 3:
+        M = estimate_alignment(pa.double(), pb.double(), "similarity")
+        qa, qb = apply_alignment(M, pa.double()), pb.double()
+        da, db = qa[:, None] - qa[None], qb[:, None] - qb[None]  # (M, M, 2)
+        spread = float((qb - qb.mean(0)).norm(dim=-1).max())
+        la, lb = da.norm(dim=-1), db.norm(dim=-1)
+        turned = ((da * db).sum(-1) < 0) & (la > 0.02 * spread) & (lb > 0.02 * spread)
+        torn = (la < 0.1 * spread) & (lb > 0.5 * spread)
+        bad = torch.triu(turned | torn, diagonal=1).nonzero().tolist()
+        if bad:
+            listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
+            warnings.warn(
+                f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth morph "
+                "can do without folding; check their order (result.fit.error shows which points were not reached)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
+def _fit_natural(
+    pa: Tensor,
+    target: Tensor,
+    size: tuple[int, int],
+    steps: int,
+    fit_kwargs: dict[str, Any],
+    warm_start: KeyframeFit | None,
+) -> tuple[KeyframeFit, tuple[int, int, int, int]]:
+    """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see :func:`morph`)."""
+    H, W = size
+    pad = max(1, round(PAD * max(H, W)))
+    box = (-pad, -pad, W + pad, H + pad)
+    offset = torch.tensor([-pad, -pad], dtype=torch.float64)
+    src = pa.double() - offset
+    lo, hi = torch.tensor([pad / 2, pad / 2]), torch.tensor([W + 1.5 * pad, H + 1.5 * pad])
+    tgt = torch.maximum(torch.minimum(target - offset, hi.double()), lo.double())  # stay clear of the walls
+    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64).view(-1, 1, 1)
+    straight = src + along * (tgt - src)  # (T + 1, M, 2) box pixels
+    forces = LandmarkForces(
+        straight[:-1],
+        velocities=((tgt - src) / steps).expand(1, steps, -1, -1),  # dt = 1: pixels per step
+        inside=(pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5),
+    )
+    previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
+    if previous is not None and previous.shape == forces.weight.shape:
+        with torch.no_grad():
+            forces.weight.copy_(previous)
+    keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
+    fit = fit_keyframes(src, keyframes, steps=steps, forces=forces, image_size=(H + 2 * pad, W + 2 * pad), **fit_kwargs)
+    return fit, box
+
+
 def morph(
     image_a: Tensor,
     image_b: Tensor,
@@ -267,6 +346,7 @@ def morph(
     points_b: Tensor,
     *,
     frames: int = 30,
+    method: Method = "natural",
     grid: FluidGrid | int | tuple[int, int] = (64, 64),
     steps: int = 10,
     control: tuple[int, int] | int = (8, 8),
@@ -274,9 +354,9 @@ def morph(
     align: AlignKind | None = "similarity",
     inverse: InverseMethod = "flow",
     blend: Blend = "linear",
-    compressible: bool | float = False,
-    smoothness: float = 5.0,
-    max_iter: int = 100,
+    compressible: bool | float | None = None,
+    smoothness: float | None = None,
+    max_iter: int | None = None,
     tolerance: float = 0.05,
     margin: float | None = 0.5,
     warm_start: KeyframeFit | None = None,
@@ -284,13 +364,28 @@ def morph(
 ) -> MorphResult:
     """Morph ``image_a`` into ``image_b`` so that ``points_a`` travel to ``points_b``.
 
+    Two methods (``method``):
+
+    * ``"natural"`` (default): every marked point travels on a straight line at constant speed, and the rest
+      of the picture moves as a thin-plate spline between the points says. The fluid is compressible and
+      inviscid and covers the whole picture (its walls lie :data:`PAD` beyond the edges); one kick at step 0
+      (:class:`~torchfluidwarp.forces.LandmarkForces`) sets it moving, after which every particle coasts on
+      a straight line (Burgers' equation), and ``max_iter`` L-BFGS iterations correct the kicks so that the
+      points stay on their paths at every step. Regions change size as the marks say; the maps never fold
+      where the spline does not, and no box edge shows. ``control`` and ``margin`` do not apply.
+    * ``"paper"``: the paper's keyframe fit: a :class:`~torchfluidwarp.forces.ControlGrid` of forces, fitted
+      so that the points reach their targets at the last step, in an incompressible fluid (every region keeps
+      its area) over a box around the points (``margin``).
+
     Args:
         image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]``; it sets the output size.
         image_b: target image; resized to A's size if needed (its points are scaled to match).
-        points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels.
+        points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels; ``"natural"``
+            needs ``M >= 3`` points, not all on one line.
         frames: number of output frames ``N >= 2``.
-        grid, steps, control, viscosity: the fluid and its control (see :func:`fit_keyframes`). Faces need a
-            finer control grid than the paper's 5 x 5: features close together move differently.
+        method: ``"natural"`` or ``"paper"`` (see above).
+        grid, steps, viscosity: the fluid (see :func:`fit_keyframes`); ``grid`` cells cover the fluid's box.
+        control: ``(K_y, K_x)`` control points per step of ``"paper"``'s control grid.
         align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
             or ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
@@ -298,31 +393,34 @@ def morph(
             frame reads one image beyond its edge, the other image is shown instead (over :data:`FEATHER`
             pixels), rather than the first image's edge pixels smeared into streaks.
         compressible: ``True`` to let regions change area (skips the projection) or a weight in ``[0, 1]``;
-            use it when corresponding regions differ in size beyond what the global alignment explains (e.g. a
-            human face and a cat's: the cat's chin sits much closer to its mouth; ``0.5`` works well there).
-            The default keeps the flow incompressible: every region keeps its area.
-        smoothness: how strongly the fit avoids shear and vortices, in fluid cells^2 per pixel^2 of landmark
-            error (:func:`~torchfluidwarp.control.velocity_gradient_energy`, scaled by the square of the
-            pixels per fluid cell). Vortices stretch the picture into spirals finer than a pixel, whose maps
-            then fold; 5 keeps the maps of the bundled pair fold-free with ``compressible=0.5``.
-            ``0`` fits the points as closely as the flow allows.
-        max_iter, tolerance: L-BFGS iterations and the per-point accuracy (pixels) at which the fit stops. With
-            ``smoothness > 0`` the points are seldom all within ``tolerance``, so ``max_iter`` sets the fit's
-            time: on the bundled 512 x 512 pair the fit's 100 iterations took 5.4 to 6.3 s on two CPU cores,
-            and 200 about halved the landmark error at about twice the time (``benchmarks/bench_morph.py``).
-        margin: the fluid fills a box around the points (A's and their targets) grown by this fraction of its
-            size on each side; the rest of the picture follows the pre-alignment only. The fluid's cells and
-            control points then land where the features are, and the box may reach beyond the image so that
-            points near an edge are not pinned by the fluid's walls. ``None`` makes the fluid cover exactly the
-            whole image (targets beyond it are clamped onto it).
-        warm_start: a previous :class:`KeyframeFit` whose forces start the optimisation (interactive use).
+            default ``True`` for ``"natural"`` and ``False`` (the paper's incompressible fluid) for ``"paper"``.
+        smoothness: how strongly the fit keeps the flow calm (default per method, :data:`DEFAULTS`).
+            ``"natural"``: the weight on changes to the points' straight-line velocities, in pixels^2 of point
+            error per (pixel per step)^2 of velocity change, the same whatever the image or grid size; 0 lets
+            the fit bend the paths as it likes to reach the points. ``"paper"``: the weight on
+            :func:`~torchfluidwarp.control.velocity_gradient_energy`, in fluid cells^2 per pixel^2 of error,
+            scaled by the square of the pixels per fluid cell.
+        max_iter: L-BFGS iterations (default per method: 30 for ``"natural"``, which starts on its paths,
+            100 for ``"paper"``, which starts from rest).
+        tolerance: pixels; the fit stops once every point is this close to its target (at every step for
+            ``"natural"``).
+        margin: ``"paper"`` only: the fluid fills a box around the points (A's and their targets) grown by
+            this fraction of its size on each side; the rest of the picture follows the pre-alignment only.
+            ``None`` makes the fluid cover exactly the whole image (targets beyond it are clamped onto it).
+        warm_start: a previous :class:`KeyframeFit` of the same method whose control values start the
+            optimisation (interactive use); ignored when its shape does not match.
         progress: show progress bars.
 
     Returns:
         a :class:`MorphResult`.
 
     Raises:
-        ValueError: different point counts, points outside their image, non-finite values, ``frames < 2``.
+        ValueError: different point counts, points outside their image, repeated points, non-finite values,
+            ``frames < 2``, fewer than 3 points or points on one line for ``"natural"``.
+
+    Warns:
+        RuntimeWarning: marks that cross (swap sides or tear apart between A and B), naming them; maps that
+            fold, with the number of folded pixels.
     """
     t0 = time.perf_counter()
     a = _as_image("image_a", image_a)
@@ -332,8 +430,19 @@ def morph(
     pb = check_points("points_b", points_b, (b.shape[-2], b.shape[-1]))[0]
     if pa.shape[0] != pb.shape[0]:
         raise ValueError(f"points_a has {pa.shape[0]} points but points_b has {pb.shape[0]}")
+    if method not in DEFAULTS:
+        raise ValueError(f"method must be 'natural' or 'paper', got {method!r}")
     if inverse not in ("flow", "paper"):
         raise ValueError(f"inverse must be 'flow' or 'paper', got {inverse!r}")
+    if method == "natural" and pa.shape[0] < 3:
+        raise ValueError(f"method='natural' needs at least 3 points, got {pa.shape[0]}; method='paper' takes fewer")
+    steps = check_int("steps", steps)
+    defaults = DEFAULTS[method]
+    compressible = defaults["compressible"] if compressible is None else compressible
+    smoothness = defaults["smoothness"] if smoothness is None else smoothness
+    smoothness = check_positive("smoothness", smoothness, allow_zero=True)
+    max_iter = check_int("max_iter", defaults["max_iter"] if max_iter is None else max_iter)
+    _check_marks(pa, pb)
     b, pb = resize_pair(a, b, pb)
     H, W = a.shape[-2:]
     size = (H, W)
@@ -341,31 +450,35 @@ def morph(
     center = pa.double().mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb.double())
-    if margin is None:
-        box = (0, 0, W, H)
-        target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
-    else:
-        box = region_of_interest(torch.cat([pa.double(), target]), margin)
-    offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
-    roi = (box[3] - box[1], box[2] - box[0])
     fit_kwargs: dict[str, Any] = dict(
-        image_size=roi,
         grid=grid,
-        control=control,
         viscosity=viscosity,
         compressible=compressible,
-        smoothness=check_positive("smoothness", smoothness, allow_zero=True) * _pixels_per_cell(roi, grid) ** 2,
         max_iter=max_iter,
         tolerance=tolerance,
         progress=progress,
     )
-    fit = fit_keyframes(
-        pa.double() - offset,
-        target - offset,
-        steps=steps,
-        forces=None if warm_start is None else warm_start.forces,
-        **fit_kwargs,
-    )
+    if method == "natural":
+        fit, box = _fit_natural(pa, target, size, steps, {**fit_kwargs, "regularization": smoothness}, warm_start)
+        roi = (box[3] - box[1], box[2] - box[0])
+        fit_kwargs["image_size"] = roi
+    else:
+        if margin is None:
+            box = (0, 0, W, H)
+            target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
+        else:
+            box = region_of_interest(torch.cat([pa.double(), target]), margin)
+        roi = (box[3] - box[1], box[2] - box[0])
+        offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
+        fit_kwargs.update(image_size=roi, control=control, smoothness=smoothness * _pixels_per_cell(roi, grid) ** 2)
+        fit = fit_keyframes(
+            pa.double() - offset,
+            target - offset,
+            steps=steps,
+            forces=None if warm_start is None else warm_start.forces,
+            **fit_kwargs,
+        )
+    offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
     t_fit = time.perf_counter()
 
     with torch.no_grad():  # the fit is done: rendering needs no graph
@@ -386,11 +499,14 @@ def morph(
         f"max {float(err.max()):.4f} px"
     )
     fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=err, message=message)
-    folded = float((jacobian_determinant(maps_a) <= 0).float().mean())
-    if folded > 0:
+    det_a, det_b = jacobian_determinant(maps_a), jacobian_determinant(maps_b)
+    n_folded = int((det_a <= 0).sum()) + int((det_b <= 0).sum())
+    folded = n_folded / (det_a.numel() + det_b.numel())
+    if n_folded:
         warnings.warn(
-            f"the morph's maps fold on {100 * folded:.3f}% of the pixels: the fitted flow spins parts of image A "
-            "into spirals; a larger smoothness, or compressible=0.5 for regions that must change size, avoids it",
+            f"the morph's maps fold on {n_folded} of {det_a.numel() + det_b.numel()} pixels over all frames of "
+            "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
+            "(result.fit.error names the points not reached), or raise smoothness",
             RuntimeWarning,
             stacklevel=2,
         )

@@ -96,7 +96,7 @@ class StudioConfig:
         preview_iter: L-BFGS iterations of a warm-started preview fit (five times as many when cold): a moved
             point needs few iterations from the previous forces, and the next edit refines further.
         preview_tolerance: pixels; a preview fit stops once every point is this close (exports use 0.05).
-        export_iter: L-BFGS iterations of an export's fit.
+        export_iter: L-BFGS iterations of an export's fit (``None``: the morph method's default).
         animate_preview_size: longer side in pixels of the animate preview.
         animate_export_size: longer side in pixels of an animate export (0 = the photo's size).
     """
@@ -109,7 +109,7 @@ class StudioConfig:
     preview_size: int = 320
     preview_iter: int = 10
     preview_tolerance: float = 0.25
-    export_iter: int = 200
+    export_iter: int | None = None
     animate_preview_size: int = 320
     animate_export_size: int = 800
 
@@ -292,10 +292,11 @@ def _morph_settings(value: object) -> dict[str, Any]:
     """The page's morph settings as :func:`~torchfluidwarp.morph.morph` keyword arguments."""
     s = value if isinstance(value, dict) else {}
     align = _choice("align", s.get("align", "similarity"), ("similarity", "affine", "none"))
-    compressible = s.get("compressible", False)
-    if not isinstance(compressible, bool):
+    compressible = s.get("compressible")
+    if compressible is not None and not isinstance(compressible, bool):
         compressible = _number("compressible", compressible, 0.0, 1.0)
     return {
+        "method": _choice("method", s.get("method", "natural"), ("natural", "paper")),
         "inverse": _choice("inverse", s.get("inverse", "flow"), ("flow", "paper")),
         "grid": _integer("grid", s.get("grid", 32), 4, 256),
         "steps": _integer("steps", s.get("steps", 8), 1, 100),
@@ -625,6 +626,7 @@ def create_app(
         with state.lock:
             state.points["a"], state.points["b"] = pa, pb
         key = (
+            settings["method"],
             settings["grid"],
             settings["steps"],
             settings["control"],
@@ -705,6 +707,7 @@ def create_app(
         frames = _integer("frames", data.get("frames", 30), 2, 600)
         fps = _number("fps", data.get("fps", 10), 0.1, 120)
         key = (
+            settings["method"],
             settings["grid"],
             settings["steps"],
             settings["control"],

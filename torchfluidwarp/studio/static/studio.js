@@ -217,12 +217,13 @@
   function settings() {
     const c = $('set-compressible').value;
     return {
+      method: $('set-method').value,
       inverse: $('set-inverse').value,
       grid: parseInt($('set-grid').value, 10),
       steps: parseInt($('set-steps').value, 10),
       control: parseInt($('set-control').value, 10),
       align: $('set-align').value,
-      compressible: c === 'true' ? true : c === 'false' ? false : parseFloat(c),
+      compressible: c === 'default' ? null : c === 'true' ? true : c === 'false' ? false : parseFloat(c),
       blend: $('set-blend').value,
     };
   }
