@@ -245,7 +245,9 @@ def fit_keyframes(
     best_loss = math.inf
     best_state: list[Tensor] | None = None
     start = time.perf_counter()
-    bar = tqdm(total=max_iter * 2, desc="fit_keyframes", unit="eval", disable=not progress, leave=False)
+    # the bar counts L-BFGS iterations, each one or more evaluations (its line search), up to max_iter
+    bar = tqdm(total=max_iter, desc="fit_keyframes", unit="iter", disable=not progress, leave=False)
+    state = optimizer.state[params[0]]
 
     class _Done(Exception):
         pass
@@ -270,8 +272,8 @@ def fit_keyframes(
             raise _Done  # keep the best finite iterate
         loss.backward()
         history.append(value)
-        bar.update(1)
-        bar.set_postfix(loss=f"{value:.3g}")
+        bar.update(min(int(state.get("n_iter", 0)), max_iter) - bar.n)
+        bar.set_postfix(loss=f"{value:.3g}", evals=len(history))
         if value < best_loss:
             best_loss = value
             best_state = [p.detach().clone() for p in params]
@@ -283,8 +285,7 @@ def fit_keyframes(
     converged = False
     try:
         optimizer.step(closure)
-        n_iter = optimizer.state[optimizer._params[0]].get("n_iter", 0)  # type: ignore[attr-defined]
-        converged = n_iter < max_iter
+        converged = int(state.get("n_iter", 0)) < max_iter
     except _Done:
         converged = True
     finally:
