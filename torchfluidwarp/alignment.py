@@ -30,8 +30,9 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
 
     Example:
         >>> a = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-        >>> estimate_alignment(a, 2 * a + 3)[:2].round(decimals=6).tolist()
-        [[2.0, 0.0, 3.0], [0.0, 2.0, 3.0]]
+        >>> M = estimate_alignment(a, 2 * a + 3)  # scale 2, shift (3, 3)
+        >>> torch.allclose(M, torch.tensor([[2.0, 0.0, 3.0], [0.0, 2.0, 3.0], [0.0, 0.0, 1.0]]), atol=1e-6)
+        True
     """
     a = check_tensor("points_a", points_a, shape=[None, 2]).double()
     b = check_tensor("points_b", points_b, shape=[None, 2]).double()
