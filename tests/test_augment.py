@@ -1,5 +1,6 @@
 import math
 
+import kornia.augmentation as K
 import pytest
 import torch
 from torch import nn
@@ -193,7 +194,6 @@ def test_unbatched_integer_and_float64_inputs_follow_their_dtype():
 
 
 def test_works_in_a_sequential_with_kornia():
-    K = pytest.importorskip("kornia.augmentation")
     pipe = nn.Sequential(K.RandomHorizontalFlip(p=1.0), _seeded(0, grid=16))
     image = torch.rand(2, 3, 32, 32)
     assert pipe(image).shape == (2, 3, 32, 32)

@@ -4,14 +4,12 @@ import sys
 
 import pytest
 import torch
+from torch.utils.data import DataLoader, Dataset
+from torchvision import tv_tensors  # the [vision] extra, which [test] pulls in
+from torchvision.transforms import v2
 
-pytest.importorskip("torchvision")
-from torch.utils.data import DataLoader, Dataset  # noqa: E402
-from torchvision import tv_tensors  # noqa: E402
-from torchvision.transforms import v2  # noqa: E402
-
-import torchfluidwarp.augment  # noqa: E402
-from torchfluidwarp.augment_tv import RandomFluidWarp, fluid_warp  # noqa: E402
+import torchfluidwarp.augment
+from torchfluidwarp.augment_tv import RandomFluidWarp, fluid_warp
 
 H, W = 64, 80
 

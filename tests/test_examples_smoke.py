@@ -3,6 +3,7 @@
 import runpy
 from pathlib import Path
 
+import matplotlib.pyplot as plt  # the examples draw figures; matplotlib is in the [test] extra
 import pytest
 import torch
 
@@ -11,7 +12,6 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 @pytest.fixture(autouse=True)
 def _one_thread_and_no_windows(monkeypatch):
-    plt = pytest.importorskip("matplotlib.pyplot")
     plt.switch_backend("agg")
     n = torch.get_num_threads()
     torch.set_num_threads(1)  # multi-threaded kernels stall on small shared machines

@@ -348,7 +348,8 @@ def test_mp4_without_ffmpeg_says_how_to_install(tmp_path, gen, monkeypatch):
 
 
 def test_mp4_round_trip_frame_count(tmp_path, gen):
-    pytest.importorskip("imageio_ffmpeg")
+    import imageio_ffmpeg  # noqa: F401  (the [video] extra, which [test] pulls in)
+
     frames = random_image(gen, (2, 3, 15, 20))
     frames = torch.stack([frames[0], frames[0], frames[1], frames[1], frames[1]])
     path = write_animation(tmp_path / "a.mp4", frames, fps=12)

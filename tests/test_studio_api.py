@@ -7,12 +7,10 @@ import threading
 import time
 import warnings
 
+import httpx  # noqa: F401  (starlette's TestClient needs it; both are in the [test] extra)
 import numpy as np
 import pytest
 from PIL import Image
-
-pytest.importorskip("starlette")
-pytest.importorskip("httpx")
 
 with warnings.catch_warnings():  # newer Starlette suggests httpx2 for its TestClient; httpx still works
     warnings.simplefilter("ignore")

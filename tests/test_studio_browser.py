@@ -13,13 +13,12 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+import starlette  # noqa: F401  (starlette, uvicorn and playwright: the [test] extra)
 import torch
 import torch.nn.functional as F
+import uvicorn  # noqa: F401
 from PIL import Image
-
-pytest.importorskip("starlette")
-pytest.importorskip("uvicorn")
-sync_api = pytest.importorskip("playwright.sync_api", reason="pip install playwright (no `playwright install` needed)")
+from playwright import sync_api  # no `playwright install` needed: the system Chromium is used
 
 CHROMIUM = Path("/usr/bin/chromium")
 if not CHROMIUM.exists():
