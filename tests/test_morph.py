@@ -1,10 +1,14 @@
+import math
 import sys
+import warnings
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from torchfluidwarp.morph import morph
-from torchfluidwarp.warp import jacobian_determinant, warp_image
+from torchfluidwarp.spline import tps_interpolate
+from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 
 
 def _blobs(size, centers, gen):
@@ -106,3 +110,137 @@ def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(ge
     w = float(r.times[k] / r.times[-1])
     plain = torch.lerp(r.forward_frames[k], r.backward_frames[k], w)
     torch.testing.assert_close(r.frames[k][:, both], plain[:, both], atol=1e-5, rtol=0)
+
+
+# ------------------------------------------------------------------ the natural morph on a known deformation
+
+SIZE = 128
+AMPLITUDE, WAVELENGTH = 4.0, 128.0  # pixels
+
+
+def _phi(p):
+    """A smooth invertible map of the plane: A's feature at ``p`` shows at ``_phi(p)`` in B (pixels)."""
+    x, y = p[..., 0], p[..., 1]
+    k = 2 * math.pi / WAVELENGTH
+    return torch.stack([x + AMPLITUDE * torch.sin(k * y), y + AMPLITUDE * torch.sin(k * x)], -1)
+
+
+def _invert(maps, q, iters=60):
+    """Where a backward map ``(1, H, W, 2)`` reads the points ``q`` ``(K, 2)``: solves ``maps(y) = q``."""
+    y = q.clone()
+    for _ in range(iters):
+        y = y - (warp_image(maps.permute(0, 3, 1, 2).double(), y[None, None].double())[0, :, 0].T - q)
+    return y
+
+
+def _seam(maps):
+    """``(B, H - 2, W - 2)`` Frobenius norm of a map's second derivatives (px/px^2), central differences."""
+    m = maps.double()
+    d2x = (m[:, 1:-1, 2:] - 2 * m[:, 1:-1, 1:-1] + m[:, 1:-1, :-2]).square().sum(-1)
+    d2y = (m[:, 2:, 1:-1] - 2 * m[:, 1:-1, 1:-1] + m[:, :-2, 1:-1]).square().sum(-1)
+    dxy = ((m[:, 2:, 2:] - m[:, 2:, :-2] - m[:, :-2, 2:] + m[:, :-2, :-2]) / 4).square().sum(-1)
+    return (d2x + d2y + 2 * dxy).sqrt()
+
+
+@pytest.fixture(scope="module")
+def known_deformation():
+    """A textured picture A, B = A deformed by ``_phi``, 25 points on a 14-px lattice in the middle (a third held out),
+    and the natural morph of the pair from the marked two thirds."""
+    gen = torch.Generator().manual_seed(0)
+    a = F.interpolate(torch.rand(1, 3, 16, 16, generator=gen), size=(SIZE, SIZE), mode="bicubic").clamp(0, 1)
+    ident = identity_map((SIZE, SIZE), dtype=torch.float64)
+    inverse = ident.clone()
+    for _ in range(50):  # phi^-1 by fixed-point iteration: phi is a small perturbation of the identity
+        inverse = ident - (_phi(inverse) - inverse)
+    b = warp_image(a.double(), inverse).float()
+    ys, xs = torch.meshgrid(torch.linspace(36, 92, 5), torch.linspace(36, 92, 5), indexing="ij")
+    points = torch.stack([xs, ys], -1).reshape(-1, 2).double()
+    held = torch.arange(25) % 3 == 2
+    pa, pb = points[~held].float(), _phi(points[~held]).float()
+    result = morph(a[0], b[0], pa, pb, frames=9, progress=False)
+    return points, held, result
+
+
+def test_natural_morph_carries_unmarked_points_like_the_spline(known_deformation):
+    points, held, r = known_deformation
+    inner = held & ((points > 40) & (points < 88)).all(-1)  # held-out points inside the marks' hull
+    last = _invert(r.maps[-1:], points[inner])
+    err = (last - _phi(points[inner])).norm(dim=-1)
+    # Bound: piecewise-linear interpolation on a lattice of spacing h = 14 px errs by at most
+    # h^2 / 8 * max|phi''| per component, |phi''| <= AMPLITUDE (2 pi / WAVELENGTH)^2, so by
+    # sqrt(2) * 14^2 / 8 * 0.0096 = 0.33 px; the thin-plate spline does at least as well inside the hull,
+    # and the fluid follows the spline (next assertion), so 0.4 px leaves room for the fluid's discretisation.
+    assert float(err.max()) < 0.4
+    spline = tps_interpolate(points[~held], _phi(points[~held]), points[inner])
+    assert float((last - spline).norm(dim=-1).max()) < 0.1  # the fluid moves what nobody marked like the spline
+    assert r.folded == 0
+    assert jacobian_determinant(r.maps).min() > 0 and jacobian_determinant(r.maps_b).min() > 0
+
+
+def test_natural_morph_has_no_seam_in_any_frame(known_deformation):
+    _, _, r = known_deformation
+    # phi's own second derivatives are at most sqrt(2) * 0.0096 px/px^2; resampling the maps adds about 0.07
+    # (measured); the edge of a fluid box inside the picture (method="paper", margin=0.5: its box edge lies at
+    # 12 px from the image edge here) measured 1.3 to 2.9 px/px^2. The bound sits between the two.
+    for k in range(r.maps.shape[0]):
+        for maps in (r.maps[k : k + 1], r.maps_b[k : k + 1]):
+            assert float(torch.quantile(_seam(maps).flatten(), 0.999)) < 0.2, k
+
+
+def test_paper_method_is_one_option_away(known_deformation):
+    points, held, r = known_deformation
+    # the same marks through the paper's incompressible fit: its box edge is the seam the natural morph avoids
+    a, b = r.frames[0], r.frames[-1]
+    paper = morph(a, b, points[~held].float(), _phi(points[~held]).float(), frames=3, method="paper", progress=False)
+    assert float(torch.quantile(_seam(paper.maps_b[1:2]).flatten(), 0.999)) > 0.5
+
+
+def test_natural_morph_of_identical_inputs_is_constant(pair):
+    a, _ = pair
+    r = morph(a, a, POINTS_A, POINTS_A, frames=4, progress=False)
+    for k in range(4):
+        torch.testing.assert_close(r.frames[k], a, atol=1e-5, rtol=0)
+
+
+def test_repeated_points_raise_naming_their_indices(pair):
+    a, b = pair
+    pa = POINTS_A.clone()
+    pa[3] = pa[1]
+    with pytest.raises(ValueError, match="points_a repeats points: indices 1 and 3"):
+        morph(a, b, pa, POINTS_B, **KW)
+
+
+def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
+    a, b = pair
+    pb = POINTS_B.clone()
+    pb[[0, 4]] = pb[[4, 0]]  # points 0 and 4 swap places between A and B
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, POINTS_A, pb, frames=3, progress=False)
+    crossing = [w for w in caught if "marks cross" in str(w.message)]
+    assert len(crossing) == 1 and "0 and 4" in str(crossing[0].message)
+    # the swapped points are the ones not reached
+    err = r.fit.error[0]
+    assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())
+
+
+def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
+    a, b = pair
+    morph_module = sys.modules["torchfluidwarp.morph"]
+    real = morph_module.jacobian_determinant
+
+    def folding(maps):  # pretend that exactly 3 pixels of the first frame of A's maps fold
+        det = real(maps).clone()
+        if maps.data_ptr() == seen[0]:
+            det.view(-1)[:3] = -1.0
+        return det
+
+    seen = []
+    monkeypatch.setattr(morph_module, "jacobian_determinant", lambda m: (seen.append(m.data_ptr()), folding(m))[1])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, POINTS_A, POINTS_B, frames=3, progress=False)
+    folds = [w for w in caught if "fold" in str(w.message)]
+    assert len(folds) == 1
+    assert "fold on 3 of" in str(folds[0].message)
+    assert r.folded == pytest.approx(3 / (2 * 3 * 64 * 64))

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor
+from torchfluidwarp._checks import all_finite, check_int, check_positive, check_size, check_tensor
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.grid import FluidGrid
@@ -266,6 +266,8 @@ def fit_keyframes(
     def closure() -> Tensor:
         nonlocal best_loss, best_state
         optimizer.zero_grad()
+        if not all(all_finite(p) for p in params):
+            raise _Done  # a line search stepped to inf: keep the best finite iterate
         loss, paths = objective()
         value = float(loss.detach())
         if not math.isfinite(value):
