@@ -30,6 +30,7 @@ from torchfluidwarp.control import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import LandmarkForces
 from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.spline import tps_interpolate
 from torchfluidwarp.warp import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
 __all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest"]
@@ -148,6 +149,10 @@ def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
 PAD = 0.125
 """The natural morph's fluid box reaches this fraction of the image's longer side beyond each edge: the walls,
 which no flow crosses, stay outside the picture, and the forces fade to zero between the picture and the walls."""
+
+MIN_AREA = 0.25
+"""The natural morph never squeezes an area below this fraction of its size on the way (see
+:func:`_unfolded_targets`): a margin that keeps the discrete flow and its resampled maps from folding."""
 
 DEFAULTS: dict[str, dict[str, Any]] = {
     "natural": {"compressible": True, "smoothness": 10.0, "max_iter": 30},
@@ -307,6 +312,48 @@ def _check_marks(pa: Tensor, pb: Tensor) -> None:
             )
 
 
+def _least_area(displacement: Tensor, spacing: float) -> float:
+    """The smallest area ratio ``det(I + s J)`` over ``s`` in ``[0, 1]`` and a field ``(n, n, 2)`` of displacements
+    sampled ``spacing`` pixels apart: how far the straight paths ``x + s d(x)`` squeeze the picture."""
+    dux_dy, dux_dx = torch.gradient(displacement[..., 0], spacing=spacing)
+    duy_dy, duy_dx = torch.gradient(displacement[..., 1], spacing=spacing)
+    trace, det = dux_dx + duy_dy, dux_dx * duy_dy - dux_dy * duy_dx
+    # det(I + s J) = 1 + s trace + s^2 det: a parabola in s; its least value on [0, 1] is at an end or its vertex
+    vertex = -trace / (2 * torch.where(det > 0, det, torch.ones_like(det)))
+    inner = (det > 0) & (vertex > 0) & (vertex < 1)
+    ends = torch.clamp(1 + trace + det, max=1.0)
+    least = torch.where(inner, 1 - trace.square() / (4 * torch.where(det > 0, det, torch.ones_like(det))), ends)
+    return float(least.min())
+
+
+def _unfolded_targets(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> Tensor:
+    """Where the straight-line morph sends ``src`` ``(M, 2)``: ``tgt``, or a smoothing spline's values when that folds.
+
+    Under straight paths ``x + s d(x)`` (``d`` the spline through ``tgt - src``) the picture, the rectangle
+    ``inside``, folds where ``det(I + s J_d)`` reaches 0: marks that cross, or squeeze a region to nothing. Then
+    the spline's smoothing (:func:`~torchfluidwarp.spline.tps_cardinal`) is raised, by bisection on its
+    logarithm, until no area falls below :data:`MIN_AREA`; the marks it then misses show in ``fit.error``.
+    """
+    x0, y0, x1, y1 = inside
+    n = 64
+    spacing = max(x1 - x0, y1 - y0) / (n - 1)
+    gy, gx = torch.meshgrid(
+        torch.linspace(y0, y1, n, dtype=torch.float64), torch.linspace(x0, x1, n, dtype=torch.float64), indexing="ij"
+    )
+    at = torch.stack([gx, gy], -1).reshape(-1, 2)
+
+    def least(smoothing: float) -> float:
+        return _least_area(tps_interpolate(src, tgt - src, at, smoothing).view(n, n, 2), spacing)
+
+    if least(0.0) >= MIN_AREA:
+        return tgt
+    lo, hi = -8.0, 4.0  # log10 of the smoothing: from interpolating to nearly affine
+    for _ in range(14):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
+    return src + tps_interpolate(src, tgt - src, src, 10.0**hi)
+
+
 def _fit_natural(
     pa: Tensor,
     target: Tensor,
@@ -322,13 +369,15 @@ def _fit_natural(
     offset = torch.tensor([-pad, -pad], dtype=torch.float64)
     src = pa.double() - offset
     lo, hi = torch.tensor([pad / 2, pad / 2]), torch.tensor([W + 1.5 * pad, H + 1.5 * pad])
-    tgt = torch.maximum(torch.minimum(target - offset, hi.double()), lo.double())  # stay clear of the walls
+    inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+    tgt = _unfolded_targets(src, target - offset, inside)
+    tgt = torch.maximum(torch.minimum(tgt, hi.double()), lo.double())  # stay clear of the walls
     along = torch.linspace(0, 1, steps + 1, dtype=torch.float64).view(-1, 1, 1)
     straight = src + along * (tgt - src)  # (T + 1, M, 2) box pixels
     forces = LandmarkForces(
         straight[:-1],
         velocities=((tgt - src) / steps).expand(1, steps, -1, -1),  # dt = 1: pixels per step
-        inside=(pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5),
+        inside=inside,
     )
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:

@@ -26,7 +26,7 @@ def tps_kernel(a: Tensor, b: Tensor) -> Tensor:
     return torch.where(r2 > 0, 0.5 * r2 * torch.log(torch.where(r2 > 0, r2, torch.ones_like(r2))), torch.zeros_like(r2))
 
 
-def tps_cardinal(centers: Tensor, at: Tensor) -> Tensor:
+def tps_cardinal(centers: Tensor, at: Tensor, smoothing: float = 0.0) -> Tensor:
     """The matrix ``C`` ``(N, M)`` with ``f(at) = C @ values``, the spline through ``values`` at ``centers``.
 
     Column ``i`` is the cardinal function of centre ``i``: 1 there, 0 at the other centres, minimal bending
@@ -35,6 +35,9 @@ def tps_cardinal(centers: Tensor, at: Tensor) -> Tensor:
     Args:
         centers: ``(M, 2)`` distinct points (any unit, e.g. pixels), ``M >= 3`` and not all on one line.
         at: ``(N, 2)`` points to evaluate at, in the same unit.
+        smoothing: ``lambda >= 0``: 0 interpolates; larger values trade the values at the centres for less
+            bending (the smoothing spline of Wahba 1990, kernel matrix ``K + lambda I``), with ``lambda`` in
+            units of the centres' half-spread squared, so it means the same at any scale.
 
     Raises:
         ValueError: fewer than 3 centres, or centres that repeat or lie on one line (the system is singular).
@@ -55,7 +58,7 @@ def tps_cardinal(centers: Tensor, at: Tensor) -> Tensor:
     ones = torch.ones(m, 1, dtype=torch.float64, device=c.device)
     poly = torch.cat([ones, c], 1)  # (M, 3)
     system = torch.zeros(m + 3, m + 3, dtype=torch.float64, device=c.device)
-    system[:m, :m] = tps_kernel(c, c)
+    system[:m, :m] = tps_kernel(c, c) + smoothing * torch.eye(m, dtype=torch.float64, device=c.device)
     system[:m, m:] = poly
     system[m:, :m] = poly.T
     rhs = torch.zeros(m + 3, m, dtype=torch.float64, device=c.device)
@@ -70,8 +73,10 @@ def tps_cardinal(centers: Tensor, at: Tensor) -> Tensor:
     return (basis @ coef).to(at.dtype)
 
 
-def tps_interpolate(centers: Tensor, values: Tensor, at: Tensor) -> Tensor:
+def tps_interpolate(centers: Tensor, values: Tensor, at: Tensor, smoothing: float = 0.0) -> Tensor:
     """The thin-plate spline through ``values`` ``(M, D)`` at ``centers`` ``(M, 2)``, evaluated at ``at`` ``(N, 2)``.
+
+    ``smoothing`` as for :func:`tps_cardinal`.
 
     Example:
         >>> c = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
@@ -82,4 +87,4 @@ def tps_interpolate(centers: Tensor, values: Tensor, at: Tensor) -> Tensor:
     v = check_tensor("values", values, ndim=2)
     if v.shape[0] != centers.shape[0]:
         raise ValueError(f"values must have one row per centre ({centers.shape[0]}), got shape {tuple(v.shape)}")
-    return tps_cardinal(centers, at).to(v.dtype) @ v
+    return tps_cardinal(centers, at, smoothing).to(v.dtype) @ v
