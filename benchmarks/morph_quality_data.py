@@ -10,6 +10,11 @@ redistributed by this repository:
 * ``face_recognition`` 1.3.0's sdist: ``tests/test_images/biden.jpg``, ``obama.jpg``, ``obama2.jpg`` and
   ``obama3.jpg``, one person each; faces ``biden``, ``obama``, ``obama2`` and ``obama3``.
 
+and two photos already on the machine: ``astronaut``, the library's bundled ``astronaut.png`` (scikit-image's,
+512 x 512), and ``hopper``, matplotlib's ``mpl-data/sample_data/grace_hopper.jpg`` (512 x 600). ``t1-2`` and
+``t1-5`` are detected but not used (see :data:`DETECTED`); the ten faces used are split into a tune and a report
+half (:data:`SPLIT_FACES`).
+
 Each face is cropped as a square twice the side of the box that mediapipe's face detector found (shifted to lie
 inside the photo), and resized to 512 x 512 (antialiased bilinear). On each crop mediapipe's 468-point face mesh
 gives :data:`IBUG68`, a 68-point set laid out like iBUG's (jaw 17, brows 10, nose 9, eyes 12, mouth 20), and
@@ -80,6 +85,7 @@ FACE_RECOGNITION = Archive(
     "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec",
     sdist=True,
 )
+HOPPER_SHA256 = "a8ca6d734765703b09728ab47fe59f473d93ae3967fc24c7c0288c3c7adb7130"  # matplotlib 3.11.2
 _FR = "face_recognition-1.3.0/tests/test_images/"
 PHOTOS: dict[str, Photo] = {
     "t1": Photo(
@@ -101,11 +107,20 @@ PHOTOS: dict[str, Photo] = {
     ),
 }
 
-# The faces in the order that the split alternates over: t1's six left to right, then the single portraits.
-FACES: tuple[str, ...] = ("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6", "biden", "obama", "obama2", "obama3")
-# Faces alternate between the halves, and a pair belongs to a half when both its faces do: the report half's
-# faces are never seen while tuning. Pairs across the halves are not used.
-SPLIT_FACES: dict[str, tuple[str, ...]] = {"tune": FACES[0::2], "report": FACES[1::2]}
+# Every face that --detect writes. ``t1-2`` and ``t1-5`` are in near profile: the face mesh places their far side's
+# jaw and brow points (hidden behind the nose) across the nose line, so their marks cross those of any frontal face
+# (morph warns so), which no smooth morph can follow without folding; they are kept in the JSON but not used.
+DETECTED: tuple[str, ...] = (
+    *("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6"),
+    *("astronaut", "hopper", "biden", "obama", "obama2", "obama3"),
+)
+# A pair belongs to a half when both its faces do, so no report face is seen while tuning; pairs across the
+# halves are not used. The bundled pair's astronaut is a tune face.
+SPLIT_FACES: dict[str, tuple[str, ...]] = {
+    "tune": ("t1-1", "t1-3", "astronaut", "obama", "obama2"),
+    "report": ("t1-4", "t1-6", "hopper", "biden", "obama3"),
+}
+FACES: tuple[str, ...] = tuple(f for f in DETECTED if f in SPLIT_FACES["tune"] + SPLIT_FACES["report"])
 
 # mediapipe face-mesh indices of a 68-point set laid out like iBUG's 300-W annotation, "left" as seen in the image
 IBUG68: tuple[int, ...] = (
@@ -156,7 +171,20 @@ def fetch_archive(archive: Archive) -> Path:
 
 
 def photo_path(name: str) -> Path:
-    """A photograph of :data:`PHOTOS`, extracted from its archive into the cache and checked by SHA-256."""
+    """A photograph of :data:`PHOTOS`, extracted from its archive into the cache and checked by SHA-256;
+    ``"astronaut"``, the library's bundled sample; or ``"hopper"``, matplotlib's sample photo."""
+    if name == "astronaut":
+        from torchfluidwarp.data import sample_path
+
+        return sample_path("astronaut")
+    if name == "hopper":
+        from matplotlib.cbook import get_sample_data
+
+        path = Path(get_sample_data("grace_hopper.jpg", asfileobj=False))
+        digest = _sha256(path.read_bytes())
+        if digest != HOPPER_SHA256:
+            raise RuntimeError(f"{path} has SHA-256 {digest}, expected {HOPPER_SHA256}")
+        return path
     photo = PHOTOS[name]
     path = cache_dir() / Path(photo.member).name
     if not path.exists() or _sha256(path.read_bytes()) != photo.sha256:
@@ -298,7 +326,7 @@ def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
 
     mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=3)
     faces: dict[str, dict] = {}
-    for photo in PHOTOS:
+    for photo in (*PHOTOS, "astronaut", "hopper"):
         image = read_photo(photo)
         boxes = _face_boxes(image, tiled=photo == "t1")
         names = [f"t1-{i + 1}" for i in range(len(boxes))] if photo == "t1" else [photo]
@@ -316,7 +344,7 @@ def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
                 "extra": np.round(points[list(EXTRA)], 2).tolist(),
             }
             print(f"{name}: box {box}, detector score {score:.2f}")
-    missing = set(FACES) - set(faces)
+    missing = set(DETECTED) - set(faces)
     if missing:
         raise RuntimeError(f"faces not found: {sorted(missing)}")
     return {
@@ -326,7 +354,7 @@ def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
             "benchmarks/morph_quality_data.py --detect."
         ),
         "mesh_indices": {"ibug68": list(IBUG68), "extra": list(EXTRA)},
-        "faces": {name: faces[name] for name in FACES},
+        "faces": {name: faces[name] for name in DETECTED},
     }
 
 

@@ -1,0 +1,708 @@
+"""Morph quality on real photographs of faces, with held-out landmarks: the fluid morph against the classical ones.
+
+The pairs (:func:`load_pairs`):
+
+* **faces**: ten 512 x 512 face crops from photographs on PyPI (``morph_quality_data.py``), each with 68
+  iBUG-like landmarks and 12 extra points (forehead, temples, cheeks) from mediapipe's face mesh. Landmark ``i``
+  of the 68 is *marked* (given to the morph) when ``i % 3 != 2`` (46 points) and *held out* otherwise (22); the
+  12 extra points are always held out (34 held out in all). The faces alternate between a **tune** half and a
+  **report** half (``morph_quality_data.SPLIT_FACES``) and a pair belongs to a half when both its faces do:
+  10 unordered pairs each, and no report face is seen while tuning.
+* **bundled**: the library's astronaut -> cat pair (:mod:`torchfluidwarp.data`), 23 points, held out when
+  ``i % 3 == 2`` (7), marked otherwise (16). Its own row; not part of either half's medians.
+
+The methods, on the same crops and the same marked points, ``N`` frames (``--frames``, default 21), frame ``k`` at
+``s = k / (N - 1)``; each returns ``frames (N, C, H, W)`` and backward maps ``maps``, ``maps_b`` ``(N, H, W, 2)``
+(output pixel -> A's / B's pixel, ``(x, y)``, pixel centres at integers):
+
+* ``fluid``: :func:`torchfluidwarp.morph` with the keyword arguments of ``--morph-kwargs`` (default ``{}``: the
+  library's defaults); ``--config NAME=JSON`` adds more fluid rows.
+* ``tps``: the textbook thin-plate spline to the average shape ``S_s = (1 - s) a + s b``: A's map interpolates
+  ``S_s -> a`` (kernel centres at ``S_s``, with the affine part, solved in float64), B's ``S_s -> b``;
+  cross-dissolve ``(1 - s) A + s B``.
+* ``delaunay``: face_morpher's piecewise-affine morph: a Delaunay triangulation of ``S_s`` plus 8 border points
+  (corners and edge midpoints of the image's outer edges, mapped to themselves), each triangle mapped affinely
+  onto A's and B's; the same cross-dissolve.
+
+The metrics (:func:`evaluate`, the same for every method). A point's position in a frame is where that frame
+shows it: the ``y`` with ``maps[k](y) = p``, by Newton's method on the bilinearly read map
+(``bench_morph.invert_map_at``) from the pixel whose map value is nearest ``p``; a point that does not converge to
+within 0.1 px is "not located" and left out (the JSON counts them).
+
+* **held-out end error**: mean over the held-out points of ``|y - b|``, ``y`` where A's point shows in the last
+  frame (inverse of ``maps[-1]`` at ``a``), ``b`` B's point (the last frame is B); px.
+* **held-out ghosting** at the middle frame ``N // 2``: median over the held-out points of the distance between
+  where A's point and where B's point show in it (inverses of ``maps[mid]`` at ``a`` and ``maps_b[mid]`` at
+  ``b``); px. **marked ghosting**: the same for the marked points. **marked end error**: the held-out end error's
+  figure for the marked points.
+* **folds**: pixels whose Jacobian determinant (:func:`torchfluidwarp.warp.jacobian_determinant`) is ``<= 0``,
+  over all frames of ``maps`` and ``maps_b``: a count and its fraction of ``2 N H W``.
+* **seam figure**: the 99.9th percentile over the interior pixels of the middle frame's backward map's second
+  derivative, ``sqrt(sum_c (d_xx m_c)^2 + 2 (d_xy m_c)^2 + (d_yy m_c)^2)`` by central second differences, for
+  ``maps[mid]`` and ``maps_b[mid]``, the larger of the two; px/px^2. Zero for an affine map; a seam where the
+  warp's stretch jumps (a triangle's edge, a fluid box's wall) raises it.
+* **time**: wall seconds of the method's call (for the fluid, the :func:`morph` call).
+
+The script prints the machine, torch's threads and its command line, a per-pair table and the medians over each
+half (Markdown), with the ratio of each median to the thin-plate spline's. ``--json PATH`` writes everything,
+per-point distances included; ``--sheets DIR`` writes a contact sheet per pair (rows: the methods in the table's
+order, labelled; columns: ``s`` = 0, 1/4, 1/2, 3/4, 1). ``--selftest`` checks the metrics on known maps and exits.
+
+Python use (from the repository root)::
+
+    import sys; sys.path.insert(0, "benchmarks")
+    from bench_morph_quality import load_pairs, run_method, evaluate, summarize
+    rows = [evaluate(run_method("fluid", p, 21, compressible=True), p) for p in load_pairs("tune", bundled=False)]
+    summarize(rows)  # medians
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from _common import describe_load, machine, machine_load, source_fingerprint, write_json
+from bench_morph import invert_map_at
+from matplotlib.tri import Triangulation
+from morph_quality_data import FACES, SPLIT_FACES, load_faces
+from scipy.spatial import Delaunay
+from torch import Tensor
+
+import torchfluidwarp
+from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.warp import jacobian_determinant, warp_image
+
+Split = Literal["tune", "report", "all"]
+SPLITS: tuple[str, ...] = ("tune", "report")
+BASELINES: tuple[str, ...] = ("tps", "delaunay")
+INVERT_OK_PX = 0.1  # a point is located in a frame when the map at the found position is this close to it
+SEAM_QUANTILE = 0.999
+SHEET_AT = (0.0, 0.25, 0.5, 0.75, 1.0)
+SHEET_PX = 256
+
+# ----------------------------------------------------------------------------------------------- pairs
+
+
+@dataclass(frozen=True)
+class Pair:
+    """Two images and their marked and held-out points, in each image's pixels (pixel centres at integers)."""
+
+    name: str
+    split: str  # "tune", "report" or "bundled"
+    image_a: Tensor  # (1, 3, H, W) float32 in [0, 1]
+    image_b: Tensor
+    marked_a: Tensor  # (M, 2)
+    marked_b: Tensor
+    held_a: Tensor  # (K, 2)
+    held_b: Tensor
+
+
+def _hold_out(points: Tensor) -> tuple[Tensor, Tensor]:
+    """``(marked, held)``: points ``i % 3 != 2`` and ``i % 3 == 2``."""
+    held = torch.arange(points.shape[0]) % 3 == 2
+    return points[~held], points[held]
+
+
+def split_pairs(split: Split) -> list[tuple[str, str, str]]:
+    """``(face_a, face_b, half)`` for every unordered pair of distinct faces within a half, in ``FACES`` order."""
+    halves = SPLITS if split == "all" else (split,)
+    out = []
+    for half in halves:
+        faces = SPLIT_FACES[half]
+        out += [(a, b, half) for i, a in enumerate(faces) for b in faces[i + 1 :]]
+    return out
+
+
+def bundled_pair() -> Pair:
+    a, b = load_sample("astronaut"), load_sample("cat")
+    ma, ha = _hold_out(load_sample_points("astronaut"))
+    mb, hb = _hold_out(load_sample_points("cat"))
+    return Pair("astronaut_cat", "bundled", a, b, ma, mb, ha, hb)
+
+
+def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
+    """The face pairs of a half (``"tune"``, ``"report"``) or of both (``"all"``), then the bundled pair.
+
+    Face pairs are named ``"<face a>_<face b>"``; the bundled one ``"astronaut_cat"``.
+    """
+    if split not in ("tune", "report", "all"):
+        raise ValueError(f"split must be 'tune', 'report' or 'all', got {split!r}")
+    plan = split_pairs(split)
+    faces = load_faces(sorted({f for a, b, _ in plan for f in (a, b)}, key=FACES.index))
+    pairs = []
+    for a, b, half in plan:
+        fa, fb = faces[a], faces[b]
+        ma, ha = _hold_out(fa.ibug)
+        mb, hb = _hold_out(fb.ibug)
+        held_a, held_b = torch.cat([ha, fa.extra]), torch.cat([hb, fb.extra])
+        pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b))
+    if bundled:
+        pairs.append(bundled_pair())
+    return pairs
+
+
+# ----------------------------------------------------------------------------------------------- methods
+
+
+@dataclass
+class MethodResult:
+    """What a method returns; :func:`evaluate` reads ``frames``, ``maps``, ``maps_b`` and ``seconds``."""
+
+    frames: Tensor  # (N, C, H, W)
+    maps: Tensor  # (N, H, W, 2) output pixel -> A's pixel
+    maps_b: Tensor  # (N, H, W, 2) output pixel -> B's pixel
+    seconds: float  # wall time of the call
+    info: dict[str, Any] = field(default_factory=dict)
+    raw: Any = None  # the fluid's MorphResult
+
+
+def pixel_grid(H: int, W: int, dtype: torch.dtype = torch.float64) -> Tensor:
+    """``(H * W, 2)`` pixel centres ``(x, y)``, row by row."""
+    y, x = torch.meshgrid(torch.arange(H, dtype=dtype), torch.arange(W, dtype=dtype), indexing="ij")
+    return torch.stack([x, y], dim=-1).reshape(-1, 2)
+
+
+def _tps_kernel(d2: Tensor) -> Tensor:
+    """``U = r^2 log r^2`` from squared distances (0 at 0): twice the textbook ``r^2 log r``, the same spline."""
+    return torch.xlogy(d2, d2)
+
+
+def tps_fit(centres: Tensor, values: Tensor) -> tuple[Tensor, Tensor]:
+    """The interpolating thin-plate spline ``f(centres_i) = values_i`` (Bookstein 1989).
+
+    Args:
+        centres: ``(M, 2)`` float64 kernel centres ``(x, y)``.
+        values: ``(M, D)`` float64 values there (``D = 4``: two maps' ``(x, y)`` at once).
+
+    Returns:
+        ``(w, affine)``: ``(M, D)`` kernel weights and ``(3, D)`` affine part, ``f(p) = sum_i w_i U(|p - c_i|) +
+        affine[0] + p @ affine[1:]``; the solution of the ``(M + 3)`` system ``[[K, P], [P^T, 0]]``.
+    """
+    M = centres.shape[0]
+    P = torch.cat([torch.ones(M, 1, dtype=centres.dtype), centres], dim=1)  # (M, 3)
+    L = torch.zeros(M + 3, M + 3, dtype=centres.dtype)
+    L[:M, :M] = _tps_kernel(torch.cdist(centres, centres).square())
+    L[:M, M:], L[M:, :M] = P, P.T
+    rhs = torch.cat([values, torch.zeros(3, values.shape[1], dtype=values.dtype)])
+    sol = torch.linalg.solve(L, rhs)
+    return sol[:M], sol[M:]
+
+
+def tps_eval(centres: Tensor, w: Tensor, affine: Tensor, points: Tensor, chunk: int = 1 << 16) -> Tensor:
+    """The spline of :func:`tps_fit` at ``points`` ``(P, 2)`` float64: ``(P, D)``."""
+    out = points.new_empty(points.shape[0], w.shape[1])
+    for i in range(0, points.shape[0], chunk):
+        p = points[i : i + chunk]
+        out[i : i + chunk] = _tps_kernel(torch.cdist(p, centres).square()) @ w + affine[0] + p @ affine[1:]
+    return out
+
+
+def _border_points(H: int, W: int) -> np.ndarray:
+    """The image's corners and edge midpoints on its outer edges (pixel centres at integers): ``(8, 2)``."""
+    x0, y0, x1, y1 = -0.5, -0.5, W - 0.5, H - 0.5
+    xm, ym = (x0 + x1) / 2, (y0 + y1) / 2
+    return np.array([[x0, y0], [xm, y0], [x1, y0], [x1, ym], [x1, y1], [xm, y1], [x0, y1], [x0, ym]])
+
+
+def delaunay_maps(shape: Tensor, sources: list[Tensor], H: int, W: int) -> list[Tensor]:
+    """Piecewise-affine backward maps: Delaunay triangles of ``shape`` ``(M, 2)`` plus the border points, each
+    mapped affinely onto the same triangle of each ``sources[j]`` ``(M, 2)``. Returns ``(H, W, 2)`` float32 each."""
+    border = _border_points(H, W)
+    vertices = np.concatenate([shape.double().numpy(), border])
+    tri = Delaunay(vertices)
+    grid = pixel_grid(H, W).numpy()
+    # matplotlib's trapezoid-map point location: 100 times faster than Delaunay.find_simplex here, same answer
+    simplex = Triangulation(vertices[:, 0], vertices[:, 1], tri.simplices).get_trifinder()(grid[:, 0], grid[:, 1])
+    if (simplex < 0).any():  # cannot happen: the border points' hull contains every pixel centre
+        raise RuntimeError(f"{int((simplex < 0).sum())} pixels outside the triangulation")
+    corners = np.concatenate([vertices[tri.simplices], np.ones((len(tri.simplices), 3, 1))], axis=2)  # (T, 3, 3)
+    out = []
+    for src in sources:
+        verts = np.concatenate([src.double().numpy(), border])[tri.simplices]  # (T, 3, 2)
+        affine = np.linalg.solve(corners, verts)  # (T, 3, 2): [x, y, 1] @ affine = source position
+        a = affine[simplex]  # (HW, 3, 2)
+        m = grid[:, :1] * a[:, 0] + grid[:, 1:] * a[:, 1] + a[:, 2]
+        out.append(torch.from_numpy(m).float().view(H, W, 2))
+    return out
+
+
+def _dissolve(a: Tensor, b: Tensor, maps: Tensor, maps_b: Tensor) -> Tensor:
+    n = maps.shape[0]
+    s = torch.linspace(0, 1, n, dtype=a.dtype).view(-1, 1, 1, 1)
+    return (1 - s) * warp_image(a.expand(n, -1, -1, -1), maps) + s * warp_image(b.expand(n, -1, -1, -1), maps_b)
+
+
+def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -> MethodResult:
+    """The thin-plate-spline or Delaunay morph to the average shape (see the module docstring)."""
+    t0 = time.perf_counter()
+    H, W = pair.image_a.shape[-2:]
+    pa, pb = pair.marked_a.double(), pair.marked_b.double()
+    grid = pixel_grid(H, W)
+    maps, maps_b = [], []
+    for k in range(frames):
+        s = k / (frames - 1)
+        shape = (1 - s) * pa + s * pb
+        if kind == "tps":
+            w, affine = tps_fit(shape, torch.cat([pa, pb], dim=1))  # both maps share the kernel centres
+            both = tps_eval(shape, w, affine, grid).float().view(H, W, 4)
+            maps.append(both[..., :2])
+            maps_b.append(both[..., 2:])
+        else:
+            ma, mb = delaunay_maps(shape, [pa, pb], H, W)
+            maps.append(ma)
+            maps_b.append(mb)
+    maps_t, maps_b_t = torch.stack(maps), torch.stack(maps_b)
+    out = _dissolve(pair.image_a, pair.image_b, maps_t, maps_b_t)
+    return MethodResult(out, maps_t, maps_b_t, time.perf_counter() - t0)
+
+
+def run_method(name: str, pair: Pair, frames: int = 21, **kwargs: Any) -> MethodResult:
+    """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph` with ``kwargs``), ``"tps"`` or ``"delaunay"``.
+
+    Warnings that the fluid morph raises are recorded in ``info["warnings"]``, not printed.
+    """
+    if name in BASELINES:
+        if kwargs:
+            raise ValueError(f"{name} takes no keyword arguments, got {sorted(kwargs)}")
+        return classical_morph(name, pair, frames)  # type: ignore[arg-type]
+    if name != "fluid":
+        raise ValueError(f"method must be 'fluid', 'tps' or 'delaunay', got {name!r}")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t0 = time.perf_counter()
+        res = torchfluidwarp.morph(
+            pair.image_a, pair.image_b, pair.marked_a, pair.marked_b, frames=frames, progress=False, **kwargs
+        )
+        seconds = time.perf_counter() - t0
+    info: dict[str, Any] = {"warnings": sorted({str(w.message) for w in caught})}
+    fit = getattr(res, "fit", None)
+    if fit is not None and getattr(fit, "error", None) is not None:
+        info["fit_error_px"] = float(fit.error.double().mean())
+    if isinstance(getattr(res, "seconds", None), dict):
+        info["phases_s"] = {k: float(v) for k, v in res.seconds.items()}
+    return MethodResult(res.frames, res.maps, res.maps_b, seconds, info, raw=res)
+
+
+# ----------------------------------------------------------------------------------------------- metrics
+
+
+def locate(map1: Tensor, targets: Tensor) -> tuple[Tensor, Tensor]:
+    """Where a frame shows ``targets`` ``(K, 2)``: ``y`` ``(K, 2)`` float64 with ``map1(y) = targets``, and an
+    ``(K,)`` mask of the points located (map residual ``<= INVERT_OK_PX``). ``map1``: ``(1, H, W, 2)``.
+
+    Newton's method starts from the pixel whose map value is nearest each target.
+    """
+    W = map1.shape[2]
+    flat = map1.reshape(-1, 2).double()
+    targets = targets.double()
+    idx = torch.cat([torch.cdist(t, flat).argmin(1) for t in targets.split(16)])
+    init = torch.stack([idx % W, idx // W], dim=-1).double()
+    y, residual = invert_map_at(map1, targets, init)
+    return y, residual <= INVERT_OK_PX
+
+
+def fold_count(maps: Tensor) -> int:
+    """Pixels of ``maps`` ``(N, H, W, 2)`` whose Jacobian determinant is ``<= 0``, over all frames."""
+    return int((jacobian_determinant(maps) <= 0).sum())
+
+
+def seam_figure(map1: Tensor, q: float = SEAM_QUANTILE) -> float:
+    """The ``q`` quantile over interior pixels of the second derivative's Frobenius norm of a map ``(H, W, 2)``,
+    px/px^2 (central second differences, float64)."""
+    m = map1.double()
+    c = m[1:-1, 1:-1]
+    dxx = m[1:-1, 2:] - 2 * c + m[1:-1, :-2]
+    dyy = m[2:, 1:-1] - 2 * c + m[:-2, 1:-1]
+    dxy = (m[2:, 2:] - m[2:, :-2] - m[:-2, 2:] + m[:-2, :-2]) / 4
+    norm = (dxx.square() + 2 * dxy.square() + dyy.square()).sum(-1).sqrt()  # (H - 2, W - 2)
+    return float(torch.quantile(norm.flatten(), q))
+
+
+def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
+    v = d[ok]
+    nan = float("nan")
+    return {
+        "mean": float(v.mean()) if v.numel() else nan,
+        "median": float(v.median()) if v.numel() else nan,
+        "max": float(v.max()) if v.numel() else nan,
+        "located": int(ok.sum()),
+        "of": int(ok.numel()),
+        "per_point": [round(float(x), 3) if bool(o) else None for x, o in zip(d, ok)],
+    }
+
+
+def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
+    """The metrics of a morph of ``pair``: anything with ``frames`` ``(N, C, H, W)``, ``maps`` and ``maps_b``
+    ``(N, H, W, 2)`` (a :class:`MethodResult` or a :class:`~torchfluidwarp.morph.MorphResult`).
+
+    Returns a dict: ``held_end_px``, ``held_ghost_px``, ``marked_ghost_px``, ``marked_end_px`` (the headline
+    figures: mean, median, median, mean; px), ``folded``, ``folded_fraction``, ``seam``, ``seconds`` (wall time
+    when ``result.seconds`` is a number, the ``"total"`` of a dict), and the details under ``"points"``.
+    """
+    maps, maps_b = result.maps.detach().cpu().float(), result.maps_b.detach().cpu().float()
+    n, H, W = maps.shape[:3]
+    mid = n // 2
+    last_a, mid_a, mid_b = maps[n - 1 :], maps[mid : mid + 1], maps_b[mid : mid + 1]
+    points: dict[str, dict[str, Any]] = {}
+    for kind, pa, pb in (("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)):
+        y_end, ok_end = locate(last_a, pa)
+        points[f"{kind}_end"] = _stats((y_end - pb.double()).norm(dim=-1), ok_end)
+        y, ok_y = locate(mid_a, pa)
+        z, ok_z = locate(mid_b, pb)
+        points[f"{kind}_ghost"] = _stats((y - z).norm(dim=-1), ok_y & ok_z)
+    folded_a, folded_b = fold_count(maps), fold_count(maps_b)
+    seconds = getattr(result, "seconds", None)
+    if isinstance(seconds, dict):
+        seconds = seconds.get("total")
+    return {
+        "pair": pair.name,
+        "split": pair.split,
+        "frames": n,
+        "held_end_px": points["held_end"]["mean"],
+        "held_ghost_px": points["held_ghost"]["median"],
+        "marked_ghost_px": points["marked_ghost"]["median"],
+        "marked_end_px": points["marked_end"]["mean"],
+        "folded": folded_a + folded_b,
+        "folded_a": folded_a,
+        "folded_b": folded_b,
+        "folded_fraction": (folded_a + folded_b) / (2 * n * H * W),
+        "seam": max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
+        "seconds": None if seconds is None else float(seconds),
+        "not_located": sum(p["of"] - p["located"] for p in points.values()),
+        "points": points,
+    }
+
+
+HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "marked_end_px", "seam", "seconds")
+
+
+def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Medians over pairs of :func:`evaluate`'s figures; folds as the pairs that fold and the worst fraction."""
+    out: dict[str, Any] = {"pairs": len(rows)}
+    for key in (*HEADLINE, "folded_fraction"):
+        values = [r[key] for r in rows if r[key] is not None and r[key] == r[key]]
+        out[key] = statistics.median(values) if values else float("nan")
+    out["pairs_folding"] = sum(r["folded"] > 0 for r in rows)
+    out["folded_fraction_max"] = max((r["folded_fraction"] for r in rows), default=float("nan"))
+    out["folded_max"] = max((r["folded"] for r in rows), default=0)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- self-test
+
+
+def _affine_result(size: int, frames: int, R: Tensor, t: Tensor) -> MethodResult:
+    """The exact morph for B = A moved by ``p -> R p + t``: frame ``s`` moves A by ``F_s = (1 - s) I + s F``."""
+    grid = pixel_grid(size, size)
+    eye = torch.eye(2, dtype=torch.float64)
+    maps, maps_b = [], []
+    for k in range(frames):
+        s = k / (frames - 1)
+        Rs, ts = (1 - s) * eye + s * R, s * t
+        back = (grid - ts) @ torch.linalg.inv(Rs).T  # F_s^-1(y): A's pixel
+        maps.append(back.float().view(size, size, 2))
+        maps_b.append((back @ R.T + t).float().view(size, size, 2))  # F(F_s^-1(y)): B's pixel
+    maps_t, maps_b_t = torch.stack(maps), torch.stack(maps_b)
+    return MethodResult(torch.zeros(frames, 1, size, size), maps_t, maps_b_t, 0.0)
+
+
+def selftest() -> int:
+    """Check the metrics on maps whose answers are known; return 0 when all hold."""
+    size, frames = 96, 5
+    gen = torch.Generator().manual_seed(0)
+    R = torch.tensor([[1.1, 0.15], [-0.1, 0.95]], dtype=torch.float64)
+    t = torch.tensor([3.0, -2.0], dtype=torch.float64)
+    pa = (30 + 36 * torch.rand(24, 2, generator=gen, dtype=torch.float64)).round()  # at pixel centres
+    pb = pa @ R.T + t
+    ma, ha = _hold_out(pa)
+    mb, hb = _hold_out(pb)
+    image = torch.rand(1, 3, size, size, generator=gen)
+    pair = Pair("affine", "selftest", image, image, ma.float(), mb.float(), ha.float(), hb.float())
+    checks: list[tuple[str, bool, str]] = []
+
+    def check(name: str, ok: bool, got: Any) -> None:
+        checks.append((name, ok, str(got)))
+
+    exact = evaluate(_affine_result(size, frames, R, t), pair)
+    for key in ("held_end_px", "held_ghost_px", "marked_ghost_px", "marked_end_px"):
+        check(f"exact affine map: {key} ~ 0", exact[key] < 1e-3, f"{exact[key]:.2e} px")
+    check("exact affine map: no fold", exact["folded"] == 0, exact["folded"])
+    check("exact affine map: seam ~ 0", exact["seam"] < 1e-3, f"{exact['seam']:.2e}")
+    check("exact affine map: every point located", exact["not_located"] == 0, exact["not_located"])
+
+    # B's held-out points moved by d: the end error is |d|; in the middle frame B's points show at
+    # F_s(F^-1(b + d)) = y + L d with L = R_s R^-1 (R_s = (I + R) / 2), so the ghosting is |L d|
+    d = torch.tensor([3.0, -4.0], dtype=torch.float64)
+    moved = Pair(pair.name, pair.split, image, image, ma.float(), mb.float(), ha.float(), (hb + d).float())
+    off = evaluate(_affine_result(size, frames, R, t), moved)
+    L = (torch.eye(2, dtype=torch.float64) + R) / 2 @ torch.linalg.inv(R)
+    ghost = float((L @ d).norm())
+    check("held-out points moved by (3, -4): end error 5 px", abs(off["held_end_px"] - 5) < 1e-3, off["held_end_px"])
+    check(f"... and mid-frame ghosting {ghost:.3f} px", abs(off["held_ghost_px"] - ghost) < 1e-3, off["held_ghost_px"])
+
+    flipped = _affine_result(size, frames, R, t)
+    flipped.maps[..., 0] = size - 1 - flipped.maps[..., 0]  # mirrored: det < 0 everywhere
+    fl = evaluate(flipped, pair)
+    check("mirrored A maps: half of all map pixels fold", abs(fl["folded_fraction"] - 0.5) < 1e-9, fl["folded"])
+
+    # a stretch that jumps from 1 to 1.5 at one column: its second difference there is 0.5 px/px^2
+    x = torch.arange(size, dtype=torch.float64)
+    kink = torch.where(x <= 50, x, 50 + 1.5 * (x - 50))
+    m = torch.stack(torch.broadcast_tensors(kink.view(1, -1), x.view(-1, 1)), dim=-1)
+    seam = seam_figure(m)
+    check("a kink in the stretch (1 -> 1.5) at one column: seam figure 0.5", abs(seam - 0.5) < 1e-9, seam)
+
+    # the baselines interpolate: frame 0 (shape = A's points, at pixel centres) reads B at B's marked points
+    for name in BASELINES:
+        res = run_method(name, pair, frames)
+        at = res.maps_b[0][ma[:, 1].long(), ma[:, 0].long()].double()  # (M, 2)
+        err = float((at - mb).norm(dim=-1).max())
+        check(f"{name}: frame 0 reads B's marked points at A's", err < 1e-3, f"{err:.1e} px")
+        ends = max(float((res.frames[i] - image[0]).abs().max()) for i in (0, -1))
+        check(f"{name}: first and last frames are A and B", ends < 1e-4, f"{ends:.1e}")
+    tps = evaluate(run_method("tps", pair, frames), pair)
+    check("tps on an affine pair: held-out end error ~ 0", tps["held_end_px"] < 1e-2, tps["held_end_px"])
+    check("tps on an affine pair: no fold", tps["folded"] == 0, tps["folded"])
+    check("tps on an affine pair: seam ~ 0", tps["seam"] < 1e-3, tps["seam"])
+
+    for name, ok, got in checks:
+        print(f"{'ok  ' if ok else 'FAIL'}  {name}  ({got})")
+    failed = sum(not ok for _, ok, _ in checks)
+    print(f"{len(checks) - failed} passed, {failed} failed")
+    return 1 if failed else 0
+
+
+# ----------------------------------------------------------------------------------------------- output
+
+
+def _f(x: float | None, digits: int = 2) -> str:
+    return "—" if x is None or x != x else f"{x:.{digits}f}"
+
+
+def _folds(count: int, fraction: float) -> str:
+    return "0" if count == 0 else f"{count} ({100 * fraction:.3g}%)"
+
+
+def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
+    head = "| pair | method | held-out end (mean) | held-out ghost (median) | marked ghost (median) "
+    head += "| marked end (mean) | folded px | seam | time s |\n|---|---|---|---|---|---|---|---|---|"
+    lines = [head]
+    for rec in records:
+        for label in labels:
+            r = rec["methods"][label]
+            mark = "*" if r["not_located"] else ""
+            lines.append(
+                f"| {rec['pair']} | {label} | {_f(r['held_end_px'])}{mark} | {_f(r['held_ghost_px'])} | "
+                f"{_f(r['marked_ghost_px'])} | {_f(r['marked_end_px'])} | "
+                f"{_folds(r['folded'], r['folded_fraction'])} | {_f(r['seam'], 3)} | {_f(r['seconds'])} |"
+            )
+    return "\n".join(lines)
+
+
+def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
+    ref = summary.get("tps")
+    head = "| method | held-out end | held-out ghost | marked ghost | marked end | pairs folding | worst folded "
+    head += "| seam | time s | held-out end / tps | held-out ghost / tps | seam / tps |\n"
+    head += "|---|---|---|---|---|---|---|---|---|---|---|---|"
+    lines = [head]
+    for label in labels:
+        s = summary[label]
+
+        def ratio(key: str, s: dict[str, Any] = s) -> str:
+            return "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"
+
+        lines.append(
+            f"| {label} | {_f(s['held_end_px'])} | {_f(s['held_ghost_px'])} | {_f(s['marked_ghost_px'])} | "
+            f"{_f(s['marked_end_px'])} | {s['pairs_folding']}/{s['pairs']} | {100 * s['folded_fraction_max']:.3g}% | "
+            f"{_f(s['seam'], 3)} | {_f(s['seconds'])} | {ratio('held_end_px')} | {ratio('held_ghost_px')} | "
+            f"{ratio('seam')} |"
+        )
+    return "\n".join(lines)
+
+
+def _thumb(frame: Tensor) -> np.ndarray:
+    small = torch.nn.functional.interpolate(
+        frame[None].float(), size=(SHEET_PX, SHEET_PX), mode="bilinear", align_corners=False, antialias=True
+    )
+    return (small[0, :3].clamp(0, 1).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+
+
+def write_sheet(path: Path, pair: str, rows: dict[str, list[Tensor]]) -> None:
+    """A contact sheet: one row per method (labelled at the left), columns at ``SHEET_AT``."""
+    from PIL import Image, ImageDraw
+
+    label_w, head_h, gap = 110, 22, 4
+    cols = len(SHEET_AT)
+    sheet = Image.new(
+        "RGB", (label_w + cols * (SHEET_PX + gap), head_h + len(rows) * (SHEET_PX + gap)), (255, 255, 255)
+    )
+    draw = ImageDraw.Draw(sheet)
+    draw.text((4, 4), pair, fill=(0, 0, 0))
+    for j, s in enumerate(SHEET_AT):
+        draw.text((label_w + j * (SHEET_PX + gap) + SHEET_PX // 2 - 16, 4), f"s = {s:g}", fill=(0, 0, 0))
+    for i, (label, frames) in enumerate(rows.items()):
+        top = head_h + i * (SHEET_PX + gap)
+        draw.text((4, top + SHEET_PX // 2 - 6), label[:16], fill=(0, 0, 0))
+        for j, frame in enumerate(frames):
+            sheet.paste(Image.fromarray(_thumb(frame)), (label_w + j * (SHEET_PX + gap), top))
+    tmp = path.with_suffix(".tmp.png")
+    sheet.save(tmp)
+    os.replace(tmp, path)
+
+
+def cpu_model() -> str:
+    try:
+        text = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        return next(line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("Model name"))
+    except (OSError, subprocess.CalledProcessError, StopIteration):
+        return machine()["cpu"]
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+
+def _config(text: str) -> tuple[str, dict[str, Any]]:
+    name, sep, spec = text.partition("=")
+    if not sep or not name or name in BASELINES:
+        raise argparse.ArgumentTypeError(f"expected NAME=JSON with NAME not in {BASELINES}, got {text!r}")
+    return name, _kwargs(spec)
+
+
+def _kwargs(spec: str) -> dict[str, Any]:
+    try:
+        kwargs = json.loads(spec)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"not JSON: {spec!r} ({err})") from None
+    if not isinstance(kwargs, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object of morph keyword arguments, got {spec!r}")
+    return kwargs
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--split", choices=("tune", "report", "all"), default="all", help="face pairs (default all)")
+    parser.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
+    parser.add_argument("--methods", default="tps,delaunay,fluid", help="comma-separated rows: tps, delaunay, fluid")
+    parser.add_argument(
+        "--morph-kwargs", type=_kwargs, default={}, metavar="JSON", help="keyword arguments of the 'fluid' row"
+    )
+    parser.add_argument(
+        "--config",
+        type=_config,
+        action="append",
+        default=[],
+        metavar="NAME=JSON",
+        help="another fluid row NAME with these morph keyword arguments (repeatable)",
+    )
+    parser.add_argument("--pairs", help="comma-separated pair names to keep (e.g. t1-1_t1-3,astronaut_cat)")
+    parser.add_argument("--no-bundled", action="store_true", help="leave out the bundled astronaut -> cat pair")
+    parser.add_argument("--sheets", metavar="DIR", help="write a contact sheet per pair into DIR")
+    parser.add_argument("--json", metavar="PATH", help="write every figure to PATH")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    parser.add_argument("--selftest", action="store_true", help="check the metrics on known maps and exit")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    if args.selftest:
+        return selftest()
+    if args.frames < 2:
+        parser.error(f"--frames must be >= 2, got {args.frames}")
+    rows: dict[str, tuple[str, dict[str, Any]]] = {}
+    for name in filter(None, args.methods.split(",")):
+        if name not in (*BASELINES, "fluid"):
+            parser.error(f"--methods: unknown method {name!r} (tps, delaunay, fluid)")
+        rows[name] = (name, args.morph_kwargs if name == "fluid" else {})
+    for name, kwargs in args.config:
+        rows[name] = ("fluid", kwargs)
+    labels = list(rows)
+
+    pairs = load_pairs(args.split, bundled=not args.no_bundled)
+    if args.pairs:
+        keep = set(args.pairs.split(","))
+        unknown = keep - {p.name for p in pairs}
+        if unknown:
+            parser.error(f"--pairs: not in split {args.split!r}: {sorted(unknown)}")
+        pairs = [p for p in pairs if p.name in keep]
+    command = shlex.join([sys.executable, *sys.argv]) if argv is None else shlex.join(["bench_morph_quality", *argv])
+    load0 = machine_load()
+    print(f"command: {command}")
+    print(f"CPU: {cpu_model()} ({os.cpu_count()} cores); torch {torch.__version__}, {torch.get_num_threads()} threads")
+    print(f"torchfluidwarp {torchfluidwarp.__file__} (sources {source_fingerprint()}); {describe_load(load0)}")
+    described = ", ".join(f"{label} = {method} {kwargs}" for label, (method, kwargs) in rows.items())
+    print(f"{len(pairs)} pairs, {args.frames} frames; rows: {described}")
+    if args.sheets:
+        Path(args.sheets).mkdir(parents=True, exist_ok=True)
+
+    records = []
+    for pair in pairs:
+        rec: dict[str, Any] = {"pair": pair.name, "split": pair.split, "methods": {}}
+        sheet_rows: dict[str, list[Tensor]] = {}
+        for label, (method, kwargs) in rows.items():
+            res = run_method(method, pair, args.frames, **kwargs)
+            metrics = evaluate(res, pair)
+            metrics["info"] = res.info
+            rec["methods"][label] = metrics
+            n = res.frames.shape[0]
+            sheet_rows[label] = [res.frames[round(s * (n - 1))].detach().cpu() for s in SHEET_AT]
+            print(
+                f"  {pair.name} {label}: held-out {_f(metrics['held_end_px'])} px, ghost {_f(metrics['held_ghost_px'])}"
+                f" / {_f(metrics['marked_ghost_px'])} px, folded {metrics['folded']}, seam {_f(metrics['seam'], 3)},"
+                f" {res.seconds:.2f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+            del res
+        if args.sheets:
+            write_sheet(Path(args.sheets) / f"{pair.name}.png", pair.name, sheet_rows)
+        records.append(rec)
+
+    groups = {half: [r for r in records if r["split"] == half] for half in (*SPLITS, "bundled")}
+    summaries = {
+        half: {label: summarize([r["methods"][label] for r in recs]) for label in labels}
+        for half, recs in groups.items()
+        if recs
+    }
+    print("\n## Per pair\n")
+    print(pair_table(records, labels))
+    print("\n(*: some points were not located in a frame; see the JSON.) Ghosting at frame", args.frames // 2)
+    for half, summary in summaries.items():
+        names = ", ".join(r["pair"] for r in groups[half])
+        print(f"\n## Medians, {half} ({len(groups[half])} pairs: {names})\n")
+        print(median_table(summary, labels))
+    load1 = machine_load()
+    print(f"\n{describe_load(load1)}")
+    if args.json:
+        write_json(
+            args.json,
+            {
+                "command": command,
+                "machine": {**machine(), "cpu_lscpu": cpu_model()},
+                "load": {"start": load0, "end": load1},
+                "source_fingerprint": source_fingerprint(),
+                "frames": args.frames,
+                "rows": {k: {"method": m, "kwargs": kw} for k, (m, kw) in rows.items()},
+                "pairs": records,
+                "medians": summaries,
+            },
+        )
+        print(f"wrote {args.json}")
+    if args.sheets:
+        print(f"wrote {len(records)} contact sheets to {args.sheets} (rows: {', '.join(labels)})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
