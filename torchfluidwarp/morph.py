@@ -122,21 +122,6 @@ def region_of_interest(points: Tensor, margin: float) -> tuple[int, int, int, in
     return int(x0), int(y0), int(x1) + 1, int(y1) + 1
 
 
-def _embed(maps: Tensor, box: tuple[int, int, int, int], size: tuple[int, int]) -> Tensor:
-    """Maps ``(N, h_r, w_r, 2)`` computed on a box (box pixels) as maps of the whole image ``(N, H, W, 2)``.
-
-    Pixels outside the box stay put; the box may extend beyond the image."""
-    x0, y0, x1, y1 = box
-    H, W = size
-    if (x0, y0, x1, y1) == (0, 0, W, H):
-        return maps
-    full = identity_map(size, batch=maps.shape[0], dtype=maps.dtype).clone()
-    offset = torch.tensor([x0, y0], dtype=maps.dtype)
-    ys, xs = slice(max(0, y0), min(H, y1)), slice(max(0, x0), min(W, x1))
-    full[:, ys, xs] = maps[:, ys.start - y0 : ys.stop - y0, xs.start - x0 : xs.stop - x0] + offset
-    return full
-
-
 def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
     u = times / T
     if blend == "linear":
@@ -189,11 +174,11 @@ def _dissolve(fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, w: float, si
 
 
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
-    """Read a map ``(1, H, W, 2)`` at pixel positions ``(1, H, W, 2)`` (bilinear).
+    """Read a map ``(1, h, w, 2)`` at pixel positions ``(1, H, W, 2)`` of its grid (bilinear).
 
-    The map's displacement is what is interpolated (and held constant beyond the image), so outside the image
-    the map continues as a translation instead of collapsing onto the edge: the composite stays a proper,
-    fold-free map."""
+    The map's displacement is what is interpolated (and held constant beyond the map's grid), so outside the
+    grid the map continues as a translation instead of collapsing onto the edge: the composite stays a proper,
+    fold-free map, without a kink where the grid (a fluid box) ends."""
     disp = coords - identity_map((coords.shape[1], coords.shape[2]), dtype=coords.dtype)
     return at + _warp_image(disp.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
 
@@ -238,7 +223,6 @@ def _render(
     n: int,
     inverse: InverseMethod,
     blend: Blend,
-    align: AlignKind | None,
     fit_kwargs: dict[str, Any],
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
     """Render the frames of a fitted morph (see :func:`morph`)."""
@@ -246,26 +230,24 @@ def _render(
     time_list = [float(s) for s in times]
     time_list[-1] = float(steps)
     velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
-    g = _embed(backward_maps(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(0)  # (1, N, H, W, 2)
+    # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
+    g = backward_maps(velocities, roi, fit.warp.dt, time_list)[0].unsqueeze(1)  # (N, 1, h_r, w_r, 2)
     if inverse == "flow":
-        k_maps = list(_embed(maps_to_end(velocities, roi, fit.warp.dt, time_list)[0], box, size).unsqueeze(1))
+        k_maps = maps_to_end(velocities, roi, fit.warp.dt, time_list)[0].unsqueeze(1)
     else:
         small_kwargs = {**fit_kwargs, "progress": False}
-        k_maps = list(
-            _embed(torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype), box, size).unsqueeze(1)
-        )
+        k_maps = torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype).unsqueeze(1)
     t_inv = time.perf_counter()
+    offset = torch.tensor([box[0], box[1]], dtype=a.dtype)
 
     weights = _blend_weights(times, steps, blend)
     ident = identity_map(size, dtype=torch.float64)
     out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
     for k, s in enumerate(time_list):
         Mk = interpolate_alignment(M, s / steps, center)
-        z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype)  # (1, H, W, 2) in the fluid frame
-        if align in (None, "none"):
-            map_a, k_at = g[:, k], k_maps[k]
-        else:
-            map_a, k_at = _sample_map(g[:, k], z), _sample_map(k_maps[k], z)
+        z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, H, W, 2) in the box
+        map_a = _sample_map(g[k], z) + offset
+        k_at = _sample_map(k_maps[k], z) + offset
         map_b = apply_alignment(M, k_at.double()).to(a.dtype)
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
         out.append(_dissolve(fa, fb, map_a, map_b, float(weights[k]), size))
@@ -531,7 +513,7 @@ def morph(
     t_fit = time.perf_counter()
 
     with torch.no_grad():  # the fit is done: rendering needs no graph
-        result = _render(a, b, fit, M, center, box, size, roi, steps, n, inverse, blend, align, fit_kwargs)
+        result = _render(a, b, fit, M, center, box, size, roi, steps, n, inverse, blend, fit_kwargs)
     frames_t, fwd, bwd, maps_a, maps_b, times, t_inv = result
     t_render = time.perf_counter()
 
