@@ -380,7 +380,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         metavar="S",
         type=_bounded(float, 0.0, strict=False),
         default=None,
-        help="how strongly the fit keeps the flow calm (default 10 for natural, 5 for paper; see morph())",
+        help="how strongly the fit keeps the flow calm (default 3 for natural, 5 for paper; see morph())",
     )
     p.add_argument(
         "--max-iter",

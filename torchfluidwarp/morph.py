@@ -135,12 +135,12 @@ PAD = 0.125
 """The natural morph's fluid box reaches this fraction of the image's longer side beyond each edge: the walls,
 which no flow crosses, stay outside the picture, and the forces fade to zero between the picture and the walls."""
 
-MIN_AREA = 0.25
+MIN_AREA = 0.1
 """The natural morph never squeezes an area below this fraction of its size on the way (see
 :func:`_unfolded_targets`): a margin that keeps the discrete flow and its resampled maps from folding."""
 
 DEFAULTS: dict[str, dict[str, Any]] = {
-    "natural": {"compressible": True, "smoothness": 10.0, "max_iter": 30},
+    "natural": {"compressible": True, "smoothness": 3.0, "max_iter": 30},
     "paper": {"compressible": False, "smoothness": 5.0, "max_iter": 100},
 }
 """Per-method defaults of :func:`morph`'s ``compressible``, ``smoothness`` and ``max_iter``."""
