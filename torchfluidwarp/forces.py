@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -20,7 +20,7 @@ from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.grid import FluidGrid
-from torchfluidwarp.spline import tps_cardinal
+from torchfluidwarp.spline import tps_cardinal, tps_fit
 
 __all__ = [
     "Brushes",
@@ -235,55 +235,89 @@ def _fade(x: Tensor, lo: float, hi: float, end_lo: float, end_hi: float) -> Tens
     return 0.5 * (1 + torch.cos(math.pi * torch.maximum(below, above)))
 
 
-class LandmarkForces(nn.Module):
-    """Forces that give marked points chosen velocities, spread between them by a thin-plate spline.
+def solve_midpoints(
+    travel: Callable[[Tensor], Tensor], at: Tensor, sigma: float, start: Tensor | None = None
+) -> Tensor:
+    """The midpoints ``m`` ``(N, 2)`` with ``m + sigma D(m) = at``: where the particles at ``at`` ``(N, 2)`` are
+    in the middle frame of straight paths ``m + sigma D(m)`` (see :class:`LandmarkForces`).
 
-    The control vector is the points' velocities: ``weight[:, t]`` (plus ``velocities[:, t]``) is the velocity,
-    in pixels per time unit, that point ``i`` should have during step ``t`` at ``paths[t, i]``. The force of
-    step ``t`` is the thin-plate spline (:func:`~torchfluidwarp.spline.tps_cardinal`) through the change of
-    those velocities since step ``t - 1``, evaluated at the fluid's cells: a velocity set at step 0 is one
-    kick, after which an inviscid compressible fluid coasts, every particle on a straight line at constant
-    speed (Burgers' equation). So ``velocities = (target - source) / (T dt)`` on the straight paths makes the
-    marked points travel straight to their targets, and the rest of the picture moves as the spline between
-    them says; a fit (:func:`~torchfluidwarp.control.fit_keyframes`) only corrects ``weight``, and its
-    ``regularization`` then penalises the departure from straight, constant-speed paths.
+    Newton's method, with the Jacobian of ``D = travel`` by central differences (0.01 px), from ``start`` (default
+    ``at``); the map is invertible wherever the paths do not fold, and a few iterations reach round-off.
+    """
+    m = at.clone() if start is None else start.clone()
+    h = 0.01
+    ex, ey = m.new_tensor([h, 0.0]), m.new_tensor([0.0, h])
+    for _ in range(12):
+        residual = m + sigma * travel(m) - at  # (N, 2)
+        if float(residual.abs().max()) < 1e-9:
+            break
+        jx = (travel(m + ex) - travel(m - ex)) / (2 * h)  # (N, 2): dD/dx
+        jy = (travel(m + ey) - travel(m - ey)) / (2 * h)
+        a, b = 1 + sigma * jx[:, 0], sigma * jy[:, 0]  # I + sigma J, row x
+        c, d = sigma * jx[:, 1], 1 + sigma * jy[:, 1]  # row y
+        det = a * d - b * c
+        det = torch.where(det.abs() > 1e-6, det, torch.full_like(det, 1e-6))
+        step = (
+            torch.stack([d * residual[:, 0] - b * residual[:, 1], a * residual[:, 1] - c * residual[:, 0]], -1)
+            / det[:, None]
+        )
+        m = m - step
+    return m
+
+
+class LandmarkForces(nn.Module):
+    """Forces that move marked points on straight lines at constant speed, and the rest of the picture as a
+    thin-plate spline between them says: the natural morph's control.
+
+    Point ``i`` travels ``x_i(s) = m_i + (s - 1/2) d_i`` over the roll-out's fraction ``s = t / T`` in
+    ``[0, 1]``, from ``m_i - d_i / 2`` to ``m_i + d_i / 2``; every other particle travels likewise,
+    ``x(s) = m + (s - 1/2) D(m)``, with ``D`` the thin-plate spline (:func:`~torchfluidwarp.spline.tps_cardinal`)
+    through the ``d_i`` at the midpoints ``m_i``. Defined at the midpoints, the middle frame is the spline
+    morph to the average shape, and A's and B's sides are treated alike. An inviscid compressible fluid keeps
+    every particle's velocity (Burgers' equation), so one kick at step 0 sets this motion going and the fluid
+    coasts; the discrete fluid does so only approximately, and a fit corrects the kicks.
+
+    The control vector ``weight`` ``(B, T, M, 2)`` holds corrections to the points' velocities (pixels per
+    time unit, running sums: ``weight[:, t]`` is the correction in force during step ``t``); it starts at 0. The
+    force of step ``t`` is the spline through the change of the velocities since step ``t - 1``, evaluated
+    at each cell's particle (where it is at the middle), so a correction moves the point it belongs to, and
+    its neighbours as the spline says.
 
     Args:
-        paths: ``(T, M, 2)`` pixels: where each point is at the start of each step (the spline's centres).
-        velocities: ``(B|1, T, M, 2)`` base velocities, pixels per time unit (running sums, as ``weight``);
-            default zero.
+        midpoints: ``(M, 2)`` pixels: ``m_i``, distinct, at least 3 and not all on one line.
+        displacements: ``(M, 2)`` pixels: ``d_i``, each point's whole travel.
+        steps: ``T``.
         batch: number of independent problems ``B``.
         inside: optional ``(x0, y0, x1, y1)`` pixels: the forces act fully inside this rectangle and fade to
             zero (a half cosine) at the image's edges, where the fluid's walls are. A morph puts the walls
             outside the picture and the picture inside, so the walls leave no seam.
 
     Example:
-        >>> paths = torch.tensor([[[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]]]).expand(2, 3, 2)
-        >>> f = LandmarkForces(paths, velocities=torch.ones(1, 2, 3, 2))
+        >>> mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
+        >>> f = LandmarkForces(mid, torch.ones(3, 2), steps=2)
         >>> f(FluidGrid(16, 16), steps=2, dt=1.0, image_size=(32, 32)).shape
         torch.Size([1, 2, 2, 16, 16])
     """
 
     def __init__(
         self,
-        paths: Tensor,
-        velocities: Tensor | None = None,
+        midpoints: Tensor,
+        displacements: Tensor,
+        steps: int,
         batch: int = 1,
         inside: tuple[float, float, float, float] | None = None,
     ) -> None:
         super().__init__()
-        p = check_tensor("paths", paths, shape=[None, None, 2])
-        T, m = p.shape[:2]
-        if T < 1 or m < 3:
-            raise ValueError(f"paths must have shape (T, M, 2) with T >= 1 and M >= 3, got {tuple(p.shape)}")
-        batch = check_int("batch", batch)
-        base = torch.zeros(1, T, m, 2, dtype=p.dtype) if velocities is None else velocities
-        base = check_tensor("velocities", base, shape=[None, T, m, 2]).to(p.dtype)
-        self.register_buffer("paths", p.detach().clone())
-        self.register_buffer("velocities", base.detach().clone())
-        self.paths: Tensor
-        self.velocities: Tensor
-        self.weight = nn.Parameter(torch.zeros(batch, T, m, 2, dtype=p.dtype))
+        m = check_tensor("midpoints", midpoints, shape=[None, 2])
+        if m.shape[0] < 3:
+            raise ValueError(f"midpoints must hold at least 3 points, got shape {tuple(m.shape)}")
+        d = check_tensor("displacements", displacements, shape=[m.shape[0], 2]).to(m.dtype)
+        steps, batch = check_int("steps", steps), check_int("batch", batch)
+        self.register_buffer("midpoints", m.detach().clone())
+        self.register_buffer("displacements", d.detach().clone())
+        self.midpoints: Tensor
+        self.displacements: Tensor
+        self.weight = nn.Parameter(torch.zeros(batch, steps, m.shape[0], 2, dtype=m.dtype))
         self.inside = None if inside is None else tuple(float(v) for v in inside)
         self._basis: dict[tuple, Tensor] = {}  # (T, h w, M) per grid, image size, device and dtype
 
@@ -291,11 +325,12 @@ class LandmarkForces(nn.Module):
         return f"steps={self.weight.shape[1]}, points={self.weight.shape[2]}, inside={self.inside}"
 
     def basis(self, grid: FluidGrid, image_size: tuple[int, int]) -> Tensor:
-        """``(T, h w, M)``: each point's cardinal spline at the cells, per step, faded toward the walls."""
-        key = (grid.shape, image_size, self.paths.device, self.weight.dtype)
+        """``(T, h w, M)``: per step, the points' cardinal splines at each cell's particle, faded toward the walls."""
+        key = (grid.shape, image_size, self.midpoints.device, self.weight.dtype)
         if key not in self._basis:
             with torch.no_grad():
-                cells = cell_centres(grid, image_size, self.paths.double()).reshape(-1, 2)  # (h w, 2) pixels
+                mids, disp = self.midpoints.double(), self.displacements.double()
+                cells = cell_centres(grid, image_size, mids).reshape(-1, 2)  # (h w, 2) pixels
                 fade = torch.ones(cells.shape[0], 1, dtype=torch.float64, device=cells.device)
                 if self.inside is not None:
                     x0, y0, x1, y1 = self.inside
@@ -303,7 +338,13 @@ class LandmarkForces(nn.Module):
                     fade = (_fade(cells[:, 0], x0, x1, -0.5, W - 0.5) * _fade(cells[:, 1], y0, y1, -0.5, H - 0.5))[
                         :, None
                     ]
-                rows = [fade * tps_cardinal(centres, cells) for centres in self.paths.double()]
+                travel = tps_fit(mids, disp)  # D
+                T = self.weight.shape[1]
+                rows, at = [], cells
+                for t in range(T):
+                    # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
+                    at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
+                    rows.append(fade * tps_cardinal(mids, at))
                 self._basis[key] = torch.stack(rows).to(self.weight.dtype)
         return self._basis[key]
 
@@ -313,7 +354,7 @@ class LandmarkForces(nn.Module):
             raise ValueError(f"this LandmarkForces holds {T} steps, but {steps} were asked for")
         g = FluidGrid.of(grid)
         H, W = check_size("image_size", image_size)
-        v = self.velocities.to(self.weight.dtype) + self.weight  # (B, T, M, 2) pixels per time unit
+        v = self.displacements.to(self.weight.dtype) / (T * dt) + self.weight  # (B, T, M, 2) pixels per time unit
         kicks = torch.cat([v[:, :1], v.diff(dim=1)], dim=1)
         to_cells = torch.tensor([g.width / W, g.height / H], dtype=v.dtype, device=v.device) / dt
         field = torch.einsum("tnm,btmc->btcn", self.basis(g, (H, W)), kicks * to_cells)  # (B, T, 2, h w)

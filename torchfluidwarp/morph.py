@@ -28,9 +28,9 @@ from torchfluidwarp._checks import check_int, check_positive, check_tensor
 from torchfluidwarp.alignment import AlignKind, apply_alignment, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.fluid import Viscosity
-from torchfluidwarp.forces import LandmarkForces
+from torchfluidwarp.forces import LandmarkForces, solve_midpoints
 from torchfluidwarp.grid import FluidGrid
-from torchfluidwarp.spline import tps_interpolate
+from torchfluidwarp.spline import tps_fit
 from torchfluidwarp.warp import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
 __all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest"]
@@ -136,8 +136,8 @@ PAD = 0.125
 which no flow crosses, stay outside the picture, and the forces fade to zero between the picture and the walls."""
 
 MIN_AREA = 0.1
-"""The natural morph never squeezes an area below this fraction of its size on the way (see
-:func:`_unfolded_targets`): a margin that keeps the discrete flow and its resampled maps from folding."""
+"""The natural morph never squeezes an area below this fraction of its size in the middle frame (see
+:func:`_straight_paths`): a margin that keeps the discrete flow and its resampled maps from folding."""
 
 DEFAULTS: dict[str, dict[str, Any]] = {
     "natural": {"compressible": True, "smoothness": 3.0, "max_iter": 30},
@@ -294,27 +294,30 @@ def _check_marks(pa: Tensor, pb: Tensor) -> None:
             )
 
 
-def _least_area(displacement: Tensor, spacing: float) -> float:
-    """The smallest area ratio ``det(I + s J)`` over ``s`` in ``[0, 1]`` and a field ``(n, n, 2)`` of displacements
-    sampled ``spacing`` pixels apart: how far the straight paths ``x + s d(x)`` squeeze the picture."""
-    dux_dy, dux_dx = torch.gradient(displacement[..., 0], spacing=spacing)
-    duy_dy, duy_dx = torch.gradient(displacement[..., 1], spacing=spacing)
+def _least_area(travel: Tensor, spacing: float) -> float:
+    """The least area ratio ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` of a field ``(n, n, 2)`` of
+    displacements ``D`` sampled ``spacing`` pixels apart: how far the straight paths ``m + sigma D(m)`` of the
+    natural morph squeeze the picture, relative to its middle frame."""
+    dux_dy, dux_dx = torch.gradient(travel[..., 0], spacing=spacing)
+    duy_dy, duy_dx = torch.gradient(travel[..., 1], spacing=spacing)
     trace, det = dux_dx + duy_dy, dux_dx * duy_dy - dux_dy * duy_dx
-    # det(I + s J) = 1 + s trace + s^2 det: a parabola in s; its least value on [0, 1] is at an end or its vertex
-    vertex = -trace / (2 * torch.where(det > 0, det, torch.ones_like(det)))
-    inner = (det > 0) & (vertex > 0) & (vertex < 1)
-    ends = torch.clamp(1 + trace + det, max=1.0)
-    least = torch.where(inner, 1 - trace.square() / (4 * torch.where(det > 0, det, torch.ones_like(det))), ends)
+    # det(I + sigma J) = 1 + sigma trace + sigma^2 det: a parabola; its least value is at an end or its vertex
+    safe = torch.where(det > 0, det, torch.ones_like(det))
+    vertex = -trace / (2 * safe)
+    inner = (det > 0) & (vertex.abs() < 0.5)
+    ends = torch.minimum(1 + 0.5 * trace + 0.25 * det, 1 - 0.5 * trace + 0.25 * det)
+    least = torch.where(inner, 1 - trace.square() / (4 * safe), ends)
     return float(least.min())
 
 
-def _unfolded_targets(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> Tensor:
-    """Where the straight-line morph sends ``src`` ``(M, 2)``: ``tgt``, or a smoothing spline's values when that folds.
+def _straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> tuple[Tensor, Tensor]:
+    """The natural morph's motion: midpoints and displacements ``(M, 2)`` with ``m - d / 2 = src``.
 
-    Under straight paths ``x + s d(x)`` (``d`` the spline through ``tgt - src``) the picture, the rectangle
-    ``inside``, folds where ``det(I + s J_d)`` reaches 0: marks that cross, or squeeze a region to nothing. Then
-    the spline's smoothing (:func:`~torchfluidwarp.spline.tps_cardinal`) is raised, by bisection on its
-    logarithm, until no area falls below :data:`MIN_AREA`; the marks it then misses show in ``fit.error``.
+    The marks travel from ``src`` to ``tgt`` on straight lines, ``m = (src + tgt) / 2``, ``d = tgt - src``,
+    unless the spline ``D`` through them would squeeze part of the picture (the rectangle ``inside``) below
+    :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Then the
+    spline's smoothing (:func:`~torchfluidwarp.spline.tps_fit`) is raised, by bisection on its logarithm, until
+    none does, and each mark travels as that spline says; the marks it then misses show in ``fit.error``.
     """
     x0, y0, x1, y1 = inside
     n = 64
@@ -323,17 +326,20 @@ def _unfolded_targets(src: Tensor, tgt: Tensor, inside: tuple[float, float, floa
         torch.linspace(y0, y1, n, dtype=torch.float64), torch.linspace(x0, x1, n, dtype=torch.float64), indexing="ij"
     )
     at = torch.stack([gx, gy], -1).reshape(-1, 2)
+    mids, disp = 0.5 * (src + tgt), tgt - src
 
     def least(smoothing: float) -> float:
-        return _least_area(tps_interpolate(src, tgt - src, at, smoothing).view(n, n, 2), spacing)
+        return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
 
     if least(0.0) >= MIN_AREA:
-        return tgt
+        return mids, disp
     lo, hi = -8.0, 4.0  # log10 of the smoothing: from interpolating to nearly affine
     for _ in range(14):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
-    return src + tps_interpolate(src, tgt - src, src, 10.0**hi)
+    travel = tps_fit(mids, disp, 10.0**hi)
+    m = solve_midpoints(travel, src, -0.5)
+    return m, travel(m)
 
 
 def _fit_natural(
@@ -350,21 +356,19 @@ def _fit_natural(
     box = (-pad, -pad, W + pad, H + pad)
     offset = torch.tensor([-pad, -pad], dtype=torch.float64)
     src = pa.double() - offset
-    lo, hi = torch.tensor([pad / 2, pad / 2]), torch.tensor([W + 1.5 * pad, H + 1.5 * pad])
+    # targets stay clear of the walls, where the forces fade out
     inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
-    tgt = _unfolded_targets(src, target - offset, inside)
-    tgt = torch.maximum(torch.minimum(tgt, hi.double()), lo.double())  # stay clear of the walls
-    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64).view(-1, 1, 1)
-    straight = src + along * (tgt - src)  # (T + 1, M, 2) box pixels
-    forces = LandmarkForces(
-        straight[:-1],
-        velocities=((tgt - src) / steps).expand(1, steps, -1, -1),  # dt = 1: pixels per step
-        inside=inside,
-    )
+    mids, disp = _straight_paths(src, target - offset, inside)
+    # the ends stay clear of the walls, where the forces fade out
+    end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
+    mids, disp = (src + end) / 2, end - src
+    forces = LandmarkForces(mids, disp, steps, inside=inside)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
         with torch.no_grad():
             forces.weight.copy_(previous)
+    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64).view(-1, 1, 1)
+    straight = mids + (along - 0.5) * disp  # (T + 1, M, 2) box pixels
     keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
     fit = fit_keyframes(src, keyframes, steps=steps, forces=forces, image_size=(H + 2 * pad, W + 2 * pad), **fit_kwargs)
     return fit, box
