@@ -6,9 +6,9 @@ The pair is the bundled astronaut (a photograph of a human face) and cat (a phot
 says where they come from), and the middle frames are written as ``morph_faces_mid_*.png``. Everything runs in
 float32 on CPU, in one process, so every figure below comes from the same run:
 
-1. **Fluid morph** (:func:`torchfluidwarp.morph.morph`, default settings otherwise) with ``inverse="flow"`` and
-   ``inverse="paper"``, each with ``compressible=False`` and ``compressible=0.5`` (the setting recommended for
-   this pair). For each:
+1. **Fluid morph** (:func:`torchfluidwarp.morph.morph`, default settings otherwise) with ``method="natural"``
+   (the default) and ``method="paper"`` (the paper's incompressible keyframe fit), each with
+   ``inverse="flow"`` and ``inverse="paper"``. For each:
 
    * **end error**: ``fit.error.mean()``, the mean distance in pixels between A's points carried to the last
      frame and B's points (pixels of the last frame, i.e. of image B);
@@ -43,9 +43,9 @@ float32 on CPU, in one process, so every figure below comes from the same run:
    grid, the same arithmetic that ``warp_image_tps`` samples through, and checked against it), the
    middle-frame misalignment and the time.
 
-3. With ``--images DIR`` the middle frames of the fluid morphs with ``compressible=0.5`` (``flow`` and
-   ``paper``) and of the kornia TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png``
-   and ``morph_mid_tps.png``.
+3. With ``--images DIR`` the middle frames of the natural fluid morphs (``flow`` and ``paper`` inverse) and of
+   the kornia TPS morph are written as ``morph_mid_fluid_flow.png``, ``morph_mid_fluid_paper.png`` and
+   ``morph_mid_tps.png``.
 
 The fluid morphs are plain :func:`morph` calls, as a user makes them (grad mode on). A tiny call first checks
 that the returned frames and maps carry no autograd graph (an earlier version of :func:`morph` kept one, which
@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import inspect
 import os
 import statistics
 import sys
@@ -81,9 +80,15 @@ from torchfluidwarp.morph import MorphResult, morph
 from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 
 SAMPLE_A, SAMPLE_B = "astronaut", "cat"
-FLUID_CONFIGS: list[tuple[str, bool | float]] = [("flow", False), ("paper", False), ("flow", 0.5), ("paper", 0.5)]
-IMAGE_COMPRESSIBLE = 0.5  # the setting recommended for this pair: its middle frames are the ones saved
-TIME_TARGET_S = 10.0
+# (inverse, method): morph()'s default method first
+FLUID_CONFIGS: list[tuple[str, str]] = [
+    ("flow", "natural"),
+    ("paper", "natural"),
+    ("flow", "paper"),
+    ("paper", "paper"),
+]
+IMAGE_METHOD = "natural"  # the default: its middle frames are the ones saved
+TIME_TARGET_S = 5.0
 TIME_TARGET_FRAMES, TIME_TARGET_SIZE = 30, 512
 
 # ----------------------------------------------------------------------------------------------- inputs
@@ -248,7 +253,7 @@ class FluidRow:
     """One fluid configuration."""
 
     inverse: str
-    compressible: bool | float
+    method: str
     fit_error_px: float  # fit.error.mean()
     fit_error_px_max: float
     fit_evaluations: int
@@ -271,7 +276,7 @@ def trajectory_at(traj: Tensor, s: float) -> Tensor:
     return ((1 - w) * traj[0, lo] + w * traj[0, lo + 1]).double()
 
 
-def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Tensor, pb: Tensor) -> FluidRow:
+def fluid_row(res: MorphResult, inverse: str, method: str, pa: Tensor, pb: Tensor) -> FluidRow:
     n = res.frames.shape[0]
     mid = n // 2
     traj = res.fit.trajectories  # (1, T + 1, M, 2), frame pixels
@@ -282,7 +287,7 @@ def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Te
     marks.traj_gap_end_px, marks.traj_gap_end_px_max = _masked((y_end - end).norm(dim=-1), ok_end)
     return FluidRow(
         inverse=inverse,
-        compressible=compressible,
+        method=method,
         fit_error_px=float(res.fit.error.mean()),
         fit_error_px_max=float(res.fit.error.max()),
         fit_evaluations=res.fit.evaluations,
@@ -294,7 +299,7 @@ def fluid_row(res: MorphResult, inverse: str, compressible: bool | float, pa: Te
 
 
 def run_fluid(
-    a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, inverse: str, compressible: bool | float, frames: int, max_iter: int
+    a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, inverse: str, method: str, frames: int, max_iter: int | None
 ) -> tuple[MorphResult, float]:
     t0 = time.perf_counter()
     res = morph(
@@ -304,7 +309,7 @@ def run_fluid(
         pb,
         frames=frames,
         inverse=inverse,
-        compressible=compressible,  # type: ignore[arg-type]
+        method=method,  # type: ignore[arg-type]
         max_iter=max_iter,
         progress=False,
     )
@@ -478,8 +483,8 @@ def pct(x: float) -> str:
     return f"{100 * x:.3f}%"
 
 
-def label(inverse: str, compressible: bool | float) -> str:
-    return f"fluid {inverse}, compr. {compressible if compressible is not False else 'no'}"
+def label(inverse: str, method: str) -> str:
+    return f"fluid {method}, inverse {inverse}"
 
 
 # ----------------------------------------------------------------------------------------------- report
@@ -503,7 +508,7 @@ def report(
         m = r.marks
         rows.append(
             [
-                label(r.inverse, r.compressible),
+                label(r.inverse, r.method),
                 f"{r.fit_error_px:.2f}",
                 f"{r.fit_error_px_max:.2f}",
                 f"{m.end_error_px:.2f}",
@@ -575,7 +580,7 @@ def report(
         "whose map source lies inside the source image)"
     )
     rows = []
-    for name, fa, fb in [(label(r.inverse, r.compressible), r.folds_a, r.folds_b) for r in fluid] + [
+    for name, fa, fb in [(label(r.inverse, r.method), r.folds_a, r.folds_b) for r in fluid] + [
         (tps_label(t.kind), t.folds_a, t.folds_b) for t in tps
     ]:
         rows.append(
@@ -616,7 +621,7 @@ def report(
         s = r.seconds
         rows.append(
             [
-                label(r.inverse, r.compressible),
+                label(r.inverse, r.method),
                 f"{s['wall']:.2f}",
                 f"{s['fit']:.2f}",
                 f"{s['inverse']:.2f}",
@@ -662,14 +667,13 @@ def report(
     out.append(
         f"ratios to '{label(base_row.inverse, base_row.compressible)}': "
         + ", ".join(
-            [f"{label(r.inverse, r.compressible)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:]]
+            [f"{label(r.inverse, r.method)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:]]
             + [f"{tps_label(t.kind)} {t.seconds / base:.3f}x" for t in tps]
         )
     )
     for r in fluid:
         out.append(
-            f"  {label(r.inverse, r.compressible)}: {r.fit_message}"
-            + ("" if r.deterministic else " [repeats differed]")
+            f"  {label(r.inverse, r.method)}: {r.fit_message}" + ("" if r.deterministic else " [repeats differed]")
         )
     out.append(f"plain morph() call (grad mode on) returns tensors with requires_grad: {probe}")
 
@@ -681,21 +685,21 @@ def report(
         # the target is for 30 frames at 512 x 512; a smoke run is not judged against it
         judged = (frames, size) == (TIME_TARGET_FRAMES, TIME_TARGET_SIZE)
         met = r.seconds["wall"] < TIME_TARGET_S if judged else None
-        targets[f"time_flow_{r.compressible}"] = {"seconds": r.seconds["wall"], "met": met}
+        targets[f"time_{r.inverse}_{r.method}"] = {"seconds": r.seconds["wall"], "met": met}
         out.append(
-            f"{label(r.inverse, r.compressible)}: {frames}-frame {size}x{size} morph {r.seconds['wall']:.1f} s "
+            f"{label(r.inverse, r.method)}: {frames}-frame {size}x{size} morph {r.seconds['wall']:.1f} s "
             f"(target: < {TIME_TARGET_S:g} s for {TIME_TARGET_FRAMES} frames at {TIME_TARGET_SIZE}x{TIME_TARGET_SIZE})"
             f" -> {verdict(met) if met is not None else 'not judged (other size)'}"
         )
     for r in fluid:
         met = r.folds_a.fraction == 0
-        targets[f"folds_{r.inverse}_{r.compressible}"] = {
+        targets[f"folds_{r.inverse}_{r.method}"] = {
             "fraction": r.folds_a.fraction,
             "fraction_inside": r.folds_a.fraction_inside,
             "met": met,
         }
         out.append(
-            f"{label(r.inverse, r.compressible)}: folded fraction of A's maps {pct(r.folds_a.fraction)}, "
+            f"{label(r.inverse, r.method)}: folded fraction of A's maps {pct(r.folds_a.fraction)}, "
             f"inside A's image {pct(r.folds_a.fraction_inside)} (target: 0) -> {verdict(met)}"
         )
     for t in tps:
@@ -733,7 +737,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3; 1 with --quick)")
     parser.add_argument("--frames", type=int, default=None, help="frames per morph (default 30; 6 with --quick)")
     parser.add_argument(
-        "--max-iter", type=int, default=None, help="L-BFGS iterations of each fit (default: morph's; 15 with --quick)"
+        "--max-iter",
+        type=int,
+        default=None,
+        help="L-BFGS iterations of each fit (default: morph's, per method; 15 with --quick)",
     )
     parser.add_argument(
         "--threads",
@@ -743,8 +750,7 @@ def main(argv: list[str] | None = None) -> int:
         "multi-threaded calls stall whenever another process holds a core)",
     )
     args = parser.parse_args(argv)
-    default_iter = inspect.signature(morph).parameters["max_iter"].default
-    size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, default_iter)
+    size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, None)  # None: morph's
     max_iter = args.max_iter if args.max_iter is not None else max_iter
     frames = args.frames if args.frames is not None else frames
     repeats = args.repeats if args.repeats is not None else repeats
@@ -755,7 +761,7 @@ def main(argv: list[str] | None = None) -> int:
         ("--max-iter", max_iter, 1),
     ]
     for name, value, low in checks:
-        if value < low:
+        if value is not None and value < low:
             parser.error(f"{name} must be >= {low}, got {value}")
 
     torch.set_num_threads(args.threads)
@@ -788,19 +794,19 @@ def main(argv: list[str] | None = None) -> int:
     tps_rows: dict[str, TpsRow] = {}
     mids: dict[str, Tensor] = {}
     for rep in range(repeats):
-        for inverse, compressible in FLUID_CONFIGS:
-            log(f"  repeat {rep + 1}/{repeats}: {label(inverse, compressible)} ...")
+        for inverse, method in FLUID_CONFIGS:
+            log(f"  repeat {rep + 1}/{repeats}: {label(inverse, method)} ...")
             base = peak_baseline()
-            res, wall = run_fluid(a, b, pa, pb, inverse, compressible, frames, max_iter)
+            res, wall = run_fluid(a, b, pa, pb, inverse, method, frames, max_iter)
             growth = peak_growth_mib(base)
-            cfg = (inverse, compressible)
+            cfg = (inverse, method)
             for k, v in {"wall": wall, **res.seconds}.items():
                 times[cfg].setdefault(k, []).append(v)
             if rep == 0:
-                row = fluid_row(res, inverse, compressible, pa, pb)
+                row = fluid_row(res, inverse, method, pa, pb)
                 row.peak_rss_growth_mib = growth
                 rows[cfg] = row
-                if compressible == IMAGE_COMPRESSIBLE:
+                if method == IMAGE_METHOD:
                     mids[f"{prefix}_mid_fluid_{inverse}.png"] = res.frames[frames // 2].clone()
             elif float(res.fit.error.mean()) != rows[cfg].fit_error_px:
                 rows[cfg].deterministic = False

@@ -18,7 +18,7 @@ the time each method took, and measures how far apart A's and B's landmarks land
 # The pair and the morphs
 # -----------------------
 # Both photos and their 23 landmarks at 256 x 256 (pixel centres at integers: ``x' = (x + 0.5) s - 0.5``);
-# a 32 x 32 fluid, 10 steps, the demo's ``compressible=0.5`` and a short fit budget.
+# a 32 x 32 fluid, 10 steps, the default natural morph and a short fit budget.
 import matplotlib.pyplot as plt
 import torch.nn.functional as F
 
@@ -39,7 +39,6 @@ for method in ("flow", "paper"):
         frames=5,
         grid=(32, 32),
         steps=10,
-        compressible=0.5,
         max_iter=60,
         tolerance=0.25,
         inverse=method,

@@ -343,8 +343,8 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         "--grid",
         metavar="N",
         type=_bounded(int, 4, strict=False),
-        default=64,
-        help="fluid grid N x N cells (default 64)",
+        default=None,
+        help="fluid grid N x N cells (default 80 for natural, 64 for paper)",
     )
     p.add_argument("--steps", type=_bounded(int, 1, strict=False), default=10, help="fluid steps (default 10)")
     p.add_argument(

@@ -140,10 +140,12 @@ MIN_AREA = 0.1
 :func:`_straight_paths`): a margin that keeps the discrete flow and its resampled maps from folding."""
 
 DEFAULTS: dict[str, dict[str, Any]] = {
-    "natural": {"compressible": True, "smoothness": 3.0, "max_iter": 30},
-    "paper": {"compressible": False, "smoothness": 5.0, "max_iter": 100},
+    "natural": {"grid": (80, 80), "compressible": True, "smoothness": 3.0, "max_iter": 30},
+    "paper": {"grid": (64, 64), "compressible": False, "smoothness": 5.0, "max_iter": 100},
 }
-"""Per-method defaults of :func:`morph`'s ``compressible``, ``smoothness`` and ``max_iter``."""
+"""Per-method defaults of :func:`morph`'s ``grid``, ``compressible``, ``smoothness`` and ``max_iter``. The
+natural morph's grid covers the picture and a margin of :data:`PAD` around it: 80 cells are about 8 pixels of
+a 512-pixel picture each, as 64 cells over the paper's box."""
 
 
 FEATHER = 24.0
@@ -382,7 +384,7 @@ def morph(
     *,
     frames: int = 30,
     method: Method = "natural",
-    grid: FluidGrid | int | tuple[int, int] = (64, 64),
+    grid: FluidGrid | int | tuple[int, int] | None = None,
     steps: int = 10,
     control: tuple[int, int] | int = (8, 8),
     viscosity: Viscosity | nn.Module = 0.0,
@@ -419,7 +421,8 @@ def morph(
             needs ``M >= 3`` points, not all on one line.
         frames: number of output frames ``N >= 2``.
         method: ``"natural"`` or ``"paper"`` (see above).
-        grid, steps, viscosity: the fluid (see :func:`fit_keyframes`); ``grid`` cells cover the fluid's box.
+        grid, steps, viscosity: the fluid (see :func:`fit_keyframes`); ``grid`` cells cover the fluid's box
+            (default per method, :data:`DEFAULTS`: 80 x 80 for ``"natural"``, 64 x 64 for ``"paper"``).
         control: ``(K_y, K_x)`` control points per step of ``"paper"``'s control grid.
         align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
@@ -474,6 +477,7 @@ def morph(
     steps = check_int("steps", steps)
     defaults = DEFAULTS[method]
     compressible = defaults["compressible"] if compressible is None else compressible
+    grid = defaults["grid"] if grid is None else grid
     smoothness = defaults["smoothness"] if smoothness is None else smoothness
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)
     max_iter = check_int("max_iter", defaults["max_iter"] if max_iter is None else max_iter)
