@@ -148,26 +148,30 @@ natural morph's grid covers the picture and a margin of :data:`PAD` around it: 8
 a 512-pixel picture each, as 64 cells over the paper's box."""
 
 
-FEATHER = 24.0
-"""Pixels: where a frame reads one image beyond its edge, the cross-dissolve hands over to the other image
-within this distance outside the edge (see :func:`_dissolve`)."""
+FEATHER = 64.0
+"""Output pixels: the cross-dissolve hands a frame over to the other image within this distance inside an
+image's edge (see :func:`_dissolve`), so neither image's edge, nor the edge pixels that sampling smears beyond
+it, shows as a line."""
 
 
 def _coverage(coords: Tensor, size: tuple[int, int]) -> Tensor:
-    """``(1, 1, H, W)`` in ``[0, 1]``: 1 where a map ``(1, H, W, 2)`` reads inside an image of ``size``, falling
-    linearly to 0 at :data:`FEATHER` pixels beyond its edge."""
+    """``(1, 1, H, W)`` in ``[0, 1]``: 1 where a map ``(1, H, W, 2)`` reads at least :data:`FEATHER` output pixels
+    inside an image of ``size``, falling linearly to 0 at its edge (and 0 beyond). Distances in the image are
+    converted to output pixels by the map's local scale, ``sqrt |det J|`` source pixels per output pixel."""
     H, W = size
     x, y = coords[..., 0], coords[..., 1]
     inside = torch.minimum(torch.minimum(x + 0.5, W - 0.5 - x), torch.minimum(y + 0.5, H - 0.5 - y))
-    return (1 + inside / FEATHER).clamp(0, 1).unsqueeze(1)
+    scale = jacobian_determinant(coords).abs().clamp(min=1e-12).sqrt()
+    return (inside / (scale * FEATHER)).clamp(0, 1).unsqueeze(1)
 
 
 def _dissolve(fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, w: float, size: tuple[int, int]) -> Tensor:
-    """Cross-dissolve ``(1 - w) fa + w fb``, except where a map reads beyond its image's edge.
+    """Cross-dissolve ``(1 - w) fa + w fb``, except near and beyond an image's edge.
 
-    There, sampling holds the edge pixels and smears them into streaks (the pre-alignment can reach far beyond
-    the other image); the weight moves to the image that is read inside, ``w' = w c_b / ((1 - w) c_a + w c_b)``
-    with the coverages ``c`` of :func:`_coverage`. Where both read inside, or both beyond, it is ``w``.
+    Beyond it, sampling holds the edge pixels and smears them into streaks (the pre-alignment can reach far beyond
+    the other image), and at it the picture ends in a line; so the weight moves toward the image that is read
+    further inside, ``w' = w c_b / ((1 - w) c_a + w c_b)`` with the coverages ``c`` of :func:`_coverage`. Where both
+    read at least :data:`FEATHER` output pixels inside, or both beyond, it is ``w``.
     """
     ca, cb = _coverage(map_a, size), _coverage(map_b, size)
     den = (1 - w) * ca + w * cb
