@@ -665,7 +665,7 @@ def report(
     base_row = fluid[0]
     base = base_row.seconds["wall"]
     out.append(
-        f"ratios to '{label(base_row.inverse, base_row.compressible)}': "
+        f"ratios to '{label(base_row.inverse, base_row.method)}': "
         + ", ".join(
             [f"{label(r.inverse, r.method)} {r.seconds['wall'] / base:.2f}x" for r in fluid[1:]]
             + [f"{tps_label(t.kind)} {t.seconds / base:.3f}x" for t in tps]
