@@ -20,7 +20,7 @@ from starlette.testclient import TestClient
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.studio import StudioConfig, create_app
 
-SETTINGS = {"grid": 32, "steps": 8, "control": 6, "compressible": 0.5}
+SETTINGS = {"method": "natural", "steps": 8}  # the studio page's defaults (control applies to "paper")
 
 
 def main() -> None:
