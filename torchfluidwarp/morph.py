@@ -232,7 +232,7 @@ def _render(
     fit_kwargs: dict[str, Any],
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
     """Render the frames of a fitted morph (see :func:`morph`)."""
-    times = torch.linspace(0, steps, n, dtype=torch.float64)
+    times = torch.linspace(0, steps, n, dtype=torch.float64)  # fluid time of each frame, on the CPU: scalars
     time_list = [float(s) for s in times]
     time_list[-1] = float(steps)
     velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
@@ -244,7 +244,7 @@ def _render(
         small_kwargs = {**fit_kwargs, "progress": False}
         k_maps = torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype).unsqueeze(1)
     t_inv = time.perf_counter()
-    offset = torch.tensor([box[0], box[1]], dtype=a.dtype)
+    offset = torch.tensor([box[0], box[1]], dtype=a.dtype, device=a.device)
 
     weights = _blend_weights(times, steps, blend)
     ident = identity_map(size, dtype=torch.float64)
@@ -329,7 +329,9 @@ def _straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float,
     n = 64
     spacing = max(x1 - x0, y1 - y0) / (n - 1)
     gy, gx = torch.meshgrid(
-        torch.linspace(y0, y1, n, dtype=torch.float64), torch.linspace(x0, x1, n, dtype=torch.float64), indexing="ij"
+        torch.linspace(y0, y1, n, dtype=torch.float64, device=src.device),
+        torch.linspace(x0, x1, n, dtype=torch.float64, device=src.device),
+        indexing="ij",
     )
     at = torch.stack([gx, gy], -1).reshape(-1, 2)
     mids, disp = 0.5 * (src + tgt), tgt - src
@@ -360,7 +362,7 @@ def _fit_natural(
     H, W = size
     pad = max(1, round(PAD * max(H, W)))
     box = (-pad, -pad, W + pad, H + pad)
-    offset = torch.tensor([-pad, -pad], dtype=torch.float64)
+    offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
     src = pa.double() - offset
     # targets stay clear of the walls, where the forces fade out
     inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
@@ -373,7 +375,7 @@ def _fit_natural(
     if previous is not None and previous.shape == forces.weight.shape:
         with torch.no_grad():
             forces.weight.copy_(previous)
-    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64).view(-1, 1, 1)
+    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64, device=pa.device).view(-1, 1, 1)
     straight = mids + (along - 0.5) * disp  # (T + 1, M, 2) box pixels
     keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
     fit = fit_keyframes(src, keyframes, steps=steps, forces=forces, image_size=(H + 2 * pad, W + 2 * pad), **fit_kwargs)
