@@ -2,29 +2,28 @@
 
 The paper's precise control mechanism (Bonilla, Velho & Nonato; McNamara et al. 2004): the user marks points
 on the source image and where they must be at a keyframe; the control vector ``u`` (the parameters of a
-force module, by default a coarse :class:`~torchfluidwarp.forces.ControlGrid`) is found by
-``torch.optim.LBFGS`` with a strong-Wolfe line search. Gradients come from autograd through the solver, whose
-linear solves use their implicit adjoint, so one gradient costs about one more simulation whatever the number
-of parameters. No finite differences are used anywhere.
+force module, by default a coarse :class:`~torchfluidwarp.forces.ControlGrid`) is found by L-BFGS with a
+strong-Wolfe line search (:func:`~torchfluidwarp.optim.minimize`). Gradients come from autograd through the
+solver, whose linear solves use their implicit adjoint, so one gradient costs about one more simulation
+whatever the number of parameters. No finite differences are used anywhere.
 
 Objective (pixels^2): ``phi(u) = 1/2 sum_k sum_i w_i ||p_i(t_k) - q_i^k||^2 + regularization * ||u||^2``.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor, nn
-from tqdm.auto import tqdm
 
-from torchfluidwarp._checks import all_finite, check_int, check_positive, check_size, check_tensor
+from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.optim import minimize
 from torchfluidwarp.warp import FluidWarp, _carry
 
 __all__ = ["KeyframeFit", "fit_keyframes", "keyframe_loss", "velocity_gradient_energy", "check_points"]
@@ -47,8 +46,9 @@ class KeyframeFit:
         loss_history: the objective at every evaluation (pixels^2).
         evaluations: number of objective-and-gradient evaluations.
         seconds: wall time of the fit.
-        converged: the optimiser stopped on its own criterion (targets met or no further progress) before
-            ``max_iter``.
+        converged: the fit stopped on its own criterion (targets met, or L-BFGS made no further progress)
+            before ``max_iter`` iterations; False also when a non-finite loss stopped it
+            (:func:`~torchfluidwarp.optim.minimize`'s NaN policy: the best finite iterate is kept).
         reached: every point is within ``tolerance`` pixels of its target at every keyframe.
         message: a one-line summary.
     """
@@ -186,13 +186,13 @@ def fit_keyframes(
         smoothness: weight on :func:`velocity_gradient_energy` of the flow (pixels^2 per 1 / time unit^2;
             default 0: off). It trades accuracy at the points for a calmer flow without vortices; the morph
             uses it to keep its maps fold-free.
-        max_iter: maximum L-BFGS iterations.
+        max_iter: maximum L-BFGS iterations (see :func:`~torchfluidwarp.optim.minimize`).
         tolerance: pixels; the fit stops once every point is this close to its target.
         compressible: skip (``True``) or weight the pressure projection (see :class:`~torchfluidwarp.warp.FluidWarp`).
         dtype: dtype of the fit. float32 (the default) met the same tolerance as float64 on the paper's
             set-up, within 3 evaluations either way, at about 0.8x the time per evaluation
             (``benchmarks/bench_keyframes.py``); float64 is there for tight tolerances and checks.
-        progress: show a tqdm bar with the loss.
+        progress: show a tqdm bar of L-BFGS iterations with the loss.
 
     Returns:
         a :class:`KeyframeFit`.
@@ -216,86 +216,46 @@ def fit_keyframes(
     src = check_points("source", source, (H, W))
     keyframes = _keyframes(target, steps, (H, W), src.shape[1], src.shape[0])
     B = max([src.shape[0]] + [q.shape[0] for _, q in keyframes])
+    device = src.device
     src = src.expand(B, -1, -1).to(dtype)
-    keyframes = [(t, q.expand(B, -1, -1).to(dtype)) for t, q in keyframes]
+    keyframes = [(t, q.expand(B, -1, -1).to(device, dtype)) for t, q in keyframes]
     M = src.shape[1]
-    w = torch.ones(B, M, dtype=dtype) if weights is None else check_tensor("weights", weights, ndim=(1, 2)).to(dtype)
+    w = (
+        torch.ones(B, M, device=device, dtype=dtype)
+        if weights is None
+        else check_tensor("weights", weights, ndim=(1, 2)).to(device, dtype)
+    )
     w = w.expand(B, M) if w.shape[-1] == M else w
     if w.shape != (B, M) or bool((w < 0).any()):
         raise ValueError(f"weights must be non-negative with shape ({M},) or ({B}, {M}), got {tuple(w.shape)}")
 
-    warp = FluidWarp(grid, steps, dt, viscosity, image_size=(H, W), compressible=compressible).to(dtype)
+    warp = FluidWarp(grid, steps, dt, viscosity, image_size=(H, W), compressible=compressible).to(device, dtype)
     module = ControlGrid(steps, control, batch=B) if forces is None else forces
-    module = module.to(dtype)
+    module = module.to(device, dtype)
     params = [p for p in module.parameters() if p.requires_grad]
     if not params:
         raise ValueError("the force module has no trainable parameters")
 
-    optimizer = torch.optim.LBFGS(
-        params,
-        lr=1.0,
-        max_iter=max_iter,
-        max_eval=max_iter * 2,
-        history_size=100,  # a long memory: bench_keyframes.py's median evaluations fell from 48 (with 20) to 39
-        tolerance_grad=1e-12,
-        tolerance_change=1e-14,
-        line_search_fn="strong_wolfe",
-    )
-    history: list[float] = []
-    best_loss = math.inf
-    best_state: list[Tensor] | None = None
-    start = time.perf_counter()
-    # the bar counts L-BFGS iterations, each one or more evaluations (its line search), up to max_iter
-    bar = tqdm(total=max_iter, desc="fit_keyframes", unit="iter", disable=not progress, leave=False)
-    state = optimizer.state[params[0]]
+    # the stop criterion reads the points that the evaluation it judges carried
+    last: dict[str, Tensor] = {}
 
-    class _Done(Exception):
-        pass
-
-    def objective() -> tuple[Tensor, Tensor]:
+    def objective() -> Tensor:
         vel = warp.rollout(module, (H, W)).velocities
         paths = _carry(vel.expand(B, *vel.shape[1:]), src, (H, W), dt)  # (B, T + 1, M, 2) pixels
+        last["paths"] = paths.detach()
         loss = keyframe_loss(paths, keyframes, w)
         if smoothness > 0:
             loss = loss + smoothness * velocity_gradient_energy(vel)
         if regularization > 0:
             loss = loss + regularization * sum((p**2).sum() for p in params)
-        return loss, paths
-
-    @torch.enable_grad()  # fitting works also when called under no_grad
-    def closure() -> Tensor:
-        nonlocal best_loss, best_state
-        optimizer.zero_grad()
-        if not all(all_finite(p) for p in params):
-            raise _Done  # a line search stepped to inf: keep the best finite iterate
-        loss, paths = objective()
-        value = float(loss.detach())
-        if not math.isfinite(value):
-            raise _Done  # keep the best finite iterate
-        loss.backward()
-        history.append(value)
-        bar.update(min(int(state.get("n_iter", 0)), max_iter) - bar.n)
-        bar.set_postfix(loss=f"{value:.3g}", evals=len(history))
-        if value < best_loss:
-            best_loss = value
-            best_state = [p.detach().clone() for p in params]
-            errs = max(float((paths[:, t].detach() - q).norm(dim=-1).max()) for t, q in keyframes)
-            if errs <= tolerance:
-                raise _Done
         return loss
 
-    converged = False
-    try:
-        optimizer.step(closure)
-        converged = int(state.get("n_iter", 0)) < max_iter
-    except _Done:
-        converged = True
-    finally:
-        bar.close()
-    if best_state is not None:
-        with torch.no_grad():
-            for p, v in zip(params, best_state):
-                p.copy_(v)
+    def targets_met(_loss: float) -> bool:
+        paths = last["paths"]
+        return max(float((paths[:, t] - q).norm(dim=-1).max()) for t, q in keyframes) <= tolerance
+
+    result = minimize(objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes")
+    start = time.perf_counter()
     with torch.no_grad():
         paths = warp.advect_points(src, module)
     kf_err = [(t, (paths[:, t] - q).norm(dim=-1)) for t, q in keyframes]
@@ -303,7 +263,7 @@ def fit_keyframes(
     err = kf_err[-1][1]
     message = (
         f"{'reached' if reached else 'did not reach'} the targets: mean error {float(err.mean()):.4f} px, "
-        f"max {float(err.max()):.4f} px after {len(history)} evaluations"
+        f"max {float(err.max()):.4f} px; {result.message}"
     )
     return KeyframeFit(
         forces=module,
@@ -312,10 +272,10 @@ def fit_keyframes(
         trajectories=paths,
         error=err,
         keyframe_errors=kf_err,
-        loss_history=history,
-        evaluations=len(history),
-        seconds=time.perf_counter() - start,
-        converged=converged,
+        loss_history=list(result.loss_history),
+        evaluations=result.evaluations,
+        seconds=result.seconds + time.perf_counter() - start,
+        converged=result.converged,
         reached=reached,
         message=message,
     )
