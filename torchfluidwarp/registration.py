@@ -27,13 +27,13 @@ from typing import Literal
 import torch
 import torch.nn.functional as F
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor, describe
 from torchfluidwarp.control import check_points
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.warp import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
 
 __all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss"]
@@ -85,7 +85,8 @@ class LevelFit:
         final_loss: the objective at its best forces.
         evaluations: objective-and-gradient evaluations.
         seconds: wall time.
-        converged: L-BFGS stopped on its own criterion before ``max_iter``.
+        converged: L-BFGS stopped on its own criterion before ``max_iter``; False also when a non-finite loss
+            stopped it (the best finite iterate is kept: :func:`~torchfluidwarp.optim.minimize`).
     """
 
     grid: tuple[int, int]
@@ -185,6 +186,7 @@ def fit_images(
     compressible: bool = False,
     dtype: torch.dtype = torch.float64,
     progress: bool = True,
+    history_size: int = HISTORY_SIZE,
 ) -> ImageFit:
     """Fit forces so that the fluid warps ``source`` onto ``target``, coarse to fine.
 
@@ -213,7 +215,9 @@ def fit_images(
         dtype: dtype of the fit. float64 by default: the image losses and the registration figures in
             ``docs/benchmarks.md`` were measured in float64 (:func:`~torchfluidwarp.control.fit_keyframes`, whose
             point loss was measured in both, defaults to float32).
-        progress: show a tqdm bar per level with the loss.
+        progress: show a tqdm bar of L-BFGS iterations per level, with the loss.
+        history_size: L-BFGS memory, as for :func:`~torchfluidwarp.optim.minimize` (default 100, the
+            library's one value; this fit used 20 before the driver was shared).
 
     Returns:
         an :class:`ImageFit`.
@@ -253,6 +257,7 @@ def fit_images(
     if len(iters) != len(grids):
         raise ValueError(f"max_iter must be an int or one int per level ({len(grids)}), got {max_iter!r}")
     iters = [check_int("max_iter", n) for n in iters]
+    check_int("history_size", history_size)
     pts = None
     if points is not None:
         if not (isinstance(points, (tuple, list)) and len(points) == 2):
@@ -263,7 +268,7 @@ def fit_images(
         pts = (p.expand(B, -1, -1).to(src.device, dtype), q.expand(B, -1, -1).to(src.device, dtype))
 
     src = src.expand(B, -1, -1, -1).to(dtype)
-    tgt = tgt.expand(B, -1, -1, -1).to(dtype)
+    tgt = tgt.expand(B, -1, -1, -1).to(src.device, dtype)
     start = time.perf_counter()
     history: list[float] = []
     records: list[LevelFit] = []
@@ -295,6 +300,7 @@ def fit_images(
             history,
             progress,
             f"fit_images {g.height}x{g.width}",
+            history_size,
         )
         records.append(record)
         weight = module.weight.detach().clone()
@@ -342,27 +348,9 @@ def _fit_level(
     history: list[float],
     progress: bool,
     desc: str,
+    history_size: int,
 ) -> LevelFit:
-    """L-BFGS on one level (the structure of :func:`~torchfluidwarp.control.fit_keyframes`)."""
-    params = [module.weight]
-    optimizer = torch.optim.LBFGS(
-        params,
-        lr=1.0,
-        max_iter=max_iter,
-        max_eval=max_iter * 2,
-        history_size=20,
-        tolerance_grad=1e-10,
-        tolerance_change=1e-12,
-        line_search_fn="strong_wolfe",
-    )
-    best: dict[str, object] = {"loss": math.inf, "state": None}
-    first: list[float] = []
-    start = time.perf_counter()
-    evals = len(history)
-    bar = tqdm(total=max_iter * 2, desc=desc, unit="eval", disable=not progress, leave=False)
-
-    class _Stop(Exception):
-        pass
+    """L-BFGS on one level with :func:`~torchfluidwarp.optim.minimize`; appends its losses to ``history``."""
 
     def phi() -> Tensor:
         value = objective(_warp_last(warp, module, source), target)
@@ -374,42 +362,24 @@ def _fit_level(
             value = value + regularization * (module.weight**2).sum()
         return value
 
-    def closure() -> Tensor:
-        optimizer.zero_grad()
-        value = phi()
-        v = float(value.detach())
-        if not math.isfinite(v):
-            raise _Stop  # keep the best finite iterate
-        value.backward()
-        history.append(v)
-        if not first:
-            first.append(v)
-        bar.update(1)
-        bar.set_postfix(loss=f"{v:.4g}")
-        if v < best["loss"]:  # type: ignore[operator]
-            best["loss"] = v
-            best["state"] = module.weight.detach().clone()
-        return value
-
-    converged = False
-    try:
-        optimizer.step(closure)
-        n_iter = optimizer.state[optimizer._params[0]].get("n_iter", 0)  # type: ignore[attr-defined]
-        converged = n_iter < max_iter
-    except _Stop:
-        converged = False
-    finally:
-        bar.close()
-    if best["state"] is not None:
-        with torch.no_grad():
-            module.weight.copy_(best["state"])  # type: ignore[arg-type]
-    final = float(best["loss"])  # type: ignore[arg-type]
+    result = minimize(
+        phi,
+        [module.weight],
+        max_iter=max_iter,
+        progress=progress,
+        desc=desc,
+        history_size=history_size,
+        # looser than the driver's defaults, as this fit has always run: image losses flatten out sooner
+        tolerance_grad=1e-10,
+        tolerance_change=1e-12,
+    )
+    history.extend(result.loss_history)
     return LevelFit(
         grid=warp.grid.shape,
         image_size=(source.shape[-2], source.shape[-1]),
-        initial_loss=first[0] if first else math.nan,
-        final_loss=final,
-        evaluations=len(history) - evals,
-        seconds=time.perf_counter() - start,
-        converged=converged,
+        initial_loss=result.loss_history[0] if result.loss_history else math.nan,
+        final_loss=result.best_loss,
+        evaluations=result.evaluations,
+        seconds=result.seconds,
+        converged=result.converged,
     )
