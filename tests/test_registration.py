@@ -4,7 +4,7 @@ import torch.nn.functional as F
 
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.forces import Brushes
-from torchfluidwarp.registration import fit_images, mse_loss, ncc_loss
+from torchfluidwarp.registration import fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.warp import FluidWarp, jacobian_determinant
 
 
@@ -76,6 +76,39 @@ def test_landmarks_pull_points_onto_their_targets():
         moved = fit.warp.advect_points(src[None], fit.forces, (32, 32))[0, -1]
     assert (moved - tgt).norm(dim=-1).max() < 0.3
     assert fit.loss_history[-1] < 0.05 * fit.loss_history[0]
+
+
+def test_ssim_is_zero_for_identical_images_and_grows_with_a_shift():
+    gen = torch.Generator().manual_seed(3)
+    image = torch.rand(2, 3, 24, 24, generator=gen, dtype=torch.float64)
+    assert image_loss("ssim") is ssim_loss
+    assert float(ssim_loss(image, image)) == pytest.approx(0.0, abs=1e-9)  # kornia's eps in the ratio
+    blob = _blob(14.0, 16.0)
+    near, far = float(ssim_loss(_blob(15.0, 16.0), blob)), float(ssim_loss(_blob(18.0, 16.0), blob))
+    assert 0 < near < far
+
+
+@pytest.mark.parametrize("size", [2, 5, 16])
+def test_ssim_gradient_flows_on_any_image_size(size):
+    gen = torch.Generator().manual_seed(4)
+    target = torch.rand(1, 1, size, size, generator=gen, dtype=torch.float64)
+    warped = torch.rand(1, 1, size, size, generator=gen, dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(ssim_loss(warped, target), warped)
+    assert torch.isfinite(grad).all() and grad.abs().sum() > 0
+
+
+def test_ssim_gradcheck():
+    gen = torch.Generator().manual_seed(5)
+    target = torch.rand(1, 1, 8, 8, generator=gen, dtype=torch.float64)
+    warped = torch.rand(1, 1, 8, 8, generator=gen, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: ssim_loss(x, target, window_size=5), (warped,))
+
+
+def test_an_ssim_fit_reduces_the_loss():
+    source, target = _blob(14.0, 16.0), _blob(18.0, 16.0)
+    fit = fit_images(source, target, loss="ssim", grid=16, levels=(8,), steps=4, control=3, max_iter=20, progress=False)
+    assert fit.initial_loss == pytest.approx(float(ssim_loss(source, target)))
+    assert fit.final_loss < 0.2 * fit.initial_loss, fit.message
 
 
 def test_a_callable_loss_and_a_batch():

@@ -7,8 +7,9 @@ the backward map and the image sampling. No finite differences.
 
 Objective: ``phi(u) = sum_b L(f_b(g_T), target_b) + point_weight * sum_b mean_i ||p_i(T) - q_i||^2
 + regularization * ||u||^2`` where ``f(g_T)`` is the source sampled through the backward map of the last
-step (frame ``T`` of :class:`~torchfluidwarp.warp.FluidWarp`), ``L`` is the mean squared error or
-``1 - NCC``, and the optional points ``p_i`` are carried by the forward map (pixels^2).
+step (frame ``T`` of :class:`~torchfluidwarp.warp.FluidWarp`), ``L`` is the mean squared error,
+``1 - NCC`` or the structural dissimilarity ``(1 - SSIM) / 2`` (kornia's), and the optional points ``p_i``
+are carried by the forward map (pixels^2).
 
 Coarse to fine: each level fits on a smaller fluid grid and on images downsampled in proportion (the same
 pixels per fluid cell), then hands its control grid to the next. A control grid does not depend on the fluid
@@ -24,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+import kornia.losses
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -36,9 +38,9 @@ from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.warp import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
 
-__all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss"]
+__all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss", "ssim_loss"]
 
-LossName = Literal["mse", "ncc"]
+LossName = Literal["mse", "ncc", "ssim"]
 ImageLoss = Callable[[Tensor, Tensor], Tensor]
 
 
@@ -63,15 +65,52 @@ def ncc_loss(warped: Tensor, target: Tensor, eps: float = 1e-8) -> Tensor:
     return (1 - ncc).sum()
 
 
+def ssim_loss(warped: Tensor, target: Tensor, window_size: int = 11, data_range: float = 1.0) -> Tensor:
+    """Structural dissimilarity ``(1 - SSIM) / 2`` per sample (mean over channels and pixels), summed over the batch.
+
+    The SSIM map is kornia's (:func:`kornia.losses.ssim_loss`): a Gaussian window of ``window_size`` pixels
+    (sigma 1.5), ``data_range`` the images' dynamic range (1 for images in ``[0, 1]``), reflected borders. Local
+    means, contrasts and structure are compared, so it is less swayed than the MSE by a slow change of brightness
+    across the image. On images under 6 pixels a side (the coarsest levels of a fit) the window shrinks to the
+    largest odd size the border padding allows, ``2 * min(H, W) - 1``.
+
+    Args:
+        warped: ``(B, C, H, W)``.
+        target: ``(B, C, H, W)``.
+        window_size: odd width of the Gaussian window in pixels.
+        data_range: the images' dynamic range (``max - min`` of the scale they are on).
+
+    Returns:
+        a scalar: 0 for identical images, at most ``B``.
+
+    Example:
+        >>> x = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> float(ssim_loss(x, x))
+        0.0
+        >>> float(ssim_loss(x, x.roll(3, -1))) > 0.1
+        True
+    """
+    check_int("window_size", window_size)
+    check_positive("data_range", data_range)
+    window = min(window_size, 2 * min(warped.shape[-2:]) - 1)
+    window -= 1 - window % 2  # odd
+    dssim = kornia.losses.ssim_loss(warped, target, window, max_val=data_range, reduction="none")  # (B, C, H, W)
+    return dssim.flatten(1).mean(1).sum()
+
+
 def image_loss(loss: LossName | ImageLoss) -> ImageLoss:
-    """The image term for a name (``"mse"``, ``"ncc"``) or a callable ``loss(warped, target) -> scalar``."""
+    """The image term for a name (``"mse"``, ``"ncc"``, ``"ssim"``) or a callable ``loss(warped, target) -> scalar``."""
     if callable(loss):
         return loss
     if loss == "mse":
         return mse_loss
     if loss == "ncc":
         return ncc_loss
-    raise ValueError(f"loss must be 'mse', 'ncc' or a callable (warped, target) -> scalar, got {describe(loss)}")
+    if loss == "ssim":
+        return ssim_loss
+    raise ValueError(
+        f"loss must be 'mse', 'ncc', 'ssim' or a callable (warped, target) -> scalar, got {describe(loss)}"
+    )
 
 
 @dataclass
@@ -195,7 +234,9 @@ def fit_images(
         target: ``(1|B, C, H, W)`` the image to match (same ``C, H, W``); B independent problems are fitted
             together.
         loss: ``"mse"`` (mean squared error), ``"ncc"`` (``1 - `` global normalised cross-correlation: robust
-            to brightness and contrast changes), or a callable ``loss(warped, target) -> scalar``.
+            to brightness and contrast changes), ``"ssim"`` (:func:`ssim_loss`, kornia's structural dissimilarity
+            ``(1 - SSIM) / 2``, window 11, for images in ``[0, 1]``), or a callable
+            ``loss(warped, target) -> scalar``.
         points: optional landmark pairs ``(src, tgt)``, each ``(M, 2)`` or ``(B, M, 2)`` in pixels of the
             full-resolution images (pixel centres at integers): ``src`` carried by the forward map should land
             on ``tgt``.
