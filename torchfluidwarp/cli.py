@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import NoReturn
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 from tqdm import tqdm
 
@@ -47,7 +46,7 @@ from torchfluidwarp.animate_config import (
     region_from_values,
 )
 from torchfluidwarp.forces import Brushes
-from torchfluidwarp.io import FFMPEG_HINT, read_image, write_animation
+from torchfluidwarp.io import FFMPEG_HINT, read_image, shrink_image, write_animation
 from torchfluidwarp.warp import FluidWarp
 
 __all__ = ["build_parser", "main"]
@@ -275,16 +274,6 @@ def _check_output(path: str, overwrite: bool) -> None:
         raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
 
 
-def _fit(image: Tensor, max_size: int) -> Tensor:
-    """Downscale ``(1, C, H, W)`` so that its longer side is at most ``max_size`` (0 = keep)."""
-    H, W = image.shape[-2:]
-    if max_size == 0 or max(H, W) <= max_size:
-        return image
-    scale = max_size / max(H, W)
-    size = (max(2, round(H * scale)), max(2, round(W * scale)))
-    return F.interpolate(image, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
-
-
 def _render(warp: FluidWarp, image: Tensor, forces: Brushes, *, quiet: bool) -> Tensor:
     """All ``steps + 1`` frames ``(T + 1, C, H, W)``, with a progress bar on an interactive stderr."""
     frames = torch.empty(warp.steps + 1, *image.shape[1:], dtype=image.dtype)
@@ -305,7 +294,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
             raise ValueError('nothing to animate: give at least one --brush (or "brushes" in --config)')
         _check_output(args.output, args.overwrite)
         original = read_image(args.image)
-        image = _fit(original, args.max_size)
+        image = shrink_image(original, args.max_size)
         size = (image.shape[-2], image.shape[-1])
         config = config.rescaled(size[1] / original.shape[-1], size[0] / original.shape[-2])
         grid = _grid(args, config, size)

@@ -28,6 +28,7 @@ from typing import BinaryIO, Literal
 import imageio.v3 as iio
 import numpy as np
 import torch
+import torch.nn.functional as F
 from PIL import Image
 from torch import Tensor
 
@@ -37,6 +38,8 @@ __all__ = [
     "read_image",
     "read_image_bytes",
     "write_image",
+    "resize_image",
+    "shrink_image",
     "read_points",
     "write_points",
     "check_point_counts",
@@ -150,6 +153,59 @@ def write_image(path: PathLike, image: Tensor) -> Path:
     with _atomic_output(path) as tmp:
         iio.imwrite(tmp, array[..., 0] if array.shape[-1] == 1 else array)
     return path
+
+
+def resize_image(image: Tensor, size: tuple[int, int]) -> Tensor:
+    """Resize an image to ``size``: bilinear, antialiased when it shrinks.
+
+    torch's antialiased bilinear (``F.interpolate(..., antialias=True)``): each output pixel averages the input
+    under a triangle as wide as the scale factor, so fine detail is averaged away rather than aliased. Its
+    weights are non-negative and sum to one: values stay within the input's range. (kornia's ``resize`` blurs
+    with a Gaussian first and then samples; it is slower and aliases at mild factors: ``docs/design.rst``.)
+
+    Conventions: ``align_corners=False``; pixel centres at integers, and the image's outer edges (``-0.5`` and
+    ``H - 0.5``) map onto each other.
+
+    Args:
+        image: ``(B, C, H, W)`` floats.
+        size: ``(H', W')`` in pixels.
+
+    Returns:
+        ``(B, C, H', W')``; ``image`` itself when it already has that size.
+
+    Example:
+        >>> resize_image(torch.ones(1, 3, 8, 6), (4, 3)).shape
+        torch.Size([1, 3, 4, 3])
+    """
+    check_tensor("image", image, ndim=4, finite=False)
+    if tuple(image.shape[-2:]) == tuple(size):
+        return image
+    return F.interpolate(image, size=size, mode="bilinear", align_corners=False, antialias=True)
+
+
+def shrink_image(image: Tensor, longest: int) -> Tensor:
+    """Downscale an image so that its longer side is at most ``longest`` pixels, keeping its aspect ratio.
+
+    Each side is rounded, and kept at least 2 pixels; the result is :func:`resize_image`'s, clamped to
+    ``[0, 1]`` (which only trims roundoff for an image in ``[0, 1]``).
+
+    Args:
+        image: ``(B, C, H, W)`` floats in ``[0, 1]``.
+        longest: the longest side allowed, in pixels; 0 keeps every size.
+
+    Returns:
+        ``(B, C, H', W')``; ``image`` itself when it is small enough already.
+
+    Example:
+        >>> shrink_image(torch.ones(1, 3, 300, 200), 150).shape
+        torch.Size([1, 3, 150, 100])
+    """
+    check_int("longest", longest, minimum=0)
+    H, W = image.shape[-2:]
+    if longest == 0 or max(H, W) <= longest:
+        return image
+    scale = longest / max(H, W)
+    return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale)))).clamp(0, 1)
 
 
 def _check_image_options(channels: int | None, dtype: torch.dtype) -> None:

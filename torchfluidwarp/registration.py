@@ -27,7 +27,6 @@ from typing import Literal
 
 import kornia.losses
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor, describe
@@ -35,6 +34,7 @@ from torchfluidwarp.control import check_points
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import ControlGrid
 from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.io import resize_image
 from torchfluidwarp.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.warp import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
 
@@ -193,12 +193,6 @@ def _level_grids(grid: FluidGrid, levels: Sequence[int] | None) -> list[FluidGri
     return [FluidGrid(max(2, round(h * n / longest)), max(2, round(w * n / longest))) for n in sizes[:-1]] + [grid]
 
 
-def _resize(image: Tensor, size: tuple[int, int]) -> Tensor:
-    if tuple(image.shape[-2:]) == size:
-        return image
-    return F.interpolate(image, size=size, mode="bilinear", align_corners=False, antialias=True)
-
-
 def _warp_last(warp: FluidWarp, forces: ControlGrid, image: Tensor) -> Tensor:
     """Frame ``T`` of ``warp(image, forces)``, composing only the maps it needs."""
     size = (image.shape[-2], image.shape[-1])
@@ -326,7 +320,7 @@ def fit_images(
         visc = viscosity if (g == fine or not isinstance(viscosity, Tensor)) else float(viscosity.mean())
         warp = FluidWarp(g, steps, dt, visc, image_size=(H, W), compressible=compressible).to(src.device, dtype)
         module = ControlGrid(steps, (ky, kx), batch=B, init=weight).to(src.device, dtype)
-        s_l, t_l = _resize(src, size), _resize(tgt, size)
+        s_l, t_l = resize_image(src, size), resize_image(tgt, size)
         record = _fit_level(
             warp,
             module,

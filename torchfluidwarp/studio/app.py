@@ -43,7 +43,6 @@ from typing import Any, Literal, TypeVar, cast
 
 import anyio.to_thread
 import torch
-import torch.nn.functional as F
 from PIL import Image
 from starlette.applications import Starlette
 from starlette.datastructures import Headers, QueryParams
@@ -56,7 +55,14 @@ from torch import Tensor
 from torchfluidwarp.alignment import estimate_alignment
 from torchfluidwarp.animate_config import auto_grid, build_forces, build_viscosity, parse_config
 from torchfluidwarp.control import KeyframeFit
-from torchfluidwarp.io import encode_animation, read_image_bytes, read_points, write_points
+from torchfluidwarp.io import (
+    encode_animation,
+    read_image_bytes,
+    read_points,
+    resize_image,
+    shrink_image,
+    write_points,
+)
 from torchfluidwarp.morph import MorphResult, morph
 from torchfluidwarp.warp import FluidWarp, jacobian_determinant
 
@@ -386,16 +392,6 @@ def _heat(det: Tensor) -> Tensor:
     return torch.where(det > 0, rgb, torch.zeros_like(rgb))
 
 
-def _resize(image: Tensor, longest: int) -> Tensor:
-    """Downscale ``(1, C, H, W)`` so that its longer side is at most ``longest`` (0 = keep)."""
-    H, W = image.shape[-2:]
-    if longest <= 0 or max(H, W) <= longest:
-        return image
-    s = longest / max(H, W)
-    size = (max(2, round(H * s)), max(2, round(W * s)))
-    return F.interpolate(image, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
-
-
 def _rescale(points: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
     """``points`` ``(M, 2)`` in the pixels of ``image`` ``(1, C, H, W)`` as pixels of an image of ``size`` ``(H', W')``
     covering the same picture (pixel centres at integers: ``x' = (x + 0.5) W' / W - 0.5``)."""
@@ -639,9 +635,9 @@ def create_app(
         def job() -> MorphResult:
             # the fit costs the same at any resolution; the inverse maps and the frames cost per pixel, so the
             # preview is rendered at about the pane's size
-            small_a = _resize(a, config.preview_size)
+            small_a = shrink_image(a, config.preview_size)
             size = (small_a.shape[-2], small_a.shape[-1])
-            small_b = F.interpolate(b, size=size, mode="bilinear", antialias=True, align_corners=False).clamp(0, 1)
+            small_b = resize_image(b, size).clamp(0, 1)
             start = warm(key)
             iters = config.preview_iter if start is not None else 5 * config.preview_iter
             return morph(
@@ -751,7 +747,7 @@ def create_app(
 
     def animate(cfg, longest: int) -> Tensor:
         original = image("a")
-        img = _resize(original, longest)
+        img = shrink_image(original, longest)
         size = (img.shape[-2], img.shape[-1])
         scaled = cfg.rescaled(size[1] / original.shape[-1], size[0] / original.shape[-2])
         grid = scaled.grid or auto_grid(size)
