@@ -83,6 +83,19 @@ def check_positive(name: str, value: float, *, allow_zero: bool = False) -> floa
     return float(value)
 
 
+def check_real(name: str, value: object) -> float:
+    """Validate a finite real number (of either sign), e.g. a time step that may run backwards."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a number, got {describe(value)}")
+    try:
+        number = float(value)
+    except OverflowError:  # an int too large for a float
+        number = math.inf
+    if not math.isfinite(number):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return number
+
+
 def check_int(name: str, value: object, *, minimum: int = 1) -> int:
     """Validate an integer at least ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, int):

@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Literal
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import all_finite, check_positive, check_tensor
+from torchfluidwarp._checks import check_positive, check_real, check_tensor
 from torchfluidwarp.grid import FluidGrid, interior_mask
 from torchfluidwarp.linalg import CGConfig, implicit_solve
+from torchfluidwarp.sampling import SampleMode, sample
 from torchfluidwarp.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
 
 __all__ = [
@@ -90,22 +90,6 @@ def cells_from_faces(velocity: Tensor) -> Tensor:
     return torch.stack([0.5 * (u[..., 1:] + u[..., :-1]), 0.5 * (v[:, 1:] + v[:, :-1])], dim=1)
 
 
-def grid_sample_checked(image: Tensor, grid: Tensor, mode: str = "bilinear", align_corners: bool = True) -> Tensor:
-    """``grid_sample`` with border padding that refuses a non-finite sampling grid.
-
-    NaN in the grid makes ``grid_sample`` return finite garbage and its CPU backward crash the process, so
-    every sampling path in the library goes through here.
-
-    Raises:
-        FloatingPointError: ``grid`` holds NaN or inf (typically a flow that blew up).
-    """
-    if not all_finite(grid):
-        raise FloatingPointError(
-            "non-finite sampling positions: the flow produced NaN or inf (forces or dt too large?)"
-        )
-    return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)
-
-
 # Internally point sets are channel-first, ``(B, 2, N)`` (row 0 = x): elementwise maths over a trailing
 # dimension of size 2 is several times slower on CPUs than over N. Public functions take ``(B, N, 2)``.
 
@@ -166,14 +150,20 @@ def _geo(h: int, w: int, like: Tensor) -> dict[str, Tensor]:
 
 
 def _sample(
-    image: Tensor, points: Tensor, scale: Tensor, shift: Tensor, align_corners: bool = True, mode: str = "bilinear"
+    image: Tensor,
+    points: Tensor,
+    scale: Tensor,
+    shift: Tensor,
+    align_corners: bool = True,
+    mode: SampleMode = "bilinear",
 ) -> Tensor:
     """Sample ``image`` ``(B, C, n_y, n_x)`` at channel-first points ``(B, 2, N)`` mapped by ``p * scale + shift``.
 
-    Returns ``(B, C, N)``. Internal: callers guarantee finite points (finite inputs, clamped positions).
+    Returns ``(B, C, N)``. Internal and per sub-step, so unchecked (see :mod:`torchfluidwarp.sampling`):
+    callers guarantee finite points (inputs checked at the public boundary, positions clamped into the box).
     """
     g = torch.addcmul(shift, points, scale).transpose(1, 2).unsqueeze(2)  # (B, N, 1, 2)
-    return F.grid_sample(image, g, mode=mode, padding_mode="border", align_corners=align_corners)[..., 0]
+    return sample(image, g, mode=mode, align_corners=align_corners, check=None)[..., 0]
 
 
 def _extend(velocity: Tensor) -> Tensor:
@@ -204,8 +194,8 @@ def _components_at(extended: Tensor, points: Tensor, geo: dict[str, Tensor]) -> 
     B, _, _, N = points.shape
     g = torch.addcmul(geo["t2"], points, geo["s2"])  # (B, component, xy, N)
     g = g.transpose(2, 3).reshape(2 * B, N, 1, 2)
-    out = F.grid_sample(extended, g, mode="bilinear", padding_mode="border", align_corners=True)
-    return out.view(B, 2, N)
+    # unchecked: per sub-step, on velocities and points checked at the public boundary
+    return sample(extended, g, align_corners=True, check=None).view(B, 2, N)
 
 
 def _clamp(points: Tensor, geo: dict[str, Tensor]) -> Tensor:
@@ -251,6 +241,7 @@ def advect(quantity: Tensor, velocity: Tensor, dt: float) -> Tensor:
     check_velocity(velocity)
     h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
     check_tensor("quantity", quantity, shape=[velocity.shape[0], None, h, w])
+    dt = check_real("dt", dt)
     geo = _geo(h, w, velocity)
     back = _backtrace(_extend(velocity), geo["cells"].expand(velocity.shape[0], -1, -1), dt, geo)
     return _sample(quantity, back, geo["sc"], geo["tc"]).view_as(quantity)
@@ -259,7 +250,7 @@ def advect(quantity: Tensor, velocity: Tensor, dt: float) -> Tensor:
 def advect_velocity(velocity: Tensor, dt: float) -> Tensor:
     """Self-advection of a staggered velocity (semi-Lagrangian, midpoint back-trace), walls kept at zero."""
     check_velocity(velocity)
-    return _advect_velocity(velocity, dt)
+    return _advect_velocity(velocity, check_real("dt", dt))
 
 
 def _advect_velocity(velocity: Tensor, dt: float) -> Tensor:
@@ -298,8 +289,15 @@ def _substeps(extended: Tensor, dt: float) -> int:
     # on the extended layout (see _extend) the differences between neighbours along both axes are exactly the
     # staggered ones: the repeated padding row / column adds zero differences
     with torch.no_grad():
-        strain = torch.maximum(extended.diff(dim=-1).abs().amax(), extended.diff(dim=-2).abs().amax())
-    return max(1, math.ceil(float(strain) * abs(dt) / MAX_STRAIN_PER_SUBSTEP))
+        strain = float(torch.maximum(extended.diff(dim=-1).abs().amax(), extended.diff(dim=-2).abs().amax()))
+    # the strain is on the host already, so this guard of the unchecked sub-step sampling costs nothing: a NaN or
+    # inf anywhere in the velocity makes it non-finite (NaN propagates through amax)
+    if not math.isfinite(strain * dt):
+        raise ValueError(
+            f"velocity: non-finite velocity or strain times dt (strain {strain!r}, dt {dt!r}): "
+            "the flow blew up (forces or dt too large?)"
+        )
+    return max(1, math.ceil(strain * abs(dt) / MAX_STRAIN_PER_SUBSTEP))
 
 
 def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
@@ -308,7 +306,7 @@ def advect_points(points: Tensor, velocity: Tensor, dt: float) -> Tensor:
     Strong flows are integrated in :func:`substeps` sub-steps."""
     check_velocity(velocity)
     check_tensor("points", points, shape=[velocity.shape[0], None, 2])
-    return _advect_points(points.transpose(1, 2), velocity, dt).transpose(1, 2)
+    return _advect_points(points.transpose(1, 2), velocity, check_real("dt", dt)).transpose(1, 2)
 
 
 def _advect_points(points: Tensor, velocity: Tensor, dt: float, n: int | None = None) -> Tensor:
@@ -494,6 +492,3 @@ def check_viscosity(viscosity: object, batch: int, grid: tuple[int, int]) -> Vis
             raise ValueError(f"viscosity must be >= 0 everywhere, got a minimum of {float(mu.min()):.3g}")
         return mu
     return check_positive("viscosity", viscosity, allow_zero=True)  # type: ignore[arg-type]
-
-
-Mode = Literal["bilinear", "bicubic", "nearest"]

@@ -18,16 +18,16 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from typing import Literal
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_int, check_size, check_tensor
+from torchfluidwarp._checks import check_int, check_real, check_size, check_tensor
 from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _extend, _geo, _sample, substeps
 from torchfluidwarp.grid import FluidGrid
 from torchfluidwarp.linalg import CGConfig
+from torchfluidwarp.sampling import SampleMode, sample
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
 
 __all__ = [
@@ -42,7 +42,6 @@ __all__ = [
 ]
 
 ForceSource = Tensor | Callable[..., Tensor]
-SampleMode = Literal["bilinear", "bicubic", "nearest"]
 
 
 def identity_map(size: tuple[int, int], *, batch: int = 1, device=None, dtype=torch.float32) -> Tensor:
@@ -90,15 +89,19 @@ def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> 
     check_tensor("coords", coords, shape=[image.shape[0], None, None, 2])
     if mode not in ("bilinear", "bicubic", "nearest"):
         raise ValueError(f"mode must be 'bilinear', 'bicubic' or 'nearest', got {mode!r}")
-    return _warp_image(image, coords, mode)
+    return _warp_image(image, coords, mode, check=None)  # coords checked above
 
 
-def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode) -> Tensor:
-    """:func:`warp_image` for internal callers whose coordinates are finite by construction."""
+def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode, check: str | None = "coords") -> Tensor:
+    """:func:`warp_image` without its argument checks, for internal callers.
+
+    The sampling grid is still refused if non-finite (one reduction per call, once per frame), with ``check``
+    naming where the coordinates came from; ``check=None`` where they were checked already.
+    """
     H, W = image.shape[-2:]
     scale, shift = _pixel_affine(H, W, image)
     grid = torch.addcmul(shift.view(1, 1, 1, 2), coords.to(image.dtype), scale.view(1, 1, 1, 2))
-    return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=False)
+    return sample(image, grid, mode=mode, align_corners=False, check=check)
 
 
 def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
@@ -202,6 +205,7 @@ def _iter_displacements(
     """The backward maps as raster displacements (see :func:`iter_backward_maps`), and ``to_map`` and the raster."""
     check_tensor("velocities", velocities, ndim=5)
     H, W = check_size("size", size)
+    dt = check_real("dt", dt)
     B, T = velocities.shape[:2]
     frame_times = _frame_times(T, times)
     advance, to_map, raster = _map_composer(velocities, (H, W), dt)
@@ -279,6 +283,7 @@ def maps_to_end(
     """
     check_tensor("velocities", velocities, ndim=5)
     H, W = check_size("size", size)
+    dt = check_real("dt", dt)
     B, T = velocities.shape[:2]
     times = _frame_times(T, times)
     compose, to_map, raster = _map_composer(velocities, (H, W), dt)
@@ -305,6 +310,7 @@ def forward_maps(velocities: Tensor, size: tuple[int, int], dt: float = 1.0) -> 
     """
     check_tensor("velocities", velocities, ndim=5)
     H, W = check_size("size", size)
+    dt = check_real("dt", dt)
     B, T = velocities.shape[:2]
     pix = identity_map((H, W), batch=B, device=velocities.device, dtype=velocities.dtype).reshape(B, -1, 2)
     return _carry(velocities, pix, (H, W), dt).view(B, T + 1, H, W, 2)
@@ -425,17 +431,23 @@ class FluidWarp(nn.Module):
         size = self._size(size)
         return self.simulator(self.resolve_forces(forces, size), points, image_size=size)
 
+    def _velocities(self, forces: ForceSource, size: tuple[int, int], batch: int, name: str) -> Tensor:
+        """The roll-out's velocities ``(batch, T, 2, h + 1, w + 1)``: a batch of one is shared."""
+        vel = self.rollout(forces, size).velocities
+        if vel.shape[0] not in (1, batch):
+            raise ValueError(f"forces have batch {vel.shape[0]}, but {name} has batch {batch} (or give forces batch 1)")
+        return vel.expand(batch, *vel.shape[1:])
+
     def forward(self, image: Tensor, forces: ForceSource) -> Tensor:
         """Warp ``image`` ``(B, C, H, W)``: returns the frames ``(B, T + 1, C, H, W)``; frame 0 is the input."""
         check_tensor("image", image, ndim=4)
         size = (image.shape[-2], image.shape[-1])
-        vel = self.rollout(forces, size).velocities.to(image.dtype)
-        if vel.shape[0] != image.shape[0]:
-            vel = vel.expand(image.shape[0], *vel.shape[1:])
+        vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         maps = backward_maps(vel, size, self.dt)[:, 1:]  # (B, T, H, W, 2); map 0 is the identity
         B, T = maps.shape[:2]
         rep = image.unsqueeze(1).expand(B, T, *image.shape[1:]).reshape(B * T, *image.shape[1:])
-        frames = _warp_image(rep, maps.reshape(B * T, *maps.shape[2:]), self.mode).view(B, T, *image.shape[1:])
+        flat = maps.reshape(B * T, *maps.shape[2:])
+        frames = _warp_image(rep, flat, self.mode, check="the backward maps of forces").view(B, T, *image.shape[1:])
         return torch.cat([image.unsqueeze(1), frames], dim=1)
 
     def iter_frames(self, image: Tensor, forces: ForceSource, *, prefetch: bool = True) -> Iterator[Tensor]:
@@ -453,9 +465,7 @@ class FluidWarp(nn.Module):
         """
         check_tensor("image", image, ndim=4)
         size = (image.shape[-2], image.shape[-1])
-        vel = self.rollout(forces, size).velocities.to(image.dtype)
-        if vel.shape[0] != image.shape[0]:
-            vel = vel.expand(image.shape[0], *vel.shape[1:])
+        vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         yield image
         H, W = size
         displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None)
@@ -485,7 +495,7 @@ class FluidWarp(nn.Module):
                     return
                 if pool is not None:
                     pending = pool.submit(next_grid)
-                frame = F.grid_sample(src, grid, mode=self.mode, padding_mode="border", align_corners=False)
+                frame = sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
                 yield frame.contiguous()
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
@@ -501,8 +511,5 @@ class FluidWarp(nn.Module):
     def advect_points(self, points: Tensor, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Carry points ``(B, M, 2)`` (pixels) through the warp: ``(B, T + 1, M, 2)`` pixels."""
         size = self._size(size)
-        check_tensor("points", points, ndim=3)
-        vel = self.rollout(forces, size).velocities
-        if vel.shape[0] != points.shape[0]:
-            vel = vel.expand(points.shape[0], *vel.shape[1:])
-        return _carry(vel, points, size, self.dt)
+        check_tensor("points", points, shape=[None, None, 2])
+        return _carry(self._velocities(forces, size, points.shape[0], "points"), points, size, self.dt)
