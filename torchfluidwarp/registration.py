@@ -68,7 +68,7 @@ def ncc_loss(warped: Tensor, target: Tensor, eps: float = 1e-8) -> Tensor:
 def ssim_loss(warped: Tensor, target: Tensor, window_size: int = 11, data_range: float = 1.0) -> Tensor:
     """Structural dissimilarity ``(1 - SSIM) / 2`` per sample (mean over channels and pixels), summed over the batch.
 
-    The SSIM map is kornia's (:func:`kornia.losses.ssim_loss`): a Gaussian window of ``window_size`` pixels
+    The SSIM map is kornia's (``kornia.losses.ssim_loss``): a Gaussian window of ``window_size`` pixels
     (sigma 1.5), ``data_range`` the images' dynamic range (1 for images in ``[0, 1]``), reflected borders. Local
     means, contrasts and structure are compared, so it is less swayed than the MSE by a slow change of brightness
     across the image. On images under 6 pixels a side (the coarsest levels of a fit) the window shrinks to the
