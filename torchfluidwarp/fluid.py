@@ -16,7 +16,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import check_positive, check_real, check_tensor
-from torchfluidwarp.grid import FluidGrid, interior_mask
+from torchfluidwarp.grid import FluidGrid, interior_mask, normalized_affine
 from torchfluidwarp.linalg import CGConfig, implicit_solve
 from torchfluidwarp.sampling import SampleMode, sample
 from torchfluidwarp.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
@@ -111,9 +111,9 @@ def _geometry(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[
             return torch.tensor([a, b], dtype=dtype, device=device).view(1, 2, 1)
 
         def affine(nx: int, ny: int, x0: float, y0: float) -> tuple[Tensor, Tensor]:
-            # align_corners=True: node k of n sits at normalised 2k/(n-1) - 1
-            sx, sy = 2.0 / (nx - 1), 2.0 / (ny - 1)
-            return col(sx, sy), col(-1 - x0 * sx, -1 - y0 * sy)
+            # align_corners=True: node k of n, at cell coordinate x0 + k, sits at normalised 2k/(n-1) - 1
+            scale, shift = normalized_affine((ny, nx), align_corners=True, offset=(x0, y0), device=device, dtype=dtype)
+            return scale.view(1, 2, 1), shift.view(1, 2, 1)
 
         # both components on (h + 1, w + 1) nodes (see _extend): u at (j - 1/2, i), v at (j, i - 1/2)
         su, tu = affine(w + 1, h + 1, -0.5, 0.0)

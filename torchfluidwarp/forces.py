@@ -19,7 +19,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
-from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.grid import FluidGrid, cell_scale
+from torchfluidwarp.grid import cell_centres as _grid_cell_centres
 from torchfluidwarp.spline import tps_cardinal, tps_fit
 
 __all__ = [
@@ -35,13 +36,11 @@ __all__ = [
 
 
 def cell_centres(grid: FluidGrid, image_size: tuple[int, int], like: Tensor) -> Tensor:
-    """Fluid cell centres in the image's pixels: ``(h, w, 2)`` ``(x, y)``."""
-    h, w = grid.shape
-    H, W = image_size
-    ys = (torch.arange(h, device=like.device, dtype=like.dtype) + 0.5) * (H / h) - 0.5
-    xs = (torch.arange(w, device=like.device, dtype=like.dtype) + 0.5) * (W / w) - 0.5
-    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
-    return torch.stack([gx, gy], dim=-1)
+    """Fluid cell centres in the image's pixels: ``(h, w, 2)`` ``(x, y)``, on ``like``'s device and dtype.
+
+    :func:`torchfluidwarp.grid.cell_centres`, which it calls, is the one definition.
+    """
+    return _grid_cell_centres(grid, image_size, device=like.device, dtype=like.dtype)
 
 
 class Brushes(nn.Module):
@@ -111,7 +110,7 @@ class Brushes(nn.Module):
         bump = torch.exp(-d2 / (2 * self.radius[:, None, None] ** 2))
         unit = self.directions / self.directions.norm(dim=-1, keepdim=True)
         # pixels -> cells: accelerations scale like lengths
-        to_cells = torch.tensor([grid.width / W, grid.height / H], dtype=unit.dtype, device=unit.device)
+        to_cells = cell_scale((H, W), grid, device=unit.device, dtype=unit.dtype)
         push = self.amplitude[:, None] * unit * to_cells  # (K, 2)
         t = torch.arange(steps, dtype=unit.dtype, device=unit.device) * dt
         osc = torch.sin(2 * math.pi * self.frequency[None] * t[:, None] + self.phase[None])  # (T, K)
@@ -356,7 +355,7 @@ class LandmarkForces(nn.Module):
         H, W = check_size("image_size", image_size)
         v = self.displacements.to(self.weight.dtype) / (T * dt) + self.weight  # (B, T, M, 2) pixels per time unit
         kicks = torch.cat([v[:, :1], v.diff(dim=1)], dim=1)
-        to_cells = torch.tensor([g.width / W, g.height / H], dtype=v.dtype, device=v.device) / dt
+        to_cells = cell_scale((H, W), g, device=v.device, dtype=v.dtype) / dt
         field = torch.einsum("tnm,btmc->btcn", self.basis(g, (H, W)), kicks * to_cells)  # (B, T, 2, h w)
         return field.reshape(B, T, 2, *g.shape)
 

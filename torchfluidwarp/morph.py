@@ -29,7 +29,7 @@ from torchfluidwarp.alignment import AlignKind, apply_alignment, estimate_alignm
 from torchfluidwarp.control import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import LandmarkForces, solve_midpoints
-from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
 from torchfluidwarp.spline import tps_fit
 from torchfluidwarp.warp import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
@@ -92,8 +92,8 @@ def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Ten
     Hb, Wb = image_b.shape[-2:]
     if (Ha, Wa) != (Hb, Wb):
         image_b = F.interpolate(image_b, size=(Ha, Wa), mode="bilinear", align_corners=False, antialias=True)
-        scale = torch.tensor([Wa / Wb, Ha / Hb], dtype=points_b.dtype, device=points_b.device)
-        points_b = (points_b + 0.5) * scale - 0.5
+        scale = scale_factor((Hb, Wb), (Ha, Wa), device=points_b.device, dtype=points_b.dtype)
+        points_b = rescale_points(points_b, scale)
     ca, cb = image_a.shape[1], image_b.shape[1]
     if cb != ca:
         if cb == 1:
@@ -104,11 +104,6 @@ def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Ten
             extra = torch.ones_like(image_b[:, :1]).expand(-1, ca - 3, -1, -1)
             image_b = torch.cat([image_b[:, :3], extra], 1) if ca == 4 else image_b[:, :ca]
     return image_b, points_b
-
-
-def _pixels_per_cell(roi: tuple[int, int], grid: FluidGrid | int | tuple[int, int]) -> float:
-    h, w = FluidGrid.of(grid).shape
-    return 0.5 * (roi[0] / h + roi[1] / w)
 
 
 def region_of_interest(points: Tensor, margin: float) -> tuple[int, int, int, int]:
@@ -515,7 +510,7 @@ def morph(
             box = region_of_interest(torch.cat([pa.double(), target]), margin)
         roi = (box[3] - box[1], box[2] - box[0])
         offset = torch.tensor([box[0], box[1]], dtype=torch.float64)
-        fit_kwargs.update(image_size=roi, control=control, smoothness=smoothness * _pixels_per_cell(roi, grid) ** 2)
+        fit_kwargs.update(image_size=roi, control=control, smoothness=smoothness * mean_pixels_per_cell(roi, grid) ** 2)
         fit = fit_keyframes(
             pa.double() - offset,
             target - offset,

@@ -33,7 +33,7 @@ from torchfluidwarp._checks import check_int, check_positive, check_size, check_
 from torchfluidwarp.control import check_points
 from torchfluidwarp.fluid import Viscosity
 from torchfluidwarp.forces import ControlGrid
-from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.grid import FluidGrid, scale_factor
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.warp import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
@@ -312,7 +312,7 @@ def fit_images(
     warp = module = None
     for g, n_iter in zip(grids, iters):
         if previous is not None:  # cells per time^2: forces scale with the grid's resolution
-            ratio = torch.tensor([g.width / previous.width, g.height / previous.height], device=src.device, dtype=dtype)
+            ratio = scale_factor(previous.shape, g.shape, device=src.device, dtype=dtype)
             weight = weight * ratio.view(1, 1, 2, 1, 1)
         previous = g
         f = max(g.height / fine.height, g.width / fine.width)

@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_real, check_size, check_tensor
 from torchfluidwarp.fluid import Viscosity, _advect_points, _backtrace, _extend, _geo, _sample, substeps
-from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.grid import FluidGrid, normalized_affine, pixel_to_normalized, rescale_points, scale_factor
 from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.sampling import SampleMode, sample
 from torchfluidwarp.simulator import FluidRollout, FluidSimulator
@@ -56,13 +56,6 @@ def identity_map(size: tuple[int, int], *, batch: int = 1, device=None, dtype=to
         torch.arange(H, device=device, dtype=dtype), torch.arange(W, device=device, dtype=dtype), indexing="ij"
     )
     return torch.stack([xs, ys], dim=-1).expand(batch, H, W, 2)
-
-
-def _pixel_affine(H: int, W: int, like: Tensor) -> tuple[Tensor, Tensor]:
-    # align_corners=False: pixel x maps to normalised (2x + 1) / W - 1
-    scale = torch.tensor([2.0 / W, 2.0 / H], device=like.device, dtype=like.dtype).view(1, 2, 1)
-    shift = torch.tensor([1.0 / W - 1, 1.0 / H - 1], device=like.device, dtype=like.dtype).view(1, 2, 1)
-    return scale, shift
 
 
 def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> Tensor:
@@ -98,15 +91,14 @@ def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode, check: str | No
     The sampling grid is still refused if non-finite (one reduction per call, once per frame), with ``check``
     naming where the coordinates came from; ``check=None`` where they were checked already.
     """
-    H, W = image.shape[-2:]
-    scale, shift = _pixel_affine(H, W, image)
+    scale, shift = normalized_affine((image.shape[-2], image.shape[-1]), device=image.device, dtype=image.dtype)
     grid = torch.addcmul(shift.view(1, 1, 1, 2), coords.to(image.dtype), scale.view(1, 1, 1, 2))
     return sample(image, grid, mode=mode, align_corners=False, check=check)
 
 
 def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
-    H, W = size
-    return torch.tensor([w / W, h / H], device=like.device, dtype=like.dtype).view(1, 2, 1)
+    """Cells per pixel of an image of ``size``, ``(1, 2, 1)`` for channel-first points (see :func:`scale_factor`)."""
+    return scale_factor(size, (h, w), device=like.device, dtype=like.dtype).view(1, 2, 1)
 
 
 OVERSAMPLE = 4
@@ -133,7 +125,7 @@ def _displacement(velocity: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     geo = _geo(h, w, velocity)
     c = _cell_scale(raster, h, w, velocity)
     pix = identity_map(raster, device=velocity.device, dtype=velocity.dtype).reshape(1, -1, 2).transpose(1, 2)
-    cells = ((pix + 0.5) * c - 0.5).expand(velocity.shape[0], -1, -1)  # (B, 2, N) raster centres in cells
+    cells = rescale_points(pix, c).expand(velocity.shape[0], -1, -1)  # (B, 2, N) raster centres in cells
     back = _backtrace(_extend(velocity), cells, dt, geo)
     disp = ((cells - back) / _cell_scale(size, h, w, velocity)).view(-1, 2, *raster)
     if raster == (H, W):
@@ -179,8 +171,8 @@ def _map_composer(
     pix = identity_map(raster, device=like.device, dtype=like.dtype).permute(0, 3, 1, 2).contiguous()  # (1, 2, Hr, Wr)
     lo = torch.tensor([-0.5, -0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
     hi = torch.tensor([Wr - 0.5, Hr - 0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
-    scale, shift = _pixel_affine(Hr, Wr, like)
-    ratio = torch.tensor([W / Wr, H / Hr], device=like.device, dtype=like.dtype).view(1, 1, 1, 2)
+    scale, shift = (a.view(1, 2, 1) for a in normalized_affine(raster, device=like.device, dtype=like.dtype))
+    ratio = scale_factor(raster, size, device=like.device, dtype=like.dtype).view(1, 1, 1, 2)  # raster px -> image px
     ident = identity_map(size, device=like.device, dtype=like.dtype)  # (1, H, W, 2)
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
@@ -320,11 +312,10 @@ def _carry(velocities: Tensor, points: Tensor, size: tuple[int, int], dt: float)
     """Carry ``(B, M, 2)`` pixel points through each step: ``(B, T + 1, M, 2)`` pixels."""
     h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
     c = _cell_scale(size, h, w, points)
-    p = (points.transpose(1, 2) + 0.5) * c - 0.5
-    traj = [p]
+    traj = [rescale_points(points.transpose(1, 2), c)]  # (B, 2, M) cells
     for velocity in velocities.unbind(1):
         traj.append(_advect_points(traj[-1], velocity, dt))
-    return ((torch.stack(traj, dim=1) + 0.5) / c.unsqueeze(1) - 0.5).transpose(2, 3)
+    return rescale_points(torch.stack(traj, dim=1), c.unsqueeze(1), inverse=True).transpose(2, 3)
 
 
 def jacobian_determinant(coords: Tensor) -> Tensor:
@@ -467,11 +458,10 @@ class FluidWarp(nn.Module):
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         yield image
-        H, W = size
         displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None)
         # sampling grids straight from the raster: grid = identity + disp * 2 / raster size, normalised
-        ident = (identity_map(size, device=vel.device, dtype=vel.dtype) + 0.5) * vel.new_tensor([2 / W, 2 / H]) - 1
-        ratio = vel.new_tensor([2 / Wr, 2 / Hr])
+        ident = pixel_to_normalized(identity_map(size, device=vel.device, dtype=vel.dtype), size)
+        ratio = normalized_affine((Hr, Wr), device=vel.device, dtype=vel.dtype)[0]  # raster px -> normalised
         grad = torch.is_grad_enabled()  # grad mode is per thread: the worker follows the caller's
 
         def next_grid() -> Tensor | None:
