@@ -43,7 +43,8 @@ from torch import Tensor
 from torchvision import tv_tensors
 from torchvision.transforms import v2
 
-from torchfluidwarp.augment import RandomFluidWarp, fluid_warp_map
+from torchfluidwarp.augment import FluidWarpAugment as RandomFluidWarp
+from torchfluidwarp.augment import fluid_warp_map
 from torchfluidwarp.augment_tv import RandomFluidWarp as RandomFluidWarpV2
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.registration import fit_images

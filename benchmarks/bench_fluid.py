@@ -56,7 +56,8 @@ import torch.nn.functional as F
 from _common import machine, reset_peak, save_figure, status_kib, table, verdict, write_json
 from torch import Tensor
 
-from torchfluidwarp import CGConfig, ConvergenceWarning, FluidSimulator
+from torchfluidwarp import CGConfig, FluidSimulator
+from torchfluidwarp.linalg import ConvergenceWarning
 
 SEED = 1234
 N_POINTS = 256

@@ -2,15 +2,16 @@
 Fluid warps as data augmentation in a torchvision pipeline
 ==========================================================
 
-:class:`torchfluidwarp.augment_tv.RandomFluidWarp` is a torchvision v2 transform: each call pushes an
-incompressible fluid with a few random Gaussian brushes and moves *everything* in the sample through the same
-flow. Images are resampled, masks are resampled by nearest sampling (they stay binary), keypoints are carried
-by the flow itself (RK2 particles through the same velocities, not an approximate inverse), and boxes become
-the box around their carried outline. Labels pass through. Because the fluid is incompressible, the warp
-never tears or folds the image.
+:class:`torchfluidwarp.RandomFluidWarp <torchfluidwarp.augment_tv.RandomFluidWarp>` is a torchvision v2
+transform: each call pushes an incompressible fluid with a few random Gaussian brushes and moves *everything*
+in the sample through the same flow. Images are resampled, masks are resampled by nearest sampling (they stay
+binary), keypoints are carried by the flow itself (RK2 particles through the same velocities, not an
+approximate inverse), and boxes become the box around their carried outline. Labels pass through. Because the
+fluid is incompressible, the warp never tears or folds the image.
 
-(:class:`torchfluidwarp.augment.RandomFluidWarp` is the same augmentation as a plain ``nn.Module`` over
-tensors, for pipelines without torchvision.)
+(:class:`torchfluidwarp.augment.FluidWarpAugment` is the same augmentation as a plain ``nn.Module`` over
+batches of tensors, one draw per sample, for pipelines without torchvision; ``random_fluid_warp`` is its
+one-call form.)
 """
 
 # %%
@@ -28,7 +29,7 @@ from matplotlib.patches import Rectangle
 from torchvision import tv_tensors
 from torchvision.transforms import v2
 
-from torchfluidwarp.augment_tv import RandomFluidWarp
+from torchfluidwarp import RandomFluidWarp
 from torchfluidwarp.data import load_sample, load_sample_points
 
 N = 256

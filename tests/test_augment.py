@@ -8,8 +8,8 @@ from torch import nn
 from torchfluidwarp.augment import (
     MAX_SHEAR,
     MIN_DET,
+    FluidWarpAugment,
     FluidWarpParams,
-    RandomFluidWarp,
     brush_forces,
     carry_points,
     fluid_warp_map,
@@ -29,7 +29,7 @@ def _one_thread():
 
 
 def _seeded(seed=0, **kwargs):
-    return RandomFluidWarp(generator=torch.Generator().manual_seed(seed), **kwargs)
+    return FluidWarpAugment(generator=torch.Generator().manual_seed(seed), **kwargs)
 
 
 def _strongest(count=4, steps=8, radius=16.0, dt=1.0):
@@ -212,7 +212,7 @@ def test_works_in_a_sequential_with_kornia():
 )
 def test_bad_settings_are_refused_by_name(kwargs, word):
     with pytest.raises((ValueError, TypeError), match=word):
-        RandomFluidWarp(**kwargs)
+        FluidWarpAugment(**kwargs)
 
 
 def test_mismatched_inputs_are_refused():

@@ -8,7 +8,7 @@ from torch.utils.data import DataLoader, Dataset
 from torchvision import tv_tensors  # the [vision] extra, which [test] pulls in
 from torchvision.transforms import v2
 
-import torchfluidwarp.augment
+import torchfluidwarp
 from torchfluidwarp.augment_tv import RandomFluidWarp, fluid_warp
 
 H, W = 64, 80
@@ -155,8 +155,58 @@ def test_pickles_and_runs_in_a_dataloader_with_two_workers():
 @pytest.mark.slow  # a fresh interpreter imports torch: about 10 s on 2 busy cores
 def test_torchvision_is_imported_only_when_asked_for():
     code = (
-        "import sys, torchfluidwarp.augment as a; assert 'torchvision' not in sys.modules; "
-        "a.RandomFluidWarpV2; assert 'torchvision' in sys.modules"
+        "import sys, torchfluidwarp as t, torchfluidwarp.augment; "
+        "assert not {'torchvision', 'starlette', 'uvicorn'} & set(sys.modules), sorted(sys.modules); "
+        "t.RandomFluidWarp; assert 'torchvision' in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
-    assert torchfluidwarp.augment.RandomFluidWarpV2 is RandomFluidWarp
+    assert torchfluidwarp.RandomFluidWarp is RandomFluidWarp
+
+
+def test_plain_tensors_of_any_rank_and_dtype_are_images():
+    img = (torch.rand(2, 3, H, W) * 255).to(torch.uint8)
+    out = _warp(0)(img)
+    assert type(out) is torch.Tensor and out.shape == img.shape and out.dtype == torch.uint8
+    # a batch in one call is one sample: every image moves with the same warp
+    twin = _warp(0)(img[:1].expand(2, -1, -1, -1).contiguous())
+    assert torch.equal(twin[0], twin[1])
+
+
+def _corrupt(x, bad):
+    data = x.as_subclass(torch.Tensor).clone().float()
+    data.view(-1)[data.numel() // 2] = bad
+    return tv_tensors.wrap(data, like=x)
+
+
+BAD = {"nan": float("nan"), "inf": float("inf"), "-inf": float("-inf")}
+KINDS = {
+    "masks": r"mask \(tv_tensors\.Mask\)",
+    "boxes": r"boxes \(tv_tensors\.BoundingBoxes\)",
+    "keypoints": r"keypoints \(tv_tensors\.KeyPoints\)",
+    "image": r"\bimage\b",
+}
+
+
+@pytest.mark.parametrize("bad", BAD)
+@pytest.mark.parametrize("key", KINDS)
+def test_non_finite_input_is_refused_naming_its_kind(key, bad):
+    sample = _sample(0)
+    sample[key] = _corrupt(sample[key], BAD[bad])
+    with pytest.raises(ValueError, match=KINDS[key]) as err:
+        _warp(0)(sample)
+    if key != "image":
+        assert "image" not in str(err.value)
+
+
+@pytest.mark.parametrize("bad", BAD)
+def test_a_non_finite_video_is_refused_naming_it(bad):
+    video = _corrupt(tv_tensors.Video(torch.rand(2, 3, H, W)), BAD[bad])
+    with pytest.raises(ValueError, match=r"video \(tv_tensors\.Video\)"):
+        _warp(0)(video)
+
+
+def test_a_mask_with_no_objects_comes_back_empty():
+    sample = _sample(0)
+    sample["masks"] = tv_tensors.Mask(torch.zeros(0, H, W, dtype=torch.uint8))
+    out = _warp(0)(sample)
+    assert type(out["masks"]) is tv_tensors.Mask and out["masks"].shape == (0, H, W)

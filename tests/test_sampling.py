@@ -17,7 +17,7 @@ from torchvision import tv_tensors  # the [vision] extra, which [test] pulls in
 
 import torchfluidwarp as tfw
 from torchfluidwarp import fluid, sampling, warp
-from torchfluidwarp.augment import RandomFluidWarp
+from torchfluidwarp.augment import FluidWarpAugment as RandomFluidWarp
 from torchfluidwarp.augment_tv import RandomFluidWarp as RandomFluidWarpV2
 from torchfluidwarp.registration import fit_images
 
@@ -76,7 +76,7 @@ def _inputs() -> dict[str, torch.Tensor]:
         "velocity": tfw.FluidSimulator(G)(forces).velocities[:, -1],
         "velocities": tfw.FluidSimulator(G)(forces).velocities,
         "quantity": torch.rand(1, 2, G, G, generator=g),
-        "coords": tfw.identity_map((H, W)) + 0.3,
+        "coords": warp.identity_map((H, W)) + 0.3,
         "viscosity": torch.full((1, 1, G, G), 0.1),
         "source": torch.tensor([[3.0, 4.0], [8.0, 7.0]]),
         "target": torch.tensor([[4.0, 4.5], [8.5, 6.0]]),
@@ -126,17 +126,17 @@ ENTRY_POINTS: dict[str, tuple[list[str | tuple[str, str]], Call]] = {
     "FluidWarp.forward_maps": (["forces"], lambda a: _warp().forward_maps(a["forces"])),
     "FluidWarp.advect_points": (["points", "forces"], lambda a: _warp().advect_points(a["points"], a["forces"])),
     "warp_image": (["image", "coords"], lambda a: tfw.warp_image(a["image"], a["coords"])),
-    "advect": (["quantity", "velocity", "dt"], lambda a: tfw.advect(a["quantity"], a["velocity"], a["dt"])),
-    "advect_velocity": (["velocity", "dt"], lambda a: tfw.advect_velocity(a["velocity"], a["dt"])),
-    "advect_points": (["points", "velocity", "dt"], lambda a: tfw.advect_points(a["points"], a["velocity"], a["dt"])),
-    "sample_velocity": (["velocity", "points"], lambda a: tfw.sample_velocity(a["velocity"], a["points"])),
-    "backward_maps": (["velocities", "dt"], lambda a: tfw.backward_maps(a["velocities"], (H, W), a["dt"])),
+    "advect": (["quantity", "velocity", "dt"], lambda a: fluid.advect(a["quantity"], a["velocity"], a["dt"])),
+    "advect_velocity": (["velocity", "dt"], lambda a: fluid.advect_velocity(a["velocity"], a["dt"])),
+    "advect_points": (["points", "velocity", "dt"], lambda a: fluid.advect_points(a["points"], a["velocity"], a["dt"])),
+    "sample_velocity": (["velocity", "points"], lambda a: fluid.sample_velocity(a["velocity"], a["points"])),
+    "backward_maps": (["velocities", "dt"], lambda a: warp.backward_maps(a["velocities"], (H, W), a["dt"])),
     "iter_backward_maps": (
         ["velocities", "dt"],
         lambda a: list(warp.iter_backward_maps(a["velocities"], (H, W), a["dt"])),
     ),
-    "maps_to_end": (["velocities", "dt"], lambda a: tfw.maps_to_end(a["velocities"], (H, W), a["dt"])),
-    "forward_maps": (["velocities", "dt"], lambda a: tfw.forward_maps(a["velocities"], (H, W), a["dt"])),
+    "maps_to_end": (["velocities", "dt"], lambda a: warp.maps_to_end(a["velocities"], (H, W), a["dt"])),
+    "forward_maps": (["velocities", "dt"], lambda a: warp.forward_maps(a["velocities"], (H, W), a["dt"])),
     "jacobian_determinant": (["coords"], lambda a: tfw.jacobian_determinant(a["coords"])),
     "fit_keyframes": (
         ["source", "target"],

@@ -1,90 +1,111 @@
 """torchfluidwarp: warp and morph images with a differentiable 2-D incompressible fluid.
 
-The public API, by layer (each module's docstring states its shapes, units and conventions):
+The top level holds what most users need; everything else is imported from its module:
 
-* fluid core (:mod:`~torchfluidwarp.fluid`, :mod:`~torchfluidwarp.simulator`, :mod:`~torchfluidwarp.linalg`):
-  :class:`FluidSimulator`, :class:`StableFluidsStep`, ``advect``, ``diffuse``, ``project``, ``divergence``,
-  the solve settings :class:`CGConfig`;
-* warping (:mod:`~torchfluidwarp.warp`, :mod:`~torchfluidwarp.forces`): the :class:`FluidWarp` layer,
-  ``warp_image``, ``jacobian_determinant``, brush and control-grid force modules, viscosity maps;
-* control and morphing (:mod:`~torchfluidwarp.control`, :mod:`~torchfluidwarp.morph`): ``fit_keyframes``,
-  ``morph``;
-* pipelines: :mod:`torchfluidwarp.augment` (``RandomFluidWarp``) and :mod:`torchfluidwarp.registration`
-  (``fit_images``);
-* files: :mod:`torchfluidwarp.io` and the bundled samples in :mod:`torchfluidwarp.data`.
+* simulate and warp: :class:`FluidSimulator` (its :class:`FluidRollout`), :class:`FluidWarp`, ``warp_image``,
+  ``jacobian_determinant``, the grid :class:`FluidGrid` and the solve settings :class:`CGConfig`;
+* fit and morph: ``fit_keyframes`` (:class:`KeyframeFit`), ``fit_images`` (:class:`ImageFit`), ``morph``
+  (:class:`MorphResult`);
+* augment: :class:`RandomFluidWarp`, the torchvision v2 transform (imported on first access: torchvision is
+  needed only then); the tensor-level ``nn.Module`` is :class:`torchfluidwarp.augment.FluidWarpAugment`.
+
+The layers below, by module (each module's docstring states its shapes, units and conventions): the fluid
+steps in :mod:`~torchfluidwarp.fluid` and :mod:`~torchfluidwarp.simulator`, the solves in
+:mod:`~torchfluidwarp.linalg`, maps in :mod:`~torchfluidwarp.warp`, force modules in
+:mod:`~torchfluidwarp.forces`, keyframe control in :mod:`~torchfluidwarp.control`, pre-alignment in
+:mod:`~torchfluidwarp.alignment`, files in :mod:`~torchfluidwarp.io` and the bundled samples in
+:mod:`~torchfluidwarp.data`. Names that used to be re-exported here (``advect``, ``project``, ``Brushes``, ...)
+still resolve for one release, with a ``DeprecationWarning`` that names their module.
 
 Conventions: images ``(B, C, H, W)`` in ``[0, 1]``; points ``(x, y)`` in pixels with pixel centres at
 integers (``align_corners=False``); fluid quantities in fluid cells and time steps (:mod:`~torchfluidwarp.grid`).
 """
 
+from __future__ import annotations
+
+import importlib
+import warnings
+from typing import TYPE_CHECKING, Any
+
 from torchfluidwarp._version import __version__
-from torchfluidwarp.alignment import estimate_alignment
-from torchfluidwarp.control import KeyframeFit, fit_keyframes, keyframe_loss, velocity_gradient_energy
-from torchfluidwarp.fluid import (
-    advect,
-    advect_points,
-    advect_velocity,
-    cells_from_faces,
-    diffuse,
-    divergence,
-    faces_from_cells,
-    project,
-    sample_velocity,
-)
-from torchfluidwarp.forces import Brushes, CellForces, ControlGrid, SumForces, ViscosityBrushes, viscosity_from_mask
-from torchfluidwarp.grid import FluidGrid, cell_to_pixel, pixel_to_cell
-from torchfluidwarp.linalg import CGConfig, ConvergenceError, ConvergenceWarning, implicit_solve
+from torchfluidwarp.control import KeyframeFit, fit_keyframes
+from torchfluidwarp.grid import FluidGrid
+from torchfluidwarp.linalg import CGConfig
 from torchfluidwarp.morph import MorphResult, morph
-from torchfluidwarp.simulator import FluidRollout, FluidSimulator, StableFluidsStep
-from torchfluidwarp.warp import (
-    FluidWarp,
-    backward_maps,
-    forward_maps,
-    identity_map,
-    jacobian_determinant,
-    maps_to_end,
-    warp_image,
-)
+from torchfluidwarp.registration import ImageFit, fit_images
+from torchfluidwarp.simulator import FluidRollout, FluidSimulator
+from torchfluidwarp.warp import FluidWarp, jacobian_determinant, warp_image
+
+if TYPE_CHECKING:
+    from torchfluidwarp.augment_tv import RandomFluidWarp
 
 __all__ = [
     "__version__",
-    "FluidGrid",
-    "pixel_to_cell",
-    "cell_to_pixel",
-    "CGConfig",
-    "ConvergenceWarning",
-    "ConvergenceError",
-    "implicit_solve",
-    "advect",
-    "advect_velocity",
-    "advect_points",
-    "sample_velocity",
-    "diffuse",
-    "project",
-    "divergence",
-    "faces_from_cells",
-    "cells_from_faces",
     "FluidSimulator",
     "FluidRollout",
-    "StableFluidsStep",
     "FluidWarp",
+    "FluidGrid",
+    "CGConfig",
     "warp_image",
-    "identity_map",
-    "backward_maps",
-    "forward_maps",
-    "maps_to_end",
     "jacobian_determinant",
-    "Brushes",
-    "SumForces",
-    "ControlGrid",
-    "CellForces",
-    "ViscosityBrushes",
-    "viscosity_from_mask",
     "fit_keyframes",
     "KeyframeFit",
-    "keyframe_loss",
-    "velocity_gradient_energy",
+    "fit_images",
+    "ImageFit",
     "morph",
     "MorphResult",
-    "estimate_alignment",
+    "RandomFluidWarp",
 ]
+
+# imported on first access, without a warning: importing torchfluidwarp never imports torchvision
+_LAZY = {"RandomFluidWarp": "torchfluidwarp.augment_tv"}
+
+# names the top level used to export, and the module each lives in; they resolve for one
+# more release with a DeprecationWarning
+_MOVED = {
+    **dict.fromkeys(["pixel_to_cell", "cell_to_pixel"], "torchfluidwarp.grid"),
+    **dict.fromkeys(["ConvergenceWarning", "ConvergenceError", "implicit_solve"], "torchfluidwarp.linalg"),
+    **dict.fromkeys(
+        [
+            "advect",
+            "advect_velocity",
+            "advect_points",
+            "sample_velocity",
+            "diffuse",
+            "project",
+            "divergence",
+            "faces_from_cells",
+            "cells_from_faces",
+        ],
+        "torchfluidwarp.fluid",
+    ),
+    "StableFluidsStep": "torchfluidwarp.simulator",
+    **dict.fromkeys(["identity_map", "backward_maps", "forward_maps", "maps_to_end"], "torchfluidwarp.warp"),
+    **dict.fromkeys(
+        ["Brushes", "SumForces", "ControlGrid", "CellForces", "ViscosityBrushes", "viscosity_from_mask"],
+        "torchfluidwarp.forces",
+    ),
+    **dict.fromkeys(["keyframe_loss", "velocity_gradient_energy"], "torchfluidwarp.control"),
+    "estimate_alignment": "torchfluidwarp.alignment",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # later lookups skip this hook
+        return value
+    if name in _MOVED:
+        module = _MOVED[name]
+        warnings.warn(
+            f"torchfluidwarp.{name} is no longer exported from the top level; use `from {module} import {name}`. "
+            "The top-level alias goes in the next release.",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(module), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -12,19 +12,27 @@ rolls the fluid out once for the whole batch, and then moves every input of the 
 Conventions (as everywhere in the library, see :mod:`torchfluidwarp.grid`): images are ``(B, C, H, W)``;
 points and boxes are in **pixels** ``(x, y)`` with pixel centres at integers, so the image covers
 ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``; boxes are ``(x1, y1, x2, y2)`` in the same coordinates.
-The torchvision v2 transform (boxes with edges at ``0`` and ``W``) lives in :mod:`torchfluidwarp.augment_tv`
-and is imported only when asked for: ``torchfluidwarp.augment.RandomFluidWarpV2``.
+
+Two names, one augmentation:
+
+* :class:`FluidWarpAugment` (this module) is the tensor-level ``nn.Module``: it warps a batch ``(B, C, H, W)``
+  with one independent draw per sample, and takes keypoints, masks and boxes as keyword tensors;
+  :func:`random_fluid_warp` is the same as a one-shot function.
+* ``torchfluidwarp.RandomFluidWarp`` (:class:`torchfluidwarp.augment_tv.RandomFluidWarp`) is the torchvision v2
+  ``Transform`` over tv_tensors (boxes with edges at ``0`` and ``W``) and plain tensors; it draws through a
+  :class:`FluidWarpAugment`. torchvision is imported there only: this module never imports it.
 
 The fluid is incompressible, so the continuous flow never folds, but its discretisation can when one step
 shears a cell by about its own size or the whole push carries the image many brush radii. Two guards keep
-every warp fold-free: :class:`RandomFluidWarp` refuses settings past :data:`MAX_SHEAR`, and each drawn map
+every warp fold-free: :class:`FluidWarpAugment` refuses settings past :data:`MAX_SHEAR`, and each drawn map
 is checked (:func:`min_quad_determinant`); a sample whose map would fold is rolled out again with half the
-force (see :meth:`RandomFluidWarp.make_params`).
+force (see :meth:`FluidWarpAugment.make_params`).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -42,7 +50,8 @@ __all__ = [
     "MAX_SHEAR",
     "MIN_DET",
     "FluidWarpParams",
-    "RandomFluidWarp",
+    "FluidWarpAugment",
+    "random_fluid_warp",
     "brush_forces",
     "min_quad_determinant",
     "raster_map",
@@ -344,7 +353,7 @@ def apply_fluid_warp(
     """Move every given input of one call through the same drawn warp.
 
     Args:
-        params: a draw from :meth:`RandomFluidWarp.make_params`.
+        params: a draw from :meth:`FluidWarpAugment.make_params`.
         image: ``(B, C, H, W)``, resampled bilinearly (integer images are rounded back to their dtype).
         keypoints: ``(B, M, 2)`` pixels, carried by the forward map (:func:`carry_points`).
         masks: ``(B, K, H, W)`` labels or binary masks of any dtype, resampled by nearest sampling.
@@ -373,8 +382,13 @@ def apply_fluid_warp(
     return out
 
 
-class RandomFluidWarp(nn.Module):
-    """Random fluid warp augmentation: Gaussian brushes push an incompressible fluid that carries the image.
+class FluidWarpAugment(nn.Module):
+    """Random fluid warp augmentation over plain tensors: Gaussian brushes push an incompressible fluid that
+    carries the image, one independent draw per sample of the batch.
+
+    This is the tensor-level module (formerly ``torchfluidwarp.augment.RandomFluidWarp``); for a torchvision v2
+    pipeline over tv_tensors use ``torchfluidwarp.RandomFluidWarp``
+    (:class:`~torchfluidwarp.augment_tv.RandomFluidWarp`), which draws through this module.
 
     Per sample, ``count`` brushes are placed uniformly over the image, each pushing in a uniformly random
     direction with its own ``strength`` and ``radius``, steadily for ``steps`` fluid steps. Every range is
@@ -415,7 +429,7 @@ class RandomFluidWarp(nn.Module):
     masks ``(B, K, H, W)``. Unbatched inputs drop the leading ``B`` everywhere.
 
     Example:
-        >>> aug = RandomFluidWarp(strength=(0.2, 0.4), generator=torch.Generator().manual_seed(0))
+        >>> aug = FluidWarpAugment(strength=(0.2, 0.4), generator=torch.Generator().manual_seed(0))
         >>> image = torch.rand(2, 3, 64, 64)
         >>> aug(image).shape
         torch.Size([2, 3, 64, 64])
@@ -610,10 +624,86 @@ class RandomFluidWarp(nn.Module):
         return out["image"] if len(out) == 1 else out
 
 
-def __getattr__(name: str) -> Any:
-    # the torchvision transform is imported only when asked for: torchvision stays optional
-    if name == "RandomFluidWarpV2":
-        from torchfluidwarp.augment_tv import RandomFluidWarp as RandomFluidWarpV2
+def random_fluid_warp(
+    image: Tensor,
+    *,
+    keypoints: Tensor | None = None,
+    masks: Tensor | None = None,
+    boxes: Tensor | None = None,
+    count: RangeArg = (1, 4),
+    strength: RangeArg = (0.1, 0.5),
+    radius: RangeArg = (16.0, 48.0),
+    steps: RangeArg = (4, 8),
+    grid: FluidGrid | int | tuple[int, int] = 32,
+    dt: float = 1.0,
+    viscosity: float = 0.0,
+    edge_points: int = 8,
+    max_retries: int = 3,
+    generator: torch.Generator | None = None,
+) -> Tensor | dict[str, Tensor]:
+    """One random fluid warp of a batch of tensors: ``FluidWarpAugment(**settings)(image, ...)`` in one call.
 
-        return RandomFluidWarpV2
+    Each sample gets its own draw; the optional keypoints, masks and boxes of a sample follow its image. Use
+    :class:`FluidWarpAugment` to keep the settings (and a generator) across calls, and
+    ``torchfluidwarp.RandomFluidWarp`` (:class:`~torchfluidwarp.augment_tv.RandomFluidWarp`) in a torchvision
+    pipeline.
+
+    Args:
+        image: ``(B, C, H, W)`` or ``(C, H, W)``, any dtype (integers are rounded back).
+        keypoints: ``(B, M, 2)`` (``(M, 2)`` unbatched) pixels ``(x, y)``, pixel centres at integers.
+        masks: ``(B, K, H, W)`` (``(K, H, W)`` unbatched), any dtype; nearest sampling.
+        boxes: ``(B, N, 4)`` (``(N, 4)`` unbatched) ``(x1, y1, x2, y2)`` pixels.
+        count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries, generator: the settings
+            of :class:`FluidWarpAugment`.
+
+    Returns:
+        the warped image when only an image is given; otherwise a dict with the keys ``"image"`` and those of
+        the other inputs given.
+
+    Raises:
+        TypeError, ValueError: as :class:`FluidWarpAugment` and its ``forward``.
+
+    Example:
+        >>> out = random_fluid_warp(torch.rand(3, 32, 32), keypoints=torch.tensor([[10.0, 12.0]]),
+        ...                         strength=(0.1, 0.2), radius=(8.0, 12.0), generator=torch.Generator().manual_seed(0))
+        >>> out["image"].shape, out["keypoints"].shape
+        (torch.Size([3, 32, 32]), torch.Size([1, 2]))
+    """
+    aug = FluidWarpAugment(
+        count,
+        strength,
+        radius,
+        steps,
+        grid=grid,
+        dt=dt,
+        viscosity=viscosity,
+        edge_points=edge_points,
+        max_retries=max_retries,
+        generator=generator,
+    )
+    return aug(image, keypoints=keypoints, masks=masks, boxes=boxes)
+
+
+def __getattr__(name: str) -> Any:
+    # Deprecated names, kept for one release. This module never imports torchvision nor augment_tv: the old
+    # lazy alias of the v2 transform resolves through the package's own lazy top level.
+    if name == "RandomFluidWarp":
+        warnings.warn(
+            "torchfluidwarp.augment.RandomFluidWarp (the tensor-level nn.Module) is renamed "
+            "torchfluidwarp.augment.FluidWarpAugment (function: torchfluidwarp.augment.random_fluid_warp); "
+            "torchfluidwarp.RandomFluidWarp is now the torchvision v2 transform. The old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return FluidWarpAugment
+    if name == "RandomFluidWarpV2":
+        warnings.warn(
+            "torchfluidwarp.augment.RandomFluidWarpV2 is deprecated: import the torchvision v2 transform as "
+            "torchfluidwarp.RandomFluidWarp (or from torchfluidwarp.augment_tv); the old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        import torchfluidwarp
+
+        return torchfluidwarp.RandomFluidWarp
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,8 +1,9 @@
-"""Random fluid warps as a torchvision v2 transform, over tv_tensors.
+"""Random fluid warps as a torchvision v2 transform, over tv_tensors and plain tensors.
 
 Importing this module imports torchvision (``pip install torchfluidwarp[vision]``); the rest of the library
-never does. Reach it as ``from torchfluidwarp.augment_tv import RandomFluidWarp`` or, lazily,
-``torchfluidwarp.augment.RandomFluidWarpV2``.
+never does. Reach the transform as ``torchfluidwarp.RandomFluidWarp`` (imported lazily, on first access) or
+``from torchfluidwarp.augment_tv import RandomFluidWarp``. This module imports :mod:`torchfluidwarp.augment`
+(the tensor-level :class:`~torchfluidwarp.augment.FluidWarpAugment` draws the warp), never the reverse.
 
 One draw of random forces per call (:meth:`RandomFluidWarp.make_params`) serves every input of the sample,
 each moved by the kernel for its type (:func:`fluid_warp`):
@@ -37,7 +38,9 @@ from torchvision import tv_tensors
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as TF
 
+from torchfluidwarp._checks import check_tensor
 from torchfluidwarp.augment import (
+    FluidWarpAugment,
     FluidWarpParams,
     RangeArg,
     _resample,
@@ -45,9 +48,6 @@ from torchfluidwarp.augment import (
     carry_points,
     fluid_warp_map,
     polygon_outline,
-)
-from torchfluidwarp.augment import (
-    RandomFluidWarp as _Sampler,
 )
 from torchfluidwarp.grid import FluidGrid
 
@@ -79,6 +79,9 @@ def fluid_warp(inpt: _T, params: FluidWarpParams, *, edge_points: int = 8) -> _T
     Args:
         inpt: an image-like tensor ``(..., C, H, W)``, a ``tv_tensors`` object, a PIL image, or anything else.
         params: a draw for batch 1 (:meth:`RandomFluidWarp.make_params`).
+
+    Raises:
+        ValueError: an image, video, mask, keypoint or box tensor holding NaN or inf, naming its kind.
         edge_points: points carried per box edge.
 
     Returns:
@@ -106,15 +109,26 @@ def _plain_kernel(x: Tensor, params: FluidWarpParams, **_: Any) -> Tensor:
     return _images(x, params, "bilinear")
 
 
+def _finite(kind: str, x: Tensor) -> Tensor:
+    """``x`` as a plain tensor, refused with a ``ValueError`` naming its kind when it holds NaN or inf."""
+    return check_tensor(kind, x.as_subclass(Tensor), floating=False)
+
+
 @register_fluid_kernel(tv_tensors.Image)
-@register_fluid_kernel(tv_tensors.Video)
-def _image_kernel(x: tv_tensors.TVTensor, params: FluidWarpParams, **_: Any) -> tv_tensors.TVTensor:
+def _image_kernel(x: tv_tensors.Image, params: FluidWarpParams, **_: Any) -> tv_tensors.Image:
     return tv_tensors.wrap(_images(x.as_subclass(Tensor), params, "bilinear"), like=x)
+
+
+@register_fluid_kernel(tv_tensors.Video)
+def _video_kernel(x: tv_tensors.Video, params: FluidWarpParams, **_: Any) -> tv_tensors.Video:
+    return tv_tensors.wrap(_images(_finite("video (tv_tensors.Video)", x), params, "bilinear"), like=x)
 
 
 @register_fluid_kernel(tv_tensors.Mask)
 def _mask_kernel(x: tv_tensors.Mask, params: FluidWarpParams, **_: Any) -> tv_tensors.Mask:
-    m = x.as_subclass(Tensor)
+    m = _finite("mask (tv_tensors.Mask)", x)
+    if m.numel() == 0:  # no objects, (0, H, W): nothing to move
+        return x
     flat = m.reshape(1, -1, *m.shape[-2:])  # every mask a channel: (1, K, H, W)
     return tv_tensors.wrap(_images(flat, params, "nearest").reshape(m.shape), like=x)
 
@@ -134,7 +148,7 @@ def _back(x: Tensor, like: Tensor) -> Tensor:
 
 @register_fluid_kernel(tv_tensors.KeyPoints)
 def _keypoints_kernel(x: tv_tensors.KeyPoints, params: FluidWarpParams, **_: Any) -> tv_tensors.KeyPoints:
-    p = x.as_subclass(Tensor)
+    p = _finite("keypoints (tv_tensors.KeyPoints)", x)
     if p.numel() == 0:
         return x
     moved = carry_points(params, _as_float(p, params).reshape(1, -1, 2), tuple(x.canvas_size))
@@ -164,7 +178,7 @@ def _oriented_box(corners: Tensor, moved: Tensor) -> Tensor:
 def _boxes_kernel(
     x: tv_tensors.BoundingBoxes, params: FluidWarpParams, *, edge_points: int = 8
 ) -> tv_tensors.BoundingBoxes:
-    data = x.as_subclass(Tensor)
+    data = _finite("boxes (tv_tensors.BoundingBoxes)", x)
     if data.numel() == 0:
         return x
     fmt, canvas = x.format, tuple(x.canvas_size)
@@ -192,7 +206,12 @@ class RandomFluidWarp(v2.Transform):
     """Random fluid warp as a torchvision v2 transform: one random incompressible flow per call moves every
     image, video, mask, keypoint set and box set of the sample consistently.
 
-    Args are those of :class:`torchfluidwarp.augment.RandomFluidWarp` (ranges ``(min, max)`` or a number):
+    It takes tv_tensors, PIL images and plain tensors alike: a plain tensor ``(..., C, H, W)`` is treated as an
+    image, as by every v2 transform (``RandomFluidWarp()(torch.rand(3, 64, 64))``). For per-sample draws over a
+    batch of plain tensors, with keypoints, masks and boxes as keyword tensors, use the tensor-level
+    :class:`~torchfluidwarp.augment.FluidWarpAugment`, which this transform draws through.
+
+    Args are those of :class:`~torchfluidwarp.augment.FluidWarpAugment` (ranges ``(min, max)`` or a number):
 
     Args:
         count: brushes per call (ints).
@@ -209,6 +228,10 @@ class RandomFluidWarp(v2.Transform):
 
     A sample is warped as one: batched images ``(B, C, H, W)`` in one call share one warp, as for every
     torchvision transform. Works in ``v2.Compose``, on dicts and tuples, and in ``DataLoader`` workers.
+
+    Raises:
+        ValueError: on a call, an image, video, mask, keypoint or box tensor holding NaN or inf; the message
+            names which (e.g. ``mask (tv_tensors.Mask)``).
 
     Example:
         >>> from torchvision import tv_tensors
@@ -248,7 +271,7 @@ class RandomFluidWarp(v2.Transform):
         generator: torch.Generator | None = None,
     ) -> None:
         super().__init__()
-        self.sampler = _Sampler(
+        self.sampler = FluidWarpAugment(
             count,
             strength,
             radius,
