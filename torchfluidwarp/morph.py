@@ -149,18 +149,21 @@ image's edge (see :func:`_dissolve`), so neither image's edge, nor the edge pixe
 it, shows as a line."""
 
 
-def _coverage(coords: Tensor, size: tuple[int, int]) -> Tensor:
+def _coverage(coords: Tensor, det: Tensor, size: tuple[int, int]) -> Tensor:
     """``(1, 1, H, W)`` in ``[0, 1]``: 1 where a map ``(1, H, W, 2)`` reads at least :data:`FEATHER` output pixels
     inside an image of ``size``, falling linearly to 0 at its edge (and 0 beyond). Distances in the image are
-    converted to output pixels by the map's local scale, ``sqrt |det J|`` source pixels per output pixel."""
+    converted to output pixels by the map's local scale, ``sqrt |det J|`` source pixels per output pixel, from the
+    map's Jacobian determinant ``det`` ``(1, H, W)``."""
     H, W = size
     x, y = coords[..., 0], coords[..., 1]
     inside = torch.minimum(torch.minimum(x + 0.5, W - 0.5 - x), torch.minimum(y + 0.5, H - 0.5 - y))
-    scale = jacobian_determinant(coords).abs().clamp(min=1e-12).sqrt()
+    scale = det.abs().clamp(min=1e-12).sqrt()
     return (inside / (scale * FEATHER)).clamp(0, 1).unsqueeze(1)
 
 
-def _dissolve(fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, w: float, size: tuple[int, int]) -> Tensor:
+def _dissolve(
+    fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, det_a: Tensor, det_b: Tensor, w: float, size: tuple[int, int]
+) -> Tensor:
     """Cross-dissolve ``(1 - w) fa + w fb``, except near and beyond an image's edge.
 
     Beyond it, sampling holds the edge pixels and smears them into streaks (the pre-alignment can reach far beyond
@@ -168,7 +171,7 @@ def _dissolve(fa: Tensor, fb: Tensor, map_a: Tensor, map_b: Tensor, w: float, si
     further inside, ``w' = w c_b / ((1 - w) c_a + w c_b)`` with the coverages ``c`` of :func:`_coverage`. Where both
     read at least :data:`FEATHER` output pixels inside, or both beyond, it is ``w``.
     """
-    ca, cb = _coverage(map_a, size), _coverage(map_b, size)
+    ca, cb = _coverage(map_a, det_a, size), _coverage(map_b, det_b, size)
     den = (1 - w) * ca + w * cb
     weight = torch.where(den > 0, w * cb / den.clamp(min=1e-12), torch.full_like(den, w))
     return torch.lerp(fa, fb, weight)
@@ -225,8 +228,8 @@ def _render(
     inverse: InverseMethod,
     blend: Blend,
     fit_kwargs: dict[str, Any],
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float]:
-    """Render the frames of a fitted morph (see :func:`morph`)."""
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float, int]:
+    """Render the frames of a fitted morph (see :func:`morph`); the last value counts the folded map pixels."""
     times = torch.linspace(0, steps, n, dtype=torch.float64)  # fluid time of each frame, on the CPU: scalars
     time_list = [float(s) for s in times]
     time_list[-1] = float(steps)
@@ -244,6 +247,7 @@ def _render(
     weights = _blend_weights(times, steps, blend)
     ident = identity_map(size, dtype=torch.float64)
     out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
+    folded = 0
     for k, s in enumerate(time_list):
         Mk = interpolate_alignment(M, s / steps, center)
         z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, H, W, 2) in the box
@@ -251,7 +255,9 @@ def _render(
         k_at = _sample_map(k_maps[k], z) + offset
         map_b = apply_alignment(M, k_at.double()).to(a.dtype)
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
-        out.append(_dissolve(fa, fb, map_a, map_b, float(weights[k]), size))
+        det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, H, W) each
+        folded += int((det_a <= 0).sum()) + int((det_b <= 0).sum())
+        out.append(_dissolve(fa, fb, map_a, map_b, det_a, det_b, float(weights[k]), size))
         fwd.append(fa)
         bwd.append(fb)
         maps_a.append(map_a)
@@ -259,7 +265,7 @@ def _render(
     frames_t = torch.cat(out)
     # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
     frames_t[0], frames_t[-1] = a[0], b[0]
-    return frames_t, torch.cat(fwd), torch.cat(bwd), torch.cat(maps_a), torch.cat(maps_b), times, t_inv
+    return frames_t, torch.cat(fwd), torch.cat(bwd), torch.cat(maps_a), torch.cat(maps_b), times, t_inv, folded
 
 
 def _check_marks(pa: Tensor, pb: Tensor) -> None:
@@ -359,7 +365,6 @@ def _fit_natural(
     box = (-pad, -pad, W + pad, H + pad)
     offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
     src = pa.double() - offset
-    # targets stay clear of the walls, where the forces fade out
     inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
     mids, disp = _straight_paths(src, target - offset, inside)
     # the ends stay clear of the walls, where the forces fade out
@@ -523,7 +528,7 @@ def morph(
 
     with torch.no_grad():  # the fit is done: rendering needs no graph
         result = _render(a, b, fit, M, center, box, size, roi, steps, n, inverse, blend, fit_kwargs)
-    frames_t, fwd, bwd, maps_a, maps_b, times, t_inv = result
+    frames_t, fwd, bwd, maps_a, maps_b, times, t_inv, n_folded = result
     t_render = time.perf_counter()
 
     traj = torch.stack(
@@ -539,12 +544,11 @@ def morph(
         f"max {float(err.max()):.4f} px"
     )
     fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=err, message=message)
-    det_a, det_b = jacobian_determinant(maps_a), jacobian_determinant(maps_b)
-    n_folded = int((det_a <= 0).sum()) + int((det_b <= 0).sum())
-    folded = n_folded / (det_a.numel() + det_b.numel())
+    n_pixels = maps_a.shape[:3].numel() + maps_b.shape[:3].numel()
+    folded = n_folded / n_pixels
     if n_folded:
         warnings.warn(
-            f"the morph's maps fold on {n_folded} of {det_a.numel() + det_b.numel()} pixels over all frames of "
+            f"the morph's maps fold on {n_folded} of {n_pixels} pixels over all frames of "
             "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
             "(result.fit.error names the points not reached), or raise smoothness",
             RuntimeWarning,
