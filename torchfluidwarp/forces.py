@@ -21,7 +21,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.grid import FluidGrid, cell_scale
 from torchfluidwarp.grid import cell_centres as _grid_cell_centres
-from torchfluidwarp.spline import tps_cardinal, tps_fit
+from torchfluidwarp.spline import tps_fit
 
 __all__ = [
     "Brushes",
@@ -338,12 +338,13 @@ class LandmarkForces(nn.Module):
                         :, None
                     ]
                 travel = tps_fit(mids, disp)  # D
+                cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
                 T = self.weight.shape[1]
                 rows, at = [], cells
                 for t in range(T):
                     # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
                     at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
-                    rows.append(fade * tps_cardinal(mids, at))
+                    rows.append(fade * cardinal(at))
                 self._basis[key] = torch.stack(rows).to(self.weight.dtype)
         return self._basis[key]
 
