@@ -2,20 +2,20 @@
 
 Three measurements, float32 on CPU unless stated, through the public API:
 
-1. **Cost per image** at 224 x 224 and 512 x 512 (RGB float): :class:`torchfluidwarp.augment.RandomFluidWarp`
+1. **Cost per image** at 224 x 224 and 512 x 512 (RGB float): :class:`torchfluidwarp.augment.tensor.RandomFluidWarp`
    on a batch of ``--batch`` images (one draw and one fluid roll-out per sample, batched) and on single
-   images, the torchvision v2 transform :class:`torchfluidwarp.augment_tv.RandomFluidWarp` on single
+   images, the torchvision v2 transform :class:`torchfluidwarp.augment.transforms.RandomFluidWarp` on single
    ``tv_tensors.Image`` s, and torchvision's ``v2.ElasticTransform`` (defaults: alpha 50, sigma 5) on single
    images, its baseline, in the same process. Medians of interleaved repeats, after a warm-up.
 2. **Folds at comparable displacement**: the fraction of pixels whose backward map has a Jacobian
-   determinant <= 0 (central differences, :func:`torchfluidwarp.warp.jacobian_determinant`), and the mean
+   determinant <= 0 (central differences, :func:`torchfluidwarp.warp.layer.jacobian_determinant`), and the mean
    displacement magnitude in pixels, over ``--draws`` draws at 224 x 224. ElasticTransform's map is
    ``identity + displacement`` in normalised coordinates (``make_params``' ``"displacement"``, ``(1, H, W, 2)``,
    ``x`` first; ``F.elastic`` adds it to an ``align_corners=False`` identity grid), so in pixels it reads the
    source at ``x + dx * W / 2``, ``y + dy * H / 2``. ElasticTransform is run at its defaults and with ``alpha``
    scaled so that its mean displacement matches each fluid setting's (displacement is linear in alpha), at
    sigma 5 (its default) and sigma 15 (smoother).
-3. **Registration**: :func:`torchfluidwarp.registration.fit_images` on the pair of
+3. **Registration**: :func:`torchfluidwarp.control.images.fit_images` on the pair of
    ``examples/plot_register_images.py`` (the bundled astronaut at 128 x 128 against itself under a known twirl
    and shear, brightness ``0.8 I + 0.1``; loss ``"ncc"``; float64): loss before and after, time, evaluations,
    the smallest Jacobian determinant, and the error of the 23 bundled landmarks against where the known
@@ -45,9 +45,9 @@ from torchvision.transforms import v2
 
 from torchfluidwarp.augment import FluidWarpAugment as RandomFluidWarp
 from torchfluidwarp.augment import fluid_warp_map
-from torchfluidwarp.augment_tv import RandomFluidWarp as RandomFluidWarpV2
+from torchfluidwarp.augment.transforms import RandomFluidWarp as RandomFluidWarpV2
+from torchfluidwarp.control import fit_images
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.registration import fit_images
 from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 
 SEED = 1234

@@ -57,7 +57,7 @@ from _common import machine, reset_peak, save_figure, status_kib, table, verdict
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, FluidSimulator
-from torchfluidwarp.linalg import ConvergenceWarning
+from torchfluidwarp.core import ConvergenceWarning
 
 SEED = 1234
 N_POINTS = 256

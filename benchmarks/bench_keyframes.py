@@ -9,8 +9,8 @@ mean target whenever it is reached.
 **Problem instances.** The 0.05 px target only means something if the targets can be reached by an
 incompressible flow, so most instances are made by a flow:
 
-* *flow* instances (one per seed): four random steady Gaussian :class:`~torchfluidwarp.forces.Brushes`
-  drive the library's own :class:`~torchfluidwarp.warp.FluidWarp` (same fluid grid and step count as the fit,
+* *flow* instances (one per seed): four random steady Gaussian :class:`~torchfluidwarp.warp.forces.Brushes`
+  drive the library's own :class:`~torchfluidwarp.warp.layer.FluidWarp` (same fluid grid and step count as the fit,
   float64). Candidate points lie on a jittered 1-px lattice at least 6 px from the walls; the brushes' strength
   is scaled (bisection) so that 60% of the candidates move less than 7.5 px; then 14 sources are chosen in
   random order among the candidates that move 5 to 10 px, at least 6 px apart. The targets are where the flow
@@ -66,8 +66,7 @@ from _common import (
 from torch import Tensor
 
 from torchfluidwarp.control import fit_keyframes, keyframe_loss
-from torchfluidwarp.forces import Brushes
-from torchfluidwarp.warp import FluidWarp
+from torchfluidwarp.warp import Brushes, FluidWarp
 
 FRAME = (64, 64)  # image size, pixels
 MARGIN = 6.0  # px: sources at least this far from the walls

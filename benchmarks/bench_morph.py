@@ -6,7 +6,7 @@ The pair is the bundled astronaut (a photograph of a human face) and cat (a phot
 says where they come from), and the middle frames are written as ``morph_faces_mid_*.png``. Everything runs in
 float32 on CPU, in one process, so every figure below comes from the same run:
 
-1. **Fluid morph** (:func:`torchfluidwarp.morph.morph`, default settings otherwise) with ``method="natural"``
+1. **Fluid morph** (:func:`torchfluidwarp.morph.morphing.morph`, default settings otherwise) with ``method="natural"``
    (the default) and ``method="paper"`` (the paper's incompressible keyframe fit), each with
    ``inverse="flow"`` and ``inverse="paper"``. For each:
 

@@ -15,7 +15,7 @@ The methods, on the same crops and the same marked points, ``N`` frames (``--fra
 ``s = k / (N - 1)``; each returns ``frames (N, C, H, W)`` and backward maps ``maps``, ``maps_b`` ``(N, H, W, 2)``
 (output pixel -> A's / B's pixel, ``(x, y)``, pixel centres at integers):
 
-* ``fluid``: :func:`torchfluidwarp.morph` with the keyword arguments of ``--morph-kwargs`` (default ``{}``: the
+* ``fluid``: :func:`torchfluidwarp.morph.morphing` with the keyword arguments of ``--morph-kwargs`` (default ``{}``: the
   library's defaults); ``--config NAME=JSON`` adds more fluid rows.
 * ``tps``: the textbook thin-plate spline to the average shape ``S_s = (1 - s) a + s b``: A's map interpolates
   ``S_s -> a`` (kernel centres at ``S_s``, with the affine part, solved in float64), B's ``S_s -> b``;
@@ -35,7 +35,7 @@ within 0.1 px is "not located" and left out (the JSON counts them).
   where A's point and where B's point show in it (inverses of ``maps[mid]`` at ``a`` and ``maps_b[mid]`` at
   ``b``); px. **marked ghosting**: the same for the marked points. **marked end error**: the held-out end error's
   figure for the marked points.
-* **folds**: pixels whose Jacobian determinant (:func:`torchfluidwarp.warp.jacobian_determinant`) is ``<= 0``,
+* **folds**: pixels whose Jacobian determinant (:func:`torchfluidwarp.warp.layer.jacobian_determinant`) is ``<= 0``,
   over all frames of ``maps`` and ``maps_b``: a count and its fraction of ``2 N H W``.
 * **seam figure**: the 99.9th percentile over the interior pixels of the middle frame's backward map's second
   derivative, ``sqrt(sum_c (d_xx m_c)^2 + 2 (d_xy m_c)^2 + (d_yy m_c)^2)`` by central second differences, for
@@ -269,7 +269,7 @@ def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -
 
 
 def run_method(name: str, pair: Pair, frames: int = 21, **kwargs: Any) -> MethodResult:
-    """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph` with ``kwargs``), ``"tps"`` or ``"delaunay"``.
+    """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph.morphing` with ``kwargs``), ``"tps"`` or ``"delaunay"``.
 
     Warnings that the fluid morph raises are recorded in ``info["warnings"]``, not printed.
     """
@@ -345,7 +345,7 @@ def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
 
 def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     """The metrics of a morph of ``pair``: anything with ``frames`` ``(N, C, H, W)``, ``maps`` and ``maps_b``
-    ``(N, H, W, 2)`` (a :class:`MethodResult` or a :class:`~torchfluidwarp.morph.MorphResult`).
+    ``(N, H, W, 2)`` (a :class:`MethodResult` or a :class:`~torchfluidwarp.morph.morphing.MorphResult`).
 
     Returns a dict: ``held_end_px``, ``held_ghost_px``, ``marked_ghost_px``, ``marked_end_px`` (the headline
     figures: mean, median, median, mean; px), ``folded``, ``folded_fraction``, ``seam``, ``seconds`` (wall time

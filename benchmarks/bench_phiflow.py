@@ -121,7 +121,7 @@ def lbfgs_fit(
     """``fit_keyframes``'s L-BFGS loop around any simulator: ``endpoints()`` gives the ``(M, 2)`` end points, px.
 
     The optimiser settings, the stopping rule (every point within ``tolerance``, checked when the loss improves)
-    and the restore of the best iterate are those of :func:`torchfluidwarp.control.fit_keyframes`; the clock
+    and the restore of the best iterate are those of :func:`torchfluidwarp.control.keyframes.fit_keyframes`; the clock
     starts after the optimiser is built and stops after the final forward, as ``KeyframeFit.seconds`` does.
     ``errors`` raised by the simulator stop the fit instead of the run.
     """

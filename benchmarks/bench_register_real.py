@@ -3,7 +3,7 @@
 The pair (``skimage.data.stereo_motorcycle``, from the Middlebury 2014 stereo data set, shipped inside the
 scikit-image wheel; ``pip install scikit-image``) is two photographs of the same scene from two cameras side by
 side, with the true disparity ``d`` of every pixel: the left image's pixel ``(x, y)`` shows in the right image
-at ``(x - d, y)``. :func:`torchfluidwarp.registration.fit_images` warps the right image onto the left one, so
+at ``(x - d, y)``. :func:`torchfluidwarp.control.images.fit_images` warps the right image onto the left one, so
 the true backward map is ``g(x, y) = (x - d, y)``, and the fitted map can be scored pixel by pixel.
 
 A closed fluid cannot shift a whole picture, and every pixel here moves left by at least 7 px (the median is
@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from torchfluidwarp.registration import fit_images
+from torchfluidwarp.control import fit_images
 from torchfluidwarp.warp import identity_map, jacobian_determinant
 
 

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from starlette.testclient import TestClient
 
+from torchfluidwarp.apps.studio import StudioConfig, create_app
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.studio import StudioConfig, create_app
 
 SETTINGS = {"method": "natural", "steps": 8}  # the studio page's defaults (control applies to "paper")
 

@@ -1,6 +1,6 @@
 """Benchmark of the warp layer as a real-time animation loop: frames per second and where each frame's time goes.
 
-The set-up is indirect control: a few oscillating :class:`~torchfluidwarp.forces.Brushes` stir a 64x64 fluid
+The set-up is indirect control: a few oscillating :class:`~torchfluidwarp.warp.forces.Brushes` stir a 64x64 fluid
 that warps an RGB float32 image, without grad (``torch.no_grad()``). One animation frame is one fluid step, one
 advance of the backward coordinate map at the image's resolution, and one resampling of the source image
 through that map. Everything goes through the public API:
@@ -20,7 +20,7 @@ through that map. Everything goes through the public API:
       :func:`warp_image` (its finiteness checks read the whole image and map every call). So (c) times
       ``_warp_image``, as the loop runs it, and the public :func:`warp_image` is timed on the same maps too.
 
-  Of (b), the back-trace displacement alone (the private ``torchfluidwarp.warp._displacement``, called once per
+  Of (b), the back-trace displacement alone (the private ``torchfluidwarp.warp.layer._displacement``, called once per
   step on the same velocities) is timed separately; the rest of (b) is the composition.
 
 Target (from the issue): at least 60 frames per second end to end for a 600x600 image on a 64x64 fluid.
@@ -44,8 +44,7 @@ import torch
 from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict, write_json
 from torch import Tensor
 
-from torchfluidwarp.forces import Brushes
-from torchfluidwarp.warp import FluidWarp, identity_map, iter_backward_maps, warp_image
+from torchfluidwarp.warp import Brushes, FluidWarp, identity_map, iter_backward_maps, warp_image
 
 SEED = 1234
 FLUID = (64, 64)
@@ -92,7 +91,7 @@ def _clock() -> tuple[float, float]:
 
 def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> dict[str, tuple[float, float]]:
     """One pass of every measurement: ``{piece: (wall s, CPU s)}`` summed over the ``T`` frames."""
-    from torchfluidwarp.warp import _displacement, _raster, _warp_image  # private: what iter_frames runs
+    from torchfluidwarp.warp.layer import _displacement, _raster, _warp_image  # private: what iter_frames runs
 
     size = (image.shape[-2], image.shape[-1])
     T = warp.steps

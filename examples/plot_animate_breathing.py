@@ -26,9 +26,8 @@ import torch.nn.functional as F
 
 from torchfluidwarp import CGConfig
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.forces import Brushes, ViscosityBrushes
 from torchfluidwarp.io import write_animation
-from torchfluidwarp.warp import FluidWarp
+from torchfluidwarp.warp import Brushes, FluidWarp, ViscosityBrushes
 
 scale = 0.5
 image = F.interpolate(load_sample("cat"), scale_factor=scale, mode="bilinear", antialias=True)  # (1, 3, 256, 256)

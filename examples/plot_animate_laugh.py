@@ -21,9 +21,8 @@ import math
 import torch
 
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.forces import Brushes, SumForces
 from torchfluidwarp.io import write_animation
-from torchfluidwarp.warp import FluidWarp
+from torchfluidwarp.warp import Brushes, FluidWarp, SumForces
 
 x0, y0, size = 96, 0, 256
 image = load_sample("astronaut")[:, :, y0 : y0 + size, x0 : x0 + size]  # (1, 3, 256, 256)
@@ -32,8 +31,8 @@ points = load_sample_points("astronaut") - torch.tensor([x0, y0], dtype=torch.fl
 # %%
 # Four groups of vertical oscillators
 # -----------------------------------
-# Each group is its own :class:`~torchfluidwarp.forces.Brushes` (one brush each here, but a group can hold
-# several), and :class:`~torchfluidwarp.forces.SumForces` adds them up. All push up (``direction (0, -1)``,
+# Each group is its own :class:`~torchfluidwarp.warp.forces.Brushes` (one brush each here, but a group can hold
+# several), and :class:`~torchfluidwarp.warp.forces.SumForces` adds them up. All push up (``direction (0, -1)``,
 # y points down) at ``frequency`` cycles per time unit; a group's phase (radians) sets when.
 steps = 40  # 41 frames: four laughs at 20 frames per second
 frequency = 4 / steps

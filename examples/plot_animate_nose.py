@@ -20,9 +20,8 @@ import math
 import torch
 
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.forces import Brushes
 from torchfluidwarp.io import write_animation
-from torchfluidwarp.warp import FluidWarp
+from torchfluidwarp.warp import Brushes, FluidWarp
 
 x0, y0, size = 96, 0, 256
 image = load_sample("astronaut")[:, :, y0 : y0 + size, x0 : x0 + size]  # (1, 3, 256, 256)

@@ -2,14 +2,14 @@
 Fluid warps as data augmentation in a torchvision pipeline
 ==========================================================
 
-:class:`torchfluidwarp.RandomFluidWarp <torchfluidwarp.augment_tv.RandomFluidWarp>` is a torchvision v2
+:class:`torchfluidwarp.RandomFluidWarp <torchfluidwarp.augment.transforms.RandomFluidWarp>` is a torchvision v2
 transform: each call pushes an incompressible fluid with a few random Gaussian brushes and moves *everything*
 in the sample through the same flow. Images are resampled, masks are resampled by nearest sampling (they stay
 binary), keypoints are carried by the flow itself (RK2 particles through the same velocities, not an
 approximate inverse), and boxes become the box around their carried outline. Labels pass through. Because the
 fluid is incompressible, the warp never tears or folds the image.
 
-(:class:`torchfluidwarp.augment.FluidWarpAugment` is the same augmentation as a plain ``nn.Module`` over
+(:class:`torchfluidwarp.augment.tensor.FluidWarpAugment` is the same augmentation as a plain ``nn.Module`` over
 batches of tensors, one draw per sample, for pipelines without torchvision; ``random_fluid_warp`` is its
 one-call form.)
 """

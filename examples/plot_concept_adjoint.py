@@ -5,11 +5,11 @@ The adjoint method: a gradient costs one backward pass
 Keyframe control fits thousands of force parameters (the control vector ``u``) by L-BFGS, which needs the
 gradient of the objective ``phi(u)`` at every evaluation. Finite differences would cost one simulation per
 parameter. The adjoint method, here reverse-mode autograd through the solver whose linear solves carry their
-own implicit adjoint (:mod:`torchfluidwarp.linalg`), costs about one more simulation, **whatever the number
+own implicit adjoint (:mod:`torchfluidwarp.core.linalg`), costs about one more simulation, **whatever the number
 of parameters**.
 
 This example times one forward + backward of a keyframe objective on a 64 x 64 fluid over 10 steps, for
-:class:`~torchfluidwarp.forces.ControlGrid` sizes from 3 x 3 to 16 x 16 control points per step
+:class:`~torchfluidwarp.warp.forces.ControlGrid` sizes from 3 x 3 to 16 x 16 control points per step
 (180 to 5120 parameters).
 """
 
@@ -23,8 +23,7 @@ import matplotlib.pyplot as plt
 import torch
 
 from torchfluidwarp.control import keyframe_loss
-from torchfluidwarp.forces import ControlGrid
-from torchfluidwarp.warp import FluidWarp
+from torchfluidwarp.warp import ControlGrid, FluidWarp
 
 size, steps = (256, 256), 10
 warp = FluidWarp(grid=(64, 64), steps=steps, image_size=size).double()

@@ -4,7 +4,7 @@ Pre-alignment and the compressible option
 
 A fluid in a closed box with solid walls can neither move a picture as a whole nor change the area of any
 part of it. Two faces in two photos usually differ by a global move and scale, and their features by size.
-:func:`~torchfluidwarp.morph.morph` therefore:
+:func:`~torchfluidwarp.morph.morphing.morph` therefore:
 
 * estimates a global **pre-alignment** ``M`` from the points (``align="similarity"``, the default, or
   ``"affine"``), interpolates it over the morph, and lets the fluid produce only the local, non-rigid rest;

@@ -3,7 +3,7 @@ Coordinate conventions
 ======================
 
 One picture of every coordinate system in the library, drawn from the library's own conversions
-(:mod:`torchfluidwarp.grid`):
+(:mod:`torchfluidwarp.core.grid`):
 
 * points are ``(x, y)``: x to the right, y **down**; a tensor's last index 0 is x;
 * **pixel coordinates** put pixel centres at integers, so an ``H x W`` image covers
@@ -21,7 +21,7 @@ One picture of every coordinate system in the library, drawn from the library's 
 import matplotlib.pyplot as plt
 import torch
 
-from torchfluidwarp.grid import FluidGrid, interior_mask, pixel_to_cell
+from torchfluidwarp.core import FluidGrid, interior_mask, pixel_to_cell
 from torchfluidwarp.warp import identity_map
 
 H, W = 4, 6  # image rows, columns

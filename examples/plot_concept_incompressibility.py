@@ -44,7 +44,7 @@ target = torch.cat([ring(22.0, 8, turn), ring(50.0, 8)])
 # %%
 # The fluid warp
 # --------------
-# :func:`~torchfluidwarp.control.fit_keyframes` finds forces that carry each source point to its target in 10
+# :func:`~torchfluidwarp.control.keyframes.fit_keyframes` finds forces that carry each source point to its target in 10
 # fluid steps; the fitted warp's last backward map says where each output pixel reads in the source.
 fit = fit_keyframes(
     source,
@@ -84,7 +84,7 @@ tps_map = ((tps_norm + 1) / scale - 0.5).reshape(1, H, W, 2).float()  # back to 
 # %%
 # Jacobian determinants
 # ---------------------
-# :func:`~torchfluidwarp.warp.jacobian_determinant` by central differences. A backward map's determinant is the
+# :func:`~torchfluidwarp.warp.layer.jacobian_determinant` by central differences. A backward map's determinant is the
 # inverse of the area change: above 1 where the warp squeezes the source, below 1 where it spreads it, and
 # ``<= 0`` where it folds.
 dets = {"fluid warp": jacobian_determinant(fluid_map)[0], "thin-plate spline": jacobian_determinant(tps_map)[0]}

@@ -3,7 +3,7 @@ Keyframe control: fitting points and their trajectories
 =======================================================
 
 Mark points on a photo and say where each must be at a keyframe;
-:func:`~torchfluidwarp.control.fit_keyframes` finds the fluid forces that take them there (L-BFGS on the
+:func:`~torchfluidwarp.control.keyframes.fit_keyframes` finds the fluid forces that take them there (L-BFGS on the
 paper's objective, gradients by the adjoint method). The fit returns the points' whole trajectories and a
 warp that replays the forces on the image.
 

@@ -24,9 +24,8 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.data import load_sample
-from torchfluidwarp.forces import Brushes
 from torchfluidwarp.io import write_animation
-from torchfluidwarp.warp import FluidWarp, backward_maps, warp_image
+from torchfluidwarp.warp import Brushes, FluidWarp, backward_maps, warp_image
 
 photo = F.interpolate(load_sample("astronaut"), size=(256, 256), mode="area")  # (1, 3, 256, 256)
 size = (256, 256)
@@ -57,7 +56,7 @@ for t in range(steps):
 # Advecting the coordinates
 # -------------------------
 # The maps are advected instead (``g_{t+1}(x) = g_t(x - dt v_t(x))``) and the original photo is sampled once
-# through the last one. This is what :class:`~torchfluidwarp.warp.FluidWarp` does for every frame.
+# through the last one. This is what :class:`~torchfluidwarp.warp.layer.FluidWarp` does for every frame.
 maps = backward_maps(velocities, size)  # (1, 51, H, W, 2)
 advected_coords = warp_image(photo, maps[:, -1])
 shift = (maps[:, -1] - maps[:, 0]).norm(dim=-1)  # (1, H, W): how far each output pixel reads from home

@@ -2,7 +2,7 @@
 Registering two images with the fluid
 =====================================
 
-:func:`~torchfluidwarp.registration.fit_images` finds the fluid forces that warp a source image onto a target:
+:func:`~torchfluidwarp.control.images.fit_images` finds the fluid forces that warp a source image onto a target:
 L-BFGS on an image loss, gradients by the adjoint method, coarse to fine (small fluid grids and downsampled
 images first). Its result is a warp like any other: it replays on the image, carries points, and never folds.
 
@@ -23,8 +23,8 @@ import matplotlib.pyplot as plt
 import torch
 import torch.nn.functional as F
 
+from torchfluidwarp.control import fit_images
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.registration import fit_images
 from torchfluidwarp.warp import identity_map, warp_image
 
 N = 128

@@ -2,9 +2,9 @@
 Training a network through the fluid warp
 =========================================
 
-:class:`~torchfluidwarp.warp.FluidWarp` is an ordinary differentiable layer, so a network can learn to
+:class:`~torchfluidwarp.warp.layer.FluidWarp` is an ordinary differentiable layer, so a network can learn to
 *steer* the fluid. Here a tiny CNN looks at an image of a blob and predicts a coarse force field (the shape
-of a :class:`~torchfluidwarp.forces.ControlGrid`: ``(T, 2, K_y, K_x)`` per image); the fluid warps the image
+of a :class:`~torchfluidwarp.warp.forces.ControlGrid`: ``(T, 2, K_y, K_x)`` per image); the fluid warps the image
 with those forces; and the loss compares the warped image with the blob moved to the centre. The gradient
 flows from the loss through the image sampling, the backward maps and the fluid solver (implicit adjoints)
 into the CNN's weights: nothing here is specific to the task but the data.

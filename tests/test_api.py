@@ -1,11 +1,14 @@
 """The public surface: a small top level, one ``RandomFluidWarp``, deprecation shims for the names that moved,
-and torchvision imported by ``augment_tv`` only."""
+and torchvision imported by ``augment.transforms`` only; imports that point one way through the layers."""
 
 from __future__ import annotations
 
 import ast
 import importlib
 import pathlib
+import re
+import subprocess
+import sys
 import warnings
 
 import pytest
@@ -13,7 +16,8 @@ import torch
 
 import torchfluidwarp as tfw
 from torchfluidwarp import augment
-from torchfluidwarp.augment import FluidWarpAugment, random_fluid_warp
+from torchfluidwarp._compat import MOVED_MODULES
+from torchfluidwarp.augment.tensor import FluidWarpAugment, random_fluid_warp
 
 PACKAGE = pathlib.Path(tfw.__file__).parent
 
@@ -33,7 +37,7 @@ def test_the_top_level_random_fluid_warp_is_the_v2_transform():
     from torchvision.transforms import v2
 
     assert issubclass(tfw.RandomFluidWarp, v2.Transform)
-    assert tfw.RandomFluidWarp.__module__ == "torchfluidwarp.augment_tv"
+    assert tfw.RandomFluidWarp.__module__ == "torchfluidwarp.augment.transforms"
 
 
 @pytest.mark.parametrize("name", sorted(tfw._MOVED))
@@ -79,9 +83,9 @@ def test_only_augment_tv_imports_torchvision_and_augment_never_imports_it():
         for path in PACKAGE.rglob("*.py")
         if any(m == "torchvision" or m.startswith("torchvision.") for m in _imports(path))
     }
-    assert users == {"augment_tv.py"}
-    assert "torchfluidwarp.augment_tv" not in _imports(PACKAGE / "augment.py")
-    assert "torchfluidwarp.augment" in _imports(PACKAGE / "augment_tv.py")
+    assert users == {"augment/transforms.py"}
+    assert "torchfluidwarp.augment.transforms" not in _imports(PACKAGE / "augment" / "tensor.py")
+    assert "torchfluidwarp.augment.tensor" in _imports(PACKAGE / "augment" / "transforms.py")
 
 
 def test_random_fluid_warp_is_the_module_in_one_call():
@@ -94,3 +98,54 @@ def test_random_fluid_warp_is_the_module_in_one_call():
     for key in ("image", "keypoints"):
         torch.testing.assert_close(got[key], want[key], rtol=0, atol=0)
     assert not torch.equal(got["image"], image)
+
+
+# The layers, bottom up. A module may import its own subpackage and any lower layer, never a higher one.
+# ``_checks`` (the one validation layer), ``io`` (files) and ``data`` (samples) sit below the pipeline.
+LAYERS = {"_checks": 0, "_version": 0, "_compat": 0, "io": 1, "data": 2, "core": 3, "warp": 4, "control": 5}
+LAYERS |= {"morph": 6, "augment": 6, "apps": 7}
+
+
+def _layer_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_point_down_the_layers(path: pathlib.Path):
+    relative = path.relative_to(PACKAGE)
+    if relative.parts == ("__init__.py",):
+        return  # the top level gathers names from every layer
+    own = relative.parts[0].removesuffix(".py")
+    assert own in LAYERS, f"{relative} is in no layer: add its folder to LAYERS"
+    for module in _imports(path):
+        if module.startswith("torchfluidwarp."):
+            other = _layer_of(module)
+            assert other in LAYERS, f"{relative} imports {module}, which is in no layer"
+            assert other == own or LAYERS[other] < LAYERS[own], f"{relative} ({own}) imports upward: {module}"
+        if own in ("morph", "augment"):
+            other_client = "augment" if own == "morph" else "morph"
+            assert not module.startswith(f"torchfluidwarp.{other_client}"), f"{relative} imports {module}"
+
+
+def test_importing_the_package_imports_neither_torchvision_nor_the_studio():
+    code = (
+        "import sys, torchfluidwarp; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('torchvision', 'starlette', 'uvicorn', 'matplotlib')"
+        " or m.startswith('torchfluidwarp.apps')]; print(bad); sys.exit(bool(bad))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+@pytest.mark.parametrize("old", sorted(MOVED_MODULES))
+def test_a_moved_module_path_warns_and_resolves_to_its_new_module(old: str):
+    new = importlib.import_module(MOVED_MODULES[old])
+    public = getattr(new, "__all__", None) or [n for n in vars(new) if not n.startswith("_")]
+    name = public[0]
+    stand_in = importlib.import_module(old)
+    with pytest.warns(DeprecationWarning, match=rf"{re.escape(old)} moved to {re.escape(new.__name__)}"):
+        value = getattr(stand_in, name)
+    assert value is getattr(new, name)
+    with pytest.raises(AttributeError):
+        stand_in.no_such_name  # noqa: B018

@@ -1,6 +1,6 @@
 """torchfluidwarp: warp and morph images with a differentiable 2-D incompressible fluid.
 
-The top level holds what most users need; everything else is imported from its module:
+The top level holds what most users need:
 
 * simulate and warp: :class:`FluidSimulator` (its :class:`FluidRollout`), :class:`FluidWarp`, ``warp_image``,
   ``jacobian_determinant``, the grid :class:`FluidGrid` and the solve settings :class:`CGConfig`;
@@ -9,16 +9,22 @@ The top level holds what most users need; everything else is imported from its m
 * augment: :class:`RandomFluidWarp`, the torchvision v2 transform (imported on first access: torchvision is
   needed only then); the tensor-level ``nn.Module`` is :class:`torchfluidwarp.augment.FluidWarpAugment`.
 
-The layers below, by module (each module's docstring states its shapes, units and conventions): the fluid
-steps in :mod:`~torchfluidwarp.fluid` and :mod:`~torchfluidwarp.simulator`, the solves in
-:mod:`~torchfluidwarp.linalg`, maps in :mod:`~torchfluidwarp.warp`, force modules in
-:mod:`~torchfluidwarp.forces`, keyframe control in :mod:`~torchfluidwarp.control`, pre-alignment in
-:mod:`~torchfluidwarp.alignment`, files in :mod:`~torchfluidwarp.io` and the bundled samples in
-:mod:`~torchfluidwarp.data`. Names that used to be re-exported here (``advect``, ``project``, ``Brushes``, ...)
-still resolve for one release, with a ``DeprecationWarning`` that names their module.
+Everything else lives in the subpackage of its stage of the pipeline, and imports point one way,
+``apps -> morph, augment -> control -> warp -> core``:
+
+* :mod:`torchfluidwarp.core`: coordinates, the guarded sampler, spectral and CG solves, the fluid steps;
+* :mod:`torchfluidwarp.warp`: force modules, texture-coordinate maps and the :class:`FluidWarp` layer;
+* :mod:`torchfluidwarp.control`: the one L-BFGS driver, ``fit_keyframes``, ``fit_images``, pre-alignment;
+* :mod:`torchfluidwarp.morph` and :mod:`torchfluidwarp.augment`: the two clients of the warp layer;
+* :mod:`torchfluidwarp.io` (files) and :mod:`torchfluidwarp.data` (bundled samples), used by all;
+* :mod:`torchfluidwarp.apps`: the command line and the studio.
+
+Names that used to be re-exported here (``advect``, ``project``, ``Brushes``, ...) and the flat layout's module
+paths (``torchfluidwarp.grid``, ``torchfluidwarp.fluid``, ...) resolve for one more release, with a
+``DeprecationWarning`` that names their new place.
 
 Conventions: images ``(B, C, H, W)`` in ``[0, 1]``; points ``(x, y)`` in pixels with pixel centres at
-integers (``align_corners=False``); fluid quantities in fluid cells and time steps (:mod:`~torchfluidwarp.grid`).
+integers (``align_corners=False``); fluid quantities in fluid cells and time steps (:mod:`~torchfluidwarp.core.grid`).
 """
 
 from __future__ import annotations
@@ -27,17 +33,17 @@ import importlib
 import warnings
 from typing import TYPE_CHECKING, Any
 
+from torchfluidwarp import _compat
 from torchfluidwarp._version import __version__
-from torchfluidwarp.control import KeyframeFit, fit_keyframes
-from torchfluidwarp.grid import FluidGrid
-from torchfluidwarp.linalg import CGConfig
+from torchfluidwarp.control import ImageFit, KeyframeFit, fit_images, fit_keyframes
+from torchfluidwarp.core import CGConfig, FluidGrid, FluidRollout, FluidSimulator
 from torchfluidwarp.morph import MorphResult, morph
-from torchfluidwarp.registration import ImageFit, fit_images
-from torchfluidwarp.simulator import FluidRollout, FluidSimulator
 from torchfluidwarp.warp import FluidWarp, jacobian_determinant, warp_image
 
+_compat.install()  # the flat layout's module paths (torchfluidwarp.grid, ...) resolve for one more release
+
 if TYPE_CHECKING:
-    from torchfluidwarp.augment_tv import RandomFluidWarp
+    from torchfluidwarp.augment.transforms import RandomFluidWarp
 
 __all__ = [
     "__version__",
@@ -58,13 +64,13 @@ __all__ = [
 ]
 
 # imported on first access, without a warning: importing torchfluidwarp never imports torchvision
-_LAZY = {"RandomFluidWarp": "torchfluidwarp.augment_tv"}
+_LAZY = {"RandomFluidWarp": "torchfluidwarp.augment.transforms"}
 
 # names the top level used to export, and the module each lives in; they resolve for one
 # more release with a DeprecationWarning
 _MOVED = {
-    **dict.fromkeys(["pixel_to_cell", "cell_to_pixel"], "torchfluidwarp.grid"),
-    **dict.fromkeys(["ConvergenceWarning", "ConvergenceError", "implicit_solve"], "torchfluidwarp.linalg"),
+    **dict.fromkeys(["pixel_to_cell", "cell_to_pixel"], "torchfluidwarp.core"),
+    **dict.fromkeys(["ConvergenceWarning", "ConvergenceError", "implicit_solve"], "torchfluidwarp.core"),
     **dict.fromkeys(
         [
             "advect",
@@ -77,16 +83,16 @@ _MOVED = {
             "faces_from_cells",
             "cells_from_faces",
         ],
-        "torchfluidwarp.fluid",
+        "torchfluidwarp.core.fluid",
     ),
-    "StableFluidsStep": "torchfluidwarp.simulator",
+    "StableFluidsStep": "torchfluidwarp.core",
     **dict.fromkeys(["identity_map", "backward_maps", "forward_maps", "maps_to_end"], "torchfluidwarp.warp"),
     **dict.fromkeys(
         ["Brushes", "SumForces", "ControlGrid", "CellForces", "ViscosityBrushes", "viscosity_from_mask"],
-        "torchfluidwarp.forces",
+        "torchfluidwarp.warp",
     ),
     **dict.fromkeys(["keyframe_loss", "velocity_gradient_energy"], "torchfluidwarp.control"),
-    "estimate_alignment": "torchfluidwarp.alignment",
+    "estimate_alignment": "torchfluidwarp.control",
 }
 
 

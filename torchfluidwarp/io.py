@@ -5,7 +5,7 @@ Conventions:
 * Images are float tensors ``(B, C, H, W)`` with values in ``[0, 1]`` and ``C`` = 1 (gray), 3 (RGB) or
   4 (RGBA). ``uint8`` appears only at the file boundary: writers clamp to ``[0, 1]`` and round to 8 bits.
 * Points are float tensors ``(M, 2)`` in ``(x, y)`` order, in pixel coordinates with pixel centres at
-  integers (see :mod:`torchfluidwarp.grid`).
+  integers (see :mod:`torchfluidwarp.core.grid`).
 * Animations are float tensors ``(T, C, H, W)``: ``T`` frames, values in ``[0, 1]``.
 * Every writer writes to a temporary sibling of its output and moves it into place with ``os.replace``,
   so a failure never leaves a half-written file behind.

@@ -1,0 +1,81 @@
+import imageio.v3 as iio
+import pytest
+import torch
+
+from torchfluidwarp.apps.cli import main
+from torchfluidwarp.io import write_image, write_points
+
+FAST = ["--grid", "16", "--steps", "3", "--control", "3", "--max-iter", "10", "--quiet"]
+
+
+@pytest.fixture
+def pair(tmp_path, gen):
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    write_image(a, torch.rand(3, 40, 48, generator=gen))
+    write_image(b, torch.rand(3, 50, 60, generator=gen))
+    pa, pb = tmp_path / "a.pts", tmp_path / "b.json"
+    write_points(pa, torch.tensor([[10.0, 10.0], [30.0, 12.0], [20.0, 30.0]]))
+    write_points(pb, torch.tensor([[14.0, 12.0], [40.0, 15.0], [25.0, 40.0]]))
+    return a, b, pa, pb
+
+
+def test_morph_writes_the_expected_frames(pair, tmp_path):
+    a, b, pa, pb = pair
+    out = tmp_path / "m.gif"
+    assert (
+        main(
+            [
+                "morph",
+                str(a),
+                str(b),
+                "--points-a",
+                str(pa),
+                "--points-b",
+                str(pb),
+                "-o",
+                str(out),
+                "--frames",
+                "5",
+                *FAST,
+            ]
+        )
+        == 0
+    )
+    frames = iio.imread(out, index=None)
+    assert frames.shape[0] == 5 and frames.shape[1:3] == (40, 48)
+
+
+def test_morph_bad_inputs_exit_2(pair, tmp_path, capsys):
+    a, b, pa, pb = pair
+    out = str(tmp_path / "m.gif")
+    assert (
+        main(
+            [
+                "morph",
+                str(tmp_path / "missing.png"),
+                str(b),
+                "--points-a",
+                str(pa),
+                "--points-b",
+                str(pb),
+                "-o",
+                out,
+                *FAST,
+            ]
+        )
+        == 2
+    )
+    bad = tmp_path / "bad.csv"
+    write_points(bad, torch.tensor([[1.0, 2.0]]))
+    assert main(["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(bad), "-o", out, *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "--points-a has 3 points but --points-b has 1" in err
+    assert len([line for line in err.splitlines() if "error" in line]) == 2
+
+
+def test_demo_writes_a_gif_and_refuses_to_overwrite(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--frames", "4", *FAST]) == 0
+    frames = iio.imread(tmp_path / "morph.gif", index=None)
+    assert frames.shape[0] == 4 and frames.shape[1:3] == (512, 512)
+    assert main(["demo", "--frames", "4", *FAST]) == 2

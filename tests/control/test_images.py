@@ -1,0 +1,157 @@
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torchfluidwarp.control.images import fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.data import load_sample
+from torchfluidwarp.warp.forces import Brushes
+from torchfluidwarp.warp.layer import FluidWarp, jacobian_determinant
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def astronaut64():
+    return F.interpolate(
+        load_sample("astronaut"), size=(64, 64), mode="bilinear", antialias=True, align_corners=False
+    ).double()
+
+
+def _blob(cx, cy, n=32, sigma=5.0):
+    yy, xx = torch.meshgrid(torch.arange(n, dtype=torch.float64), torch.arange(n, dtype=torch.float64), indexing="ij")
+    return torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * sigma**2))[None, None]
+
+
+def test_recovers_a_known_brush_warp(astronaut64):
+    brushes = Brushes([[24.0, 30.0], [44.0, 36.0]], [[1.0, 0.3], [-0.2, -1.0]], radius=9.0, amplitude=0.3).double()
+    with torch.no_grad():
+        target = FluidWarp(32, 6).double()(astronaut64, brushes)[:, -1]
+    fit = fit_images(
+        astronaut64, target, grid=32, levels=(16,), steps=6, control=(6, 6), max_iter=(20, 40), progress=False
+    )
+    assert fit.initial_loss == pytest.approx(float(mse_loss(astronaut64, target)))
+    assert fit.final_loss < 0.01 * fit.initial_loss, fit.message
+    assert [lv.grid for lv in fit.levels] == [(16, 16), (32, 32)]
+    assert [lv.image_size for lv in fit.levels] == [(32, 32), (64, 64)]
+    assert fit.evaluations == len(fit.loss_history) == sum(lv.evaluations for lv in fit.levels)
+    with torch.no_grad():
+        torch.testing.assert_close(fit.warp(astronaut64, fit.forces)[:, -1], fit.warped)
+        maps = fit.warp.maps(fit.forces, (64, 64))
+    assert jacobian_determinant(maps[:, -1]).amin() > 0
+    assert fit.min_det.amin() > 0
+
+
+def test_ncc_ignores_brightness_and_contrast():
+    source = _blob(14.0, 16.0)
+    target = 0.6 * _blob(18.0, 15.0) + 0.2
+    fit = fit_images(source, target, loss="ncc", grid=16, levels=None, steps=4, control=3, max_iter=40, progress=False)
+    assert fit.final_loss < 0.05 * fit.initial_loss, fit.message
+    assert float(ncc_loss(2 * source + 0.5, source)) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_landmarks_pull_points_onto_their_targets():
+    image = _blob(16.0, 16.0)
+    src = torch.tensor([[10.0, 12.0], [20.0, 18.0]], dtype=torch.float64)
+    tgt = src + torch.tensor([2.0, -1.0], dtype=torch.float64)
+    fit = fit_images(
+        image,
+        image,
+        points=(src, tgt),
+        point_weight=1.0,
+        grid=16,
+        levels=None,
+        steps=4,
+        control=3,
+        max_iter=30,
+        progress=False,
+    )
+    with torch.no_grad():
+        moved = fit.warp.advect_points(src[None], fit.forces, (32, 32))[0, -1]
+    assert (moved - tgt).norm(dim=-1).max() < 0.3
+    assert fit.loss_history[-1] < 0.05 * fit.loss_history[0]
+
+
+def test_ssim_is_zero_for_identical_images_and_grows_with_a_shift():
+    gen = torch.Generator().manual_seed(3)
+    image = torch.rand(2, 3, 24, 24, generator=gen, dtype=torch.float64)
+    assert image_loss("ssim") is ssim_loss
+    assert float(ssim_loss(image, image)) == pytest.approx(0.0, abs=1e-9)  # kornia's eps in the ratio
+    blob = _blob(14.0, 16.0)
+    near, far = float(ssim_loss(_blob(15.0, 16.0), blob)), float(ssim_loss(_blob(18.0, 16.0), blob))
+    assert 0 < near < far
+
+
+@pytest.mark.parametrize("size", [2, 5, 16])
+def test_ssim_gradient_flows_on_any_image_size(size):
+    gen = torch.Generator().manual_seed(4)
+    target = torch.rand(1, 1, size, size, generator=gen, dtype=torch.float64)
+    warped = torch.rand(1, 1, size, size, generator=gen, dtype=torch.float64, requires_grad=True)
+    (grad,) = torch.autograd.grad(ssim_loss(warped, target), warped)
+    assert torch.isfinite(grad).all() and grad.abs().sum() > 0
+
+
+def test_ssim_gradcheck():
+    gen = torch.Generator().manual_seed(5)
+    target = torch.rand(1, 1, 8, 8, generator=gen, dtype=torch.float64)
+    warped = torch.rand(1, 1, 8, 8, generator=gen, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: ssim_loss(x, target, window_size=5), (warped,))
+
+
+def test_an_ssim_fit_reduces_the_loss():
+    source, target = _blob(14.0, 16.0), _blob(18.0, 16.0)
+    fit = fit_images(source, target, loss="ssim", grid=16, levels=(8,), steps=4, control=3, max_iter=20, progress=False)
+    assert fit.initial_loss == pytest.approx(float(ssim_loss(source, target)))
+    assert fit.final_loss < 0.2 * fit.initial_loss, fit.message
+
+
+def test_a_callable_loss_and_a_batch():
+    source = torch.cat([_blob(14.0, 16.0), _blob(16.0, 14.0)])
+    target = torch.cat([_blob(17.0, 16.0), _blob(16.0, 17.0)])
+    fit = fit_images(
+        source,
+        target,
+        loss=lambda a, b: (a - b).abs().mean() * 2,
+        grid=16,
+        levels=(8,),
+        steps=3,
+        control=3,
+        max_iter=10,
+        progress=False,
+    )
+    assert fit.warped.shape == (2, 1, 32, 32) and fit.forces.weight.shape == (2, 3, 2, 3, 3)
+    assert fit.final_loss < fit.initial_loss
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        ({"loss": "l1"}, "loss"),
+        ({"levels": (16, 8)}, "levels"),
+        ({"levels": (32,)}, "levels"),
+        ({"target": torch.zeros(1, 1, 16, 16)}, "target"),
+        ({"source": torch.full((1, 1, 32, 32), float("nan"))}, "source"),
+        ({"max_iter": (5, 5, 5)}, "max_iter"),
+        ({"points": (torch.tensor([[40.0, 3.0]]), torch.tensor([[3.0, 3.0]]))}, "points"),
+        ({"points": (torch.zeros(2, 2), torch.zeros(3, 2))}, "points"),
+        ({"steps": 0}, "steps"),
+        ({"control": (1, 3)}, "control"),
+    ],
+)
+def test_bad_inputs_name_the_argument(kwargs, name):
+    args = {
+        "source": _blob(14.0, 16.0),
+        "target": _blob(16.0, 16.0),
+        "grid": 16,
+        "levels": (8,),
+        "progress": False,
+        **kwargs,
+    }
+    with pytest.raises(ValueError, match=name):
+        fit_images(args.pop("source"), args.pop("target"), **args)

@@ -1,0 +1,119 @@
+import math
+
+import pytest
+import torch
+
+from torchfluidwarp.control.optim import OptimResult, minimize
+
+
+def _quadratic(gen, n=6):
+    """``1/2 x^T A x - b^T x`` with a well-conditioned SPD ``A``: its minimum is at ``A^-1 b``."""
+    q, _ = torch.linalg.qr(torch.randn(n, n, generator=gen, dtype=torch.float64))
+    a = q @ torch.diag(torch.linspace(1.0, 10.0, n, dtype=torch.float64)) @ q.T
+    b = torch.randn(n, generator=gen, dtype=torch.float64)
+    return a, b
+
+
+def test_a_quadratic_is_minimised_to_its_analytic_minimum(gen):
+    a, b = _quadratic(gen)
+    x = torch.zeros(6, dtype=torch.float64, requires_grad=True)
+    res = minimize(lambda: 0.5 * x @ a @ x - b @ x, [x], max_iter=50)
+    x_star = torch.linalg.solve(a, b)
+    torch.testing.assert_close(x.detach(), x_star, atol=1e-8, rtol=0)
+    assert res.converged and "no further progress" in res.message
+    assert res.best_loss == pytest.approx(float(-0.5 * b @ x_star), abs=1e-12)
+    assert res.evaluations == len(res.loss_history) and res.iterations <= 50 and res.seconds > 0
+
+
+@pytest.mark.parametrize("max_iter", [1, 3, 7])
+def test_max_iter_is_respected(max_iter):
+    # the Rosenbrock function: far from done after a few iterations
+    x = torch.tensor([-1.5, 2.0], dtype=torch.float64, requires_grad=True)
+    res = minimize(lambda: (1 - x[0]) ** 2 + 100 * (x[1] - x[0] ** 2) ** 2, [x], max_iter=max_iter)
+    assert 1 <= res.iterations <= max_iter
+    assert not res.converged and f"max_iter={max_iter}" in res.message
+
+
+def test_a_nan_loss_stops_the_fit_and_restores_the_best_finite_iterate():
+    x = torch.tensor([3.0, -2.0], dtype=torch.float64, requires_grad=True)
+    seen: list[torch.Tensor] = []
+
+    def objective():
+        seen.append(x.detach().clone())
+        loss = ((x - 1.0) ** 2).sum() + 0.1 * (x**4).sum()
+        return loss * math.nan if len(seen) > 3 else loss
+
+    res = minimize(objective, [x], max_iter=100)
+    assert not res.converged
+    assert "non-finite" in res.message and "restored the best finite iterate" in res.message
+    assert res.evaluations == 3 and all(math.isfinite(v) for v in res.loss_history)
+    best = min(range(3), key=lambda i: res.loss_history[i])
+    assert res.best_loss == res.loss_history[best]
+    torch.testing.assert_close(x.detach(), seen[best], atol=0, rtol=0)
+
+
+def test_a_nan_gradient_stops_the_fit_at_non_finite_parameters_and_restores_the_start():
+    # torch.where's unused branch (sqrt of a negative) gives a finite loss but a NaN gradient, so the line
+    # search steps to NaN parameters: the classic where-NaN trap
+    x = torch.tensor([2.0, -1.0], dtype=torch.float64, requires_grad=True)
+    res = minimize(lambda: (x**2).sum() + torch.where(x > 10, torch.sqrt(x - 10), 0 * x).sum(), [x], max_iter=20)
+    assert not res.converged and "parameters became non-finite" in res.message
+    assert res.loss_history == (5.0,) and res.best_loss == 5.0
+    torch.testing.assert_close(x.detach(), torch.tensor([2.0, -1.0], dtype=torch.float64), atol=0, rtol=0)
+
+
+def test_the_stop_callback_ends_the_fit_as_converged():
+    x = torch.tensor([4.0, -3.0], dtype=torch.float64, requires_grad=True)
+    calls: list[float] = []
+
+    def stop(loss: float) -> bool:
+        calls.append(loss)
+        return loss < 1.0
+
+    res = minimize(lambda: (x**2).sum(), [x], max_iter=100, stop=stop, tolerance_change=1e-300)
+    assert res.converged and "stop criterion" in res.message
+    assert calls[-1] == res.best_loss < 1.0 and float((x.detach() ** 2).sum()) == res.best_loss
+    # it is asked only about improvements, each better than the last
+    assert all(b < a for a, b in zip(calls, calls[1:]))
+
+
+def test_the_best_iterate_is_restored_not_the_last():
+    # a loss that grows with the evaluation count after the first: L-BFGS ends on a worse point
+    x = torch.tensor([2.0], dtype=torch.float64, requires_grad=True)
+    count = [0]
+    first: list[torch.Tensor] = []
+
+    def objective():
+        count[0] += 1
+        if count[0] == 1:
+            first.append(x.detach().clone())
+        return (x**2).sum() + (0.0 if count[0] == 1 else 100.0 * count[0])
+
+    res = minimize(objective, [x], max_iter=5)
+    assert res.best_loss == res.loss_history[0] < min(res.loss_history[1:])
+    torch.testing.assert_close(x.detach(), first[0], atol=0, rtol=0)
+
+
+def test_it_works_under_no_grad_and_the_result_is_frozen():
+    x = torch.tensor([1.0], requires_grad=True)
+    with torch.no_grad():
+        res = minimize(lambda: ((x - 2.0) ** 2).sum(), [x], max_iter=10)
+    assert isinstance(res, OptimResult) and abs(float(x.detach()) - 2.0) < 1e-4
+    with pytest.raises(AttributeError):
+        res.converged = False  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    "params, kwargs, error, match",
+    [
+        ([], {}, ValueError, "at least one tensor"),
+        ([torch.zeros(2)], {}, ValueError, "must require grad"),
+        (["x"], {}, TypeError, r"params\[0\] must be a tensor"),
+        (None, {"max_iter": 0}, ValueError, "max_iter must be >= 1"),
+        (None, {"history_size": 0}, ValueError, "history_size must be >= 1"),
+    ],
+)
+def test_bad_arguments(params, kwargs, error, match):
+    x = torch.zeros(2, requires_grad=True)
+    with pytest.raises(error, match=match):
+        minimize(lambda: (x**2).sum(), [x] if params is None else params, **{"max_iter": 5, **kwargs})

@@ -1,0 +1,124 @@
+import math
+
+import pytest
+import torch
+from conftest import gradcheck64
+
+from torchfluidwarp.core.fluid import divergence
+from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.core.linalg import CGConfig
+from torchfluidwarp.core.simulator import FluidSimulator, StableFluidsStep
+
+TIGHT = CGConfig(rtol=1e-13)
+
+
+@pytest.mark.parametrize("grid", [(8, 8), (7, 9)])
+def test_gradcheck_one_step(grid, gen):
+    h, w = grid
+    step = StableFluidsStep(1.0, pressure=TIGHT, diffusion=TIGHT)
+    v = torch.zeros(1, 2, h + 1, w + 1)
+    f = torch.randn(1, 2, h, w, generator=gen) * 0.3
+    mu = torch.rand(1, 1, h, w, generator=gen) * 0.5 + 0.1
+    assert gradcheck64(lambda f, mu: step(v.double(), f, mu)[0], f, mu, fast_mode=True)
+
+
+@pytest.mark.parametrize("grid", [(8, 8), (7, 9)])
+def test_gradcheck_rollout_with_particles(grid, gen):
+    h, w = grid
+    sim = FluidSimulator(grid, dt=1.0, viscosity=0.3, pressure=TIGHT, diffusion=TIGHT)
+    forces = torch.randn(1, 3, 2, h, w, generator=gen) * 0.2
+    pts = torch.tensor([[[2.3, 3.1], [4.6, 2.2], [5.1, 4.4]]])
+    assert gradcheck64(lambda f, p: sim(f, p).points, forces, pts)
+
+
+def test_adjoint_gradients_match_unrolled_cg_through_a_rollout(gen):
+    h, w = 12, 10
+    forces = torch.randn(1, 4, 2, h, w, generator=gen, dtype=torch.float64) * 0.3
+    mu = torch.rand(1, 1, h, w, generator=gen, dtype=torch.float64) * 0.5 + 0.2
+    pts = torch.tensor([[[3.3, 4.1], [6.6, 7.2]]], dtype=torch.float64)
+    grads = []
+    for backward in ("implicit", "unrolled"):
+        cfg = CGConfig(rtol=1e-14, max_iter=500, backward=backward)
+        f, m = forces.clone().requires_grad_(), mu.clone().requires_grad_()
+        sim = FluidSimulator((h, w), viscosity=m, pressure=cfg, diffusion=cfg)
+        out = sim(f, pts)
+        loss = (out.points[:, -1] ** 2).sum() + (out.velocities**2).sum()
+        grads.append(torch.autograd.grad(loss, (f, m)))
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b, atol=1e-8, rtol=0)
+
+
+def test_rollout_is_divergence_free_every_step(gen):
+    sim = FluidSimulator((24, 40), viscosity=0.2)
+    out = sim(torch.randn(2, 5, 2, 24, 40, generator=gen))
+    for t in range(5):
+        v = out.velocities[:, t]
+        assert divergence(v).abs().max() <= 1e-5 * v.abs().max()
+    assert all(p == 1 for _, p in out.iterations)
+
+
+def _polygon_area(p: torch.Tensor) -> torch.Tensor:
+    x, y = p[..., 0], p[..., 1]
+    return 0.5 * (x * torch.roll(y, -1, -1) - torch.roll(x, -1, -1) * y).sum(-1).abs()
+
+
+def _smooth_random_forces(gen, steps, h, w, amplitude):
+    coarse = torch.randn(1, steps * 2, 4, 4, generator=gen, dtype=torch.float64)
+    fine = torch.nn.functional.interpolate(coarse, size=(h, w), mode="bicubic", align_corners=True)
+    return amplitude * fine.view(1, steps, 2, h, w)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_ring_of_particles_keeps_its_area(seed):
+    h = w = 64
+    gen = torch.Generator().manual_seed(seed)
+    theta = torch.arange(400, dtype=torch.float64) * (2 * math.pi / 400)
+    r = w / 4
+    ring = torch.stack([31.5 + r * torch.cos(theta), 31.5 + r * torch.sin(theta)], -1)[None]
+    sim = FluidSimulator((h, w), viscosity=0.0)
+    forces = _smooth_random_forces(gen, 20, h, w, amplitude=0.3)
+    out = sim(forces, ring)
+    moved = (out.points[:, -1] - ring).norm(dim=-1).mean()
+    assert 5.0 <= moved <= 20.0, f"forcing should move the ring about 10 cells, moved {moved:.2f}"
+    area0, area1 = _polygon_area(ring), _polygon_area(out.points[:, -1])
+    assert abs(float(area1 / area0) - 1) < 0.01
+
+
+@pytest.mark.parametrize(
+    "bad,match",
+    [
+        (torch.full((1, 2, 2, 8, 8), float("nan")), "forces contains non-finite"),
+        (torch.zeros(1, 2, 3, 8, 8), r"forces must have shape \(\*, \*, 2, 8, 8\)"),
+        (torch.zeros(2, 8, 8), "forces must have shape"),
+        (torch.zeros(1, 0, 2, 8, 8), "at least one step"),
+        ([1.0], "forces must be a torch.Tensor"),
+    ],
+)
+def test_bad_forces(bad, match):
+    sim = FluidSimulator((8, 8))
+    with pytest.raises((ValueError, TypeError), match=match):
+        sim(bad)
+
+
+def test_bad_settings():
+    with pytest.raises(ValueError, match="dt must be finite and > 0"):
+        FluidSimulator((8, 8), dt=0.0)
+    with pytest.raises(ValueError, match="grid must be a pair of ints >= 2"):
+        FluidSimulator((0, 8))
+    with pytest.raises(ValueError, match="viscosity must be finite and >= 0"):
+        FluidSimulator((8, 8), viscosity=-1.0)
+    with pytest.raises(ValueError, match="grid"):
+        FluidGrid(1, 5)
+
+
+def test_nan_points_raise(gen):
+    sim = FluidSimulator((8, 8))
+    with pytest.raises(ValueError, match="points contains non-finite"):
+        sim(torch.zeros(1, 2, 2, 8, 8), torch.tensor([[[float("nan"), 2.0]]]))
+
+
+def test_float64_and_batch_follow_inputs(gen):
+    sim = FluidSimulator((9, 6))
+    out = sim(torch.randn(3, 2, 2, 9, 6, generator=gen, dtype=torch.float64), torch.rand(3, 4, 2, dtype=torch.float64))
+    assert out.velocities.dtype == torch.float64 and out.velocities.shape == (3, 2, 2, 10, 7)
+    assert out.points.shape == (3, 3, 4, 2)

@@ -1,0 +1,261 @@
+import math
+import sys
+import warnings
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torchfluidwarp.core.spline import tps_interpolate
+from torchfluidwarp.morph.morphing import morph
+from torchfluidwarp.warp.layer import identity_map, jacobian_determinant, warp_image
+
+
+def _blobs(size, centers, gen):
+    H, W = size
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    img = 0.1 * torch.rand(3, H, W, generator=gen)
+    for k, (x, y) in enumerate(centers):
+        img[k % 3] += torch.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * 3.0**2))
+    return img.clamp(0, 1)
+
+
+POINTS_A = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0]])
+POINTS_B = POINTS_A + torch.tensor([[2.0, 1.0], [-1.0, 2.0], [1.5, -1.5], [-2.0, 0.0], [0.0, 2.0]])
+KW = dict(grid=24, steps=6, control=(5, 5), progress=False, max_iter=60)
+
+
+@pytest.fixture
+def pair(gen):
+    return _blobs((64, 64), POINTS_A.tolist(), gen), _blobs((64, 64), POINTS_B.tolist(), gen)
+
+
+@pytest.mark.parametrize("inverse", ["flow", "paper"])
+def test_first_and_last_frames_are_the_inputs(pair, inverse):
+    a, b = pair
+    r = morph(a, b, POINTS_A, POINTS_B, frames=7, inverse=inverse, **KW)
+    assert r.frames.shape == (7, 3, 64, 64)
+    torch.testing.assert_close(r.frames[0], a, atol=1e-5, rtol=0)
+    torch.testing.assert_close(r.frames[-1], b, atol=1e-5, rtol=0)
+    # the fitted points reach B's points, and the warp never folds
+    assert r.fit.error.mean() < 0.3
+    assert jacobian_determinant(r.maps).min() > 0 and r.folded == 0
+
+
+def test_identical_images_and_points_give_a_constant_morph(pair):
+    a, _ = pair
+    r = morph(a, a, POINTS_A, POINTS_A, frames=5, **KW)
+    for k in range(5):
+        torch.testing.assert_close(r.frames[k], a, atol=1e-5, rtol=0)
+
+
+def test_flow_inverse_agrees_with_the_forward_warp(pair):
+    a, b = pair
+    r = morph(a, b, POINTS_A, POINTS_B, frames=5, align=None, margin=None, **KW)
+    # a pixel x of B's frame read at frame k: maps_b[k](y) = K(y); composing A's backward map g_k and K
+    # sends A's points to where the fit carried them
+    traj = r.fit.trajectories[0]  # (T + 1, M, 2), frame coordinates
+    last = r.maps_b[0]  # frame 0: where B is read for each pixel of A's frame
+    at = warp_image(last.permute(2, 0, 1)[None].double(), POINTS_A[None, None].double())[0, :, 0].T  # (M, 2)
+    inner = ((POINTS_A > 8) & (POINTS_A < 56)).all(-1)
+    assert (at - traj[-1])[inner].norm(dim=-1).max() < 0.1
+
+
+def test_different_sizes_and_alignment(gen):
+    a = _blobs((64, 64), POINTS_A.tolist(), gen)
+    b_points = POINTS_B * 2 + 0.5  # B at twice the size: pixel centres scale as (x + 0.5) * 2 - 0.5
+    b = torch.nn.functional.interpolate(
+        _blobs((64, 64), POINTS_B.tolist(), gen)[None], size=(128, 128), mode="bilinear", align_corners=False
+    )[0]
+    r = morph(a, b, POINTS_A, b_points, frames=4, **KW)
+    assert r.frames.shape == (4, 3, 64, 64)
+    assert r.fit.error.mean() < 0.3
+
+
+def test_bad_inputs(pair):
+    a, b = pair
+    with pytest.raises(ValueError, match="points_a has 5 points but points_b has 4"):
+        morph(a, b, POINTS_A, POINTS_B[:4], **KW)
+    with pytest.raises(ValueError, match="frames must be >= 2"):
+        morph(a, b, POINTS_A, POINTS_B, frames=1, **KW)
+    with pytest.raises(ValueError, match="inverse must be"):
+        morph(a, b, POINTS_A, POINTS_B, inverse="magic", **KW)
+    with pytest.raises(ValueError, match="points_b has a point outside"):
+        morph(a, b, POINTS_A, POINTS_B + 100, **KW)
+
+
+def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(gen, monkeypatch):
+    feather = 4.0  # a narrow hand-over band, so that a 64-pixel frame has room beyond it
+    monkeypatch.setattr(sys.modules["torchfluidwarp.morph.morphing"], "FEATHER", feather)
+    # B's points spread 2.2 times as far as A's: the similarity pre-alignment magnifies, so the middle
+    # frames read B far beyond its edges near the frame's borders
+    a = _blobs((64, 64), POINTS_A.tolist(), gen)
+    centre = POINTS_A.mean(0)
+    points_b = (POINTS_A - centre) * 2.2 + centre
+    inside = ((points_b > 0) & (points_b < 63)).all()
+    assert inside, "the test's points must stay in the image"
+    b = _blobs((64, 64), points_b.tolist(), gen)
+    r = morph(a, b, POINTS_A, points_b, frames=5, compressible=0.5, **KW)
+    k = 2
+    x, y = r.maps_b[k, ..., 0], r.maps_b[k, ..., 1]
+    f = feather + 0.5  # B read more than the feather beyond its edge
+    far_b = (x < -f) | (x > 63 + f) | (y < -f) | (y > 63 + f)
+    xa, ya = r.maps[k, ..., 0], r.maps[k, ..., 1]
+    in_a = (xa > -0.5) & (xa < 63.5) & (ya > -0.5) & (ya < 63.5)
+    assert (far_b & in_a).sum() > 50, "the set-up must make B's map leave B"
+    sel = far_b & in_a
+    torch.testing.assert_close(r.frames[k][:, sel], r.forward_frames[k][:, sel], atol=1e-6, rtol=0)
+    # where both maps read well inside their images, the frame is the plain cross-dissolve: at least the feather
+    # in output pixels, i.e. `feather` times the maps' local scale (at most 3 source pixels per output pixel here)
+    depth = 3 * feather - 0.5
+    both = (xa > depth) & (xa < 63 - depth) & (ya > depth) & (ya < 63 - depth)
+    both &= (x > depth) & (x < 63 - depth) & (y > depth) & (y < 63 - depth)
+    scale = torch.maximum(jacobian_determinant(r.maps[k : k + 1]), jacobian_determinant(r.maps_b[k : k + 1]))[0]
+    assert bool(scale[both].max() < 9) and both.sum() > 50
+    w = float(r.times[k] / r.times[-1])
+    plain = torch.lerp(r.forward_frames[k], r.backward_frames[k], w)
+    torch.testing.assert_close(r.frames[k][:, both], plain[:, both], atol=1e-5, rtol=0)
+
+
+# ------------------------------------------------------------------ the natural morph on a known deformation
+
+SIZE = 128
+AMPLITUDE, WAVELENGTH = 4.0, 128.0  # pixels
+
+
+def _phi(p):
+    """A smooth invertible map of the plane: A's feature at ``p`` shows at ``_phi(p)`` in B (pixels)."""
+    x, y = p[..., 0], p[..., 1]
+    k = 2 * math.pi / WAVELENGTH
+    return torch.stack([x + AMPLITUDE * torch.sin(k * y), y + AMPLITUDE * torch.sin(k * x)], -1)
+
+
+def _invert(maps, q, iters=60):
+    """Where a backward map ``(1, H, W, 2)`` reads the points ``q`` ``(K, 2)``: solves ``maps(y) = q``."""
+    y = q.clone()
+    for _ in range(iters):
+        y = y - (warp_image(maps.permute(0, 3, 1, 2).double(), y[None, None].double())[0, :, 0].T - q)
+    return y
+
+
+def _seam(maps):
+    """``(B, H - 2, W - 2)`` Frobenius norm of a map's second derivatives (px/px^2), central differences."""
+    m = maps.double()
+    d2x = (m[:, 1:-1, 2:] - 2 * m[:, 1:-1, 1:-1] + m[:, 1:-1, :-2]).square().sum(-1)
+    d2y = (m[:, 2:, 1:-1] - 2 * m[:, 1:-1, 1:-1] + m[:, :-2, 1:-1]).square().sum(-1)
+    dxy = ((m[:, 2:, 2:] - m[:, 2:, :-2] - m[:, :-2, 2:] + m[:, :-2, :-2]) / 4).square().sum(-1)
+    return (d2x + d2y + 2 * dxy).sqrt()
+
+
+@pytest.fixture(scope="module")
+def known_deformation():
+    """A textured picture A, B = A deformed by ``_phi``, 25 points on a 14-px lattice in the middle (a third held out),
+    and the natural morph of the pair from the marked two thirds."""
+    gen = torch.Generator().manual_seed(0)
+    a = F.interpolate(torch.rand(1, 3, 16, 16, generator=gen), size=(SIZE, SIZE), mode="bicubic").clamp(0, 1)
+    ident = identity_map((SIZE, SIZE), dtype=torch.float64)
+    inverse = ident.clone()
+    for _ in range(50):  # phi^-1 by fixed-point iteration: phi is a small perturbation of the identity
+        inverse = ident - (_phi(inverse) - inverse)
+    b = warp_image(a.double(), inverse).float()
+    ys, xs = torch.meshgrid(torch.linspace(36, 92, 5), torch.linspace(36, 92, 5), indexing="ij")
+    points = torch.stack([xs, ys], -1).reshape(-1, 2).double()
+    held = torch.arange(25) % 3 == 2
+    pa, pb = points[~held].float(), _phi(points[~held]).float()
+    result = morph(a[0], b[0], pa, pb, frames=9, progress=False)
+    return points, held, result
+
+
+def test_natural_morph_carries_unmarked_points_like_the_spline(known_deformation):
+    points, held, r = known_deformation
+    inner = held & ((points > 40) & (points < 88)).all(-1)  # held-out points inside the marks' hull
+    last = _invert(r.maps[-1:], points[inner])
+    err = (last - _phi(points[inner])).norm(dim=-1)
+    # Bound: piecewise-linear interpolation on a lattice of spacing h = 14 px errs by at most
+    # h^2 / 8 * max|phi''| per component, |phi''| <= AMPLITUDE (2 pi / WAVELENGTH)^2, so by
+    # sqrt(2) * 14^2 / 8 * 0.0096 = 0.33 px; the thin-plate spline does at least as well inside the hull,
+    # and the fluid follows the spline (next assertion), so 0.4 px leaves room for the fluid's discretisation.
+    assert float(err.max()) < 0.4
+    spline = tps_interpolate(points[~held], _phi(points[~held]), points[inner])
+    assert float((last - spline).norm(dim=-1).max()) < 0.1  # the fluid moves what nobody marked like the spline
+    assert r.folded == 0
+    assert jacobian_determinant(r.maps).min() > 0 and jacobian_determinant(r.maps_b).min() > 0
+
+
+def test_natural_morph_has_no_seam_in_any_frame(known_deformation):
+    _, _, r = known_deformation
+    # phi's own second derivatives are at most sqrt(2) * 0.0096 px/px^2; resampling the maps adds about 0.07
+    # (measured); the edge of a fluid box inside the picture (method="paper", margin=0.5: its box edge lies at
+    # 12 px from the image edge here) measured 1.3 to 2.9 px/px^2. The bound sits between the two.
+    for k in range(r.maps.shape[0]):
+        for maps in (r.maps[k : k + 1], r.maps_b[k : k + 1]):
+            assert float(torch.quantile(_seam(maps).flatten(), 0.999)) < 0.2, k
+
+
+def test_paper_method_is_one_option_away(pair):
+    # B's marks spread 1.2 times as far as A's and no pre-alignment absorbs it: the natural morph grows the
+    # marked region (areas x 1.44); the paper's incompressible fluid keeps every area (it spreads the marks by
+    # squeezing the fluid around them instead)
+    a, b = pair
+    centre = POINTS_A.mean(0)
+    pb = (POINTS_A - centre) * 1.2 + centre
+    kw = dict(frames=3, align=None, progress=False)
+    natural = morph(a, b, POINTS_A, pb, **kw)
+    paper = morph(a, b, POINTS_A, pb, method="paper", grid=24, steps=6, max_iter=60, **kw)
+    middle = (slice(24, 40), slice(24, 40))
+    assert float(jacobian_determinant(natural.maps_b[:1])[0][middle].mean()) > 1.3  # B read 1.2 x 1.2 wider
+    det = jacobian_determinant(paper.maps[-1:])[0][middle]
+    assert float((det - 1).abs().max()) < 0.1
+    assert float(natural.fit.error.mean()) < 0.3
+
+
+def test_natural_morph_of_identical_inputs_is_constant(pair):
+    a, _ = pair
+    r = morph(a, a, POINTS_A, POINTS_A, frames=4, progress=False)
+    for k in range(4):
+        torch.testing.assert_close(r.frames[k], a, atol=1e-5, rtol=0)
+
+
+def test_repeated_points_raise_naming_their_indices(pair):
+    a, b = pair
+    pa = POINTS_A.clone()
+    pa[3] = pa[1]
+    with pytest.raises(ValueError, match="points_a repeats points: indices 1 and 3"):
+        morph(a, b, pa, POINTS_B, **KW)
+
+
+def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
+    a, b = pair
+    pb = POINTS_B.clone()
+    pb[[0, 4]] = pb[[4, 0]]  # points 0 and 4 swap places between A and B
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, POINTS_A, pb, frames=3, progress=False)
+    crossing = [w for w in caught if "marks cross" in str(w.message)]
+    assert len(crossing) == 1 and "0 and 4" in str(crossing[0].message)
+    # the swapped points are the ones not reached
+    err = r.fit.error[0]
+    assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())
+
+
+def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
+    a, b = pair
+    morph_module = sys.modules["torchfluidwarp.morph.morphing"]
+    real = morph_module.jacobian_determinant
+    calls = []
+
+    def folding(maps):  # pretend that exactly 3 pixels of A's map of the first frame fold (the first call)
+        det = real(maps).clone()
+        if not calls:
+            calls.append(1)
+            det.view(-1)[:3] = -1.0
+        return det
+
+    monkeypatch.setattr(morph_module, "jacobian_determinant", folding)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, POINTS_A, POINTS_B, frames=3, progress=False)
+    folds = [w for w in caught if "fold" in str(w.message)]
+    assert len(folds) == 1
+    assert "fold on 3 of" in str(folds[0].message)
+    assert r.folded == pytest.approx(3 / (2 * 3 * 64 * 64))

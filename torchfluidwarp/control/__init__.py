@@ -1,0 +1,40 @@
+"""Fit forces to goals: the one L-BFGS driver, keyframe control, image registration and pre-alignment.
+
+* :mod:`~torchfluidwarp.control.optim`: :func:`minimize`, the one optimiser loop (closure, tolerance, NaN
+  policy, progress, history) that every fit runs through;
+* :mod:`~torchfluidwarp.control.keyframes`: :func:`fit_keyframes`, marked points to their targets, with
+  adjoint gradients;
+* :mod:`~torchfluidwarp.control.images`: :func:`fit_images`, one image onto another by its pixels;
+* :mod:`~torchfluidwarp.control.alignment`: the similarity/affine pre-alignment of two point sets.
+"""
+
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, interpolate_alignment
+from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.keyframes import (
+    KeyframeFit,
+    check_points,
+    fit_keyframes,
+    keyframe_loss,
+    velocity_gradient_energy,
+)
+from torchfluidwarp.control.optim import OptimResult, minimize
+
+__all__ = [
+    "apply_alignment",
+    "estimate_alignment",
+    "interpolate_alignment",
+    "ImageFit",
+    "LevelFit",
+    "fit_images",
+    "image_loss",
+    "mse_loss",
+    "ncc_loss",
+    "ssim_loss",
+    "KeyframeFit",
+    "check_points",
+    "fit_keyframes",
+    "keyframe_loss",
+    "velocity_gradient_energy",
+    "OptimResult",
+    "minimize",
+]

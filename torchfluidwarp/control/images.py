@@ -1,0 +1,421 @@
+"""Image registration: fit the fluid's forces so that the warped source matches a target image.
+
+The same machinery as keyframe control (:func:`~torchfluidwarp.control.keyframes.fit_keyframes`): the control vector is
+a coarse :class:`~torchfluidwarp.warp.forces.ControlGrid`, found by ``torch.optim.LBFGS`` with a strong-Wolfe line
+search; gradients come from autograd through the solver (implicit adjoints for its linear solves) and through
+the backward map and the image sampling. No finite differences.
+
+Objective: ``phi(u) = sum_b L(f_b(g_T), target_b) + point_weight * sum_b mean_i ||p_i(T) - q_i||^2
++ regularization * ||u||^2`` where ``f(g_T)`` is the source sampled through the backward map of the last
+step (frame ``T`` of :class:`~torchfluidwarp.warp.layer.FluidWarp`), ``L`` is the mean squared error,
+``1 - NCC`` or the structural dissimilarity ``(1 - SSIM) / 2`` (kornia's), and the optional points ``p_i``
+are carried by the forward map (pixels^2).
+
+Coarse to fine: each level fits on a smaller fluid grid and on images downsampled in proportion (the same
+pixels per fluid cell), then hands its control grid to the next. A control grid does not depend on the fluid
+grid's resolution (it is upsampled to any grid), but forces are in fluid cells per time unit^2, so they are
+multiplied by the ratio of grid sizes on the way up.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import kornia.losses
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor, describe
+from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp.control.optim import HISTORY_SIZE, minimize
+from torchfluidwarp.core.fluid import Viscosity
+from torchfluidwarp.core.grid import FluidGrid, scale_factor
+from torchfluidwarp.io import resize_image
+from torchfluidwarp.warp.forces import ControlGrid
+from torchfluidwarp.warp.layer import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
+
+__all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss", "ssim_loss"]
+
+LossName = Literal["mse", "ncc", "ssim"]
+ImageLoss = Callable[[Tensor, Tensor], Tensor]
+
+
+def mse_loss(warped: Tensor, target: Tensor) -> Tensor:
+    """Mean squared error per sample, summed over the batch: ``(B, C, H, W)`` twice -> scalar."""
+    return ((warped - target) ** 2).flatten(1).mean(1).sum()
+
+
+def ncc_loss(warped: Tensor, target: Tensor, eps: float = 1e-8) -> Tensor:
+    """``1 - NCC`` per sample (global normalised cross-correlation over all channels and pixels), summed.
+
+    Zero when the images match up to brightness and contrast (``warped = a * target + b`` with ``a > 0``).
+
+    Example:
+        >>> x = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+        >>> abs(float(ncc_loss(2 * x + 0.1, x))) < 1e-6
+        True
+    """
+    a = warped.flatten(1) - warped.flatten(1).mean(1, keepdim=True)
+    b = target.flatten(1) - target.flatten(1).mean(1, keepdim=True)
+    ncc = (a * b).sum(1) / torch.sqrt((a * a).sum(1) * (b * b).sum(1) + eps)
+    return (1 - ncc).sum()
+
+
+def ssim_loss(warped: Tensor, target: Tensor, window_size: int = 11, data_range: float = 1.0) -> Tensor:
+    """Structural dissimilarity ``(1 - SSIM) / 2`` per sample (mean over channels and pixels), summed over the batch.
+
+    The SSIM map is kornia's (``kornia.losses.ssim_loss``): a Gaussian window of ``window_size`` pixels
+    (sigma 1.5), ``data_range`` the images' dynamic range (1 for images in ``[0, 1]``), reflected borders. Local
+    means, contrasts and structure are compared, so it is less swayed than the MSE by a slow change of brightness
+    across the image. On images under 6 pixels a side (the coarsest levels of a fit) the window shrinks to the
+    largest odd size the border padding allows, ``2 * min(H, W) - 1``.
+
+    Args:
+        warped: ``(B, C, H, W)``.
+        target: ``(B, C, H, W)``.
+        window_size: odd width of the Gaussian window in pixels.
+        data_range: the images' dynamic range (``max - min`` of the scale they are on).
+
+    Returns:
+        a scalar: 0 for identical images, at most ``B``.
+
+    Example:
+        >>> x = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> float(ssim_loss(x, x))
+        0.0
+        >>> float(ssim_loss(x, x.roll(3, -1))) > 0.1
+        True
+    """
+    check_int("window_size", window_size)
+    check_positive("data_range", data_range)
+    window = min(window_size, 2 * min(warped.shape[-2:]) - 1)
+    window -= 1 - window % 2  # odd
+    dssim = kornia.losses.ssim_loss(warped, target, window, max_val=data_range, reduction="none")  # (B, C, H, W)
+    return dssim.flatten(1).mean(1).sum()
+
+
+def image_loss(loss: LossName | ImageLoss) -> ImageLoss:
+    """The image term for a name (``"mse"``, ``"ncc"``, ``"ssim"``) or a callable ``loss(warped, target) -> scalar``."""
+    if callable(loss):
+        return loss
+    if loss == "mse":
+        return mse_loss
+    if loss == "ncc":
+        return ncc_loss
+    if loss == "ssim":
+        return ssim_loss
+    raise ValueError(
+        f"loss must be 'mse', 'ncc', 'ssim' or a callable (warped, target) -> scalar, got {describe(loss)}"
+    )
+
+
+@dataclass
+class LevelFit:
+    """One level of a coarse-to-fine fit.
+
+    Attributes:
+        grid: the fluid grid ``(h, w)``.
+        image_size: ``(H, W)`` of the (downsampled) images fitted at this level.
+        initial_loss: the objective at this level's starting forces.
+        final_loss: the objective at its best forces.
+        evaluations: objective-and-gradient evaluations.
+        seconds: wall time.
+        converged: L-BFGS stopped on its own criterion before ``max_iter``; False also when a non-finite loss
+            stopped it (the best finite iterate is kept: :func:`~torchfluidwarp.control.optim.minimize`).
+    """
+
+    grid: tuple[int, int]
+    image_size: tuple[int, int]
+    initial_loss: float
+    final_loss: float
+    evaluations: int
+    seconds: float
+    converged: bool
+
+
+@dataclass
+class ImageFit:
+    """The result of :func:`fit_images`.
+
+    Attributes:
+        forces: the fitted :class:`~torchfluidwarp.warp.forces.ControlGrid` (control vector ``(B, T, 2, K_y, K_x)``).
+        warp: a :class:`~torchfluidwarp.warp.layer.FluidWarp` on the finest grid that replays the forces on any image:
+            ``fit.warp(source, fit.forces)[:, -1]`` is ``warped``.
+        warped: ``(B, C, H, W)`` the source warped by the fitted forces (frame ``T``), full resolution.
+        initial_loss: the image term at full resolution before fitting (identity map).
+        final_loss: the image term at full resolution after fitting.
+        min_det: ``(B,)`` the smallest Jacobian determinant of the fitted backward map (> 0: no folds).
+        loss_history: the objective at every evaluation, all levels in order.
+        evaluations: total objective-and-gradient evaluations.
+        seconds: total wall time.
+        converged: the finest level's L-BFGS stopped on its own criterion before ``max_iter``.
+        levels: one :class:`LevelFit` per level, coarse to fine.
+        message: a one-line summary.
+    """
+
+    forces: ControlGrid
+    warp: FluidWarp
+    warped: Tensor
+    initial_loss: float
+    final_loss: float
+    min_det: Tensor
+    loss_history: list[float] = field(default_factory=list)
+    evaluations: int = 0
+    seconds: float = 0.0
+    converged: bool = False
+    levels: list[LevelFit] = field(default_factory=list)
+    message: str = ""
+
+    def animate(self, image: Tensor) -> Tensor:
+        """Replay the fitted forces on ``image`` ``(B|1, C, H, W)``: frames ``(B, T + 1, C, H, W)``."""
+        return self.warp(image, self.forces)
+
+
+def _level_grids(grid: FluidGrid, levels: Sequence[int] | None) -> list[FluidGrid]:
+    """Coarse-to-fine grids: each level ``n`` is ``grid`` scaled so that its longer side has ``n`` cells."""
+    longest = max(grid.shape)
+    if levels is None:
+        return [grid]
+    if not isinstance(levels, (tuple, list)) or not levels:
+        raise TypeError(f"levels must be a non-empty sequence of ints or None, got {describe(levels)}")
+    sizes = [check_int("levels", n, minimum=2) for n in levels]
+    if any(b <= a for a, b in zip(sizes, sizes[1:])) or sizes[-1] > longest:
+        raise ValueError(
+            f"levels must increase and end at most at the finest grid's longer side ({longest}), got {tuple(sizes)}"
+        )
+    if sizes[-1] != longest:
+        sizes.append(longest)
+    h, w = grid.shape
+    return [FluidGrid(max(2, round(h * n / longest)), max(2, round(w * n / longest))) for n in sizes[:-1]] + [grid]
+
+
+def _warp_last(warp: FluidWarp, forces: ControlGrid, image: Tensor) -> Tensor:
+    """Frame ``T`` of ``warp(image, forces)``, composing only the maps it needs."""
+    size = (image.shape[-2], image.shape[-1])
+    vel = warp.rollout(forces, size).velocities.to(image.dtype)
+    coords = next(iter_backward_maps(vel, size, warp.dt, times=[warp.steps]))  # (B, H, W, 2)
+    return warp_image(image, coords, warp.mode)
+
+
+def fit_images(
+    source: Tensor,
+    target: Tensor,
+    *,
+    loss: LossName | ImageLoss = "mse",
+    points: tuple[Tensor, Tensor] | None = None,
+    point_weight: float = 1e-3,
+    grid: FluidGrid | int | tuple[int, int] = (64, 64),
+    levels: Sequence[int] | None = (16, 32, 64),
+    steps: int = 10,
+    control: tuple[int, int] | int = (5, 5),
+    dt: float = 1.0,
+    viscosity: Viscosity = 0.0,
+    regularization: float = 0.0,
+    max_iter: int | Sequence[int] = 50,
+    compressible: bool = False,
+    dtype: torch.dtype = torch.float64,
+    progress: bool = True,
+    history_size: int = HISTORY_SIZE,
+) -> ImageFit:
+    """Fit forces so that the fluid warps ``source`` onto ``target``, coarse to fine.
+
+    Args:
+        source: ``(1|B, C, H, W)`` the image to warp (floats, typically in ``[0, 1]``).
+        target: ``(1|B, C, H, W)`` the image to match (same ``C, H, W``); B independent problems are fitted
+            together.
+        loss: ``"mse"`` (mean squared error), ``"ncc"`` (``1 - `` global normalised cross-correlation: robust
+            to brightness and contrast changes), ``"ssim"`` (:func:`ssim_loss`, kornia's structural dissimilarity
+            ``(1 - SSIM) / 2``, window 11, for images in ``[0, 1]``), or a callable
+            ``loss(warped, target) -> scalar``.
+        points: optional landmark pairs ``(src, tgt)``, each ``(M, 2)`` or ``(B, M, 2)`` in pixels of the
+            full-resolution images (pixel centres at integers): ``src`` carried by the forward map should land
+            on ``tgt``.
+        point_weight: weight of the landmark term, the mean squared distance in pixels^2 (added to the image
+            term, whose scale is that of ``loss``).
+        grid: the finest fluid grid ``(h, w)``.
+        levels: coarse-to-fine sizes, in cells along the longer side of ``grid`` (increasing; the finest grid
+            is added when the last level is smaller); ``None`` fits on ``grid`` only. Images at each level
+            are downsampled to keep the finest level's pixels per cell.
+        steps: fluid steps ``T``; the warped source is frame ``T``.
+        control: ``(K_y, K_x)`` control points per step of the :class:`ControlGrid`.
+        dt: time step. viscosity: as for :class:`~torchfluidwarp.warp.layer.FluidWarp` (float or ``(B|1, 1, h, w)``
+            field on the finest grid; a field is used at the finest level only, coarser levels get its mean).
+        regularization: weight on ``||u||^2`` (default 0: off).
+        max_iter: L-BFGS iterations per level (an int, or one per level).
+        compressible: skip the pressure projection.
+        dtype: dtype of the fit. float64 by default: the image losses and the registration figures in
+            ``docs/benchmarks.md`` were measured in float64
+            (:func:`~torchfluidwarp.control.keyframes.fit_keyframes`, whose
+            point loss was measured in both, defaults to float32).
+        progress: show a tqdm bar of L-BFGS iterations per level, with the loss.
+        history_size: L-BFGS memory, as for :func:`~torchfluidwarp.control.optim.minimize` (default 100, the
+            library's one value; this fit used 20 before the driver was shared).
+
+    Returns:
+        an :class:`ImageFit`.
+
+    Raises:
+        ValueError: mismatched shapes, non-finite values, points outside the image, bad ``loss``, ``levels``,
+            ``max_iter``, ``steps`` or ``control``.
+        TypeError: arguments of the wrong type.
+
+    Example:
+        >>> yy, xx = torch.meshgrid(torch.arange(32.0), torch.arange(32.0), indexing="ij")
+        >>> blob = lambda cx: torch.exp(-((xx - cx) ** 2 + (yy - 16) ** 2) / 50)[None, None]
+        >>> fit = fit_images(blob(14.0), blob(18.0), grid=16, levels=(8,), steps=4, control=3, progress=False)
+        >>> fit.final_loss < 0.01 * fit.initial_loss
+        True
+    """
+    src = check_tensor("source", source, ndim=4)
+    tgt = check_tensor("target", target, ndim=4)
+    if src.shape[1:] != tgt.shape[1:] or (src.shape[0] != tgt.shape[0] and 1 not in (src.shape[0], tgt.shape[0])):
+        raise ValueError(
+            f"source and target must have the same (C, H, W) and batch sizes 1 or B, got source "
+            f"{tuple(src.shape)} and target {tuple(tgt.shape)}"
+        )
+    H, W = src.shape[-2:]
+    if min(H, W) < 2:
+        raise ValueError(f"source must be at least 2 x 2 pixels, got {tuple(src.shape)}")
+    B = max(src.shape[0], tgt.shape[0])
+    objective = image_loss(loss)
+    fine = FluidGrid.of(grid)
+    grids = _level_grids(fine, levels)
+    steps = check_int("steps", steps)
+    ky, kx = check_size("control", control, minimum=2)
+    check_positive("dt", dt)
+    check_positive("point_weight", point_weight, allow_zero=True)
+    check_positive("regularization", regularization, allow_zero=True)
+    iters = [max_iter] * len(grids) if isinstance(max_iter, int) else list(max_iter)
+    if len(iters) != len(grids):
+        raise ValueError(f"max_iter must be an int or one int per level ({len(grids)}), got {max_iter!r}")
+    iters = [check_int("max_iter", n) for n in iters]
+    check_int("history_size", history_size)
+    pts = None
+    if points is not None:
+        if not (isinstance(points, (tuple, list)) and len(points) == 2):
+            raise TypeError(f"points must be a pair (src (M, 2), tgt (M, 2)), got {describe(points)}")
+        p, q = check_points("points[0]", points[0], (H, W), B), check_points("points[1]", points[1], (H, W), B)
+        if p.shape[1] != q.shape[1]:
+            raise ValueError(f"points must pair up: {p.shape[1]} source points and {q.shape[1]} target points")
+        pts = (p.expand(B, -1, -1).to(src.device, dtype), q.expand(B, -1, -1).to(src.device, dtype))
+
+    src = src.expand(B, -1, -1, -1).to(dtype)
+    tgt = tgt.expand(B, -1, -1, -1).to(src.device, dtype)
+    start = time.perf_counter()
+    history: list[float] = []
+    records: list[LevelFit] = []
+    weight = torch.zeros(B, steps, 2, ky, kx, device=src.device, dtype=dtype)
+    previous: FluidGrid | None = None
+    warp = module = None
+    for g, n_iter in zip(grids, iters):
+        if previous is not None:  # cells per time^2: forces scale with the grid's resolution
+            ratio = scale_factor(previous.shape, g.shape, device=src.device, dtype=dtype)
+            weight = weight * ratio.view(1, 1, 2, 1, 1)
+        previous = g
+        f = max(g.height / fine.height, g.width / fine.width)
+        size = (H, W) if g == fine else (max(2, round(H * f)), max(2, round(W * f)))
+        visc = viscosity if (g == fine or not isinstance(viscosity, Tensor)) else float(viscosity.mean())
+        warp = FluidWarp(g, steps, dt, visc, image_size=(H, W), compressible=compressible).to(src.device, dtype)
+        module = ControlGrid(steps, (ky, kx), batch=B, init=weight).to(src.device, dtype)
+        s_l, t_l = resize_image(src, size), resize_image(tgt, size)
+        record = _fit_level(
+            warp,
+            module,
+            s_l,
+            t_l,
+            objective,
+            pts,
+            (H, W),
+            point_weight,
+            regularization,
+            n_iter,
+            history,
+            progress,
+            f"fit_images {g.height}x{g.width}",
+            history_size,
+        )
+        records.append(record)
+        weight = module.weight.detach().clone()
+
+    assert warp is not None and module is not None  # at least one level, by construction
+    with torch.no_grad():
+        vel = warp.rollout(module, (H, W)).velocities
+        coords = next(iter_backward_maps(vel, (H, W), dt, times=[steps]))
+        warped = warp_image(src, coords, warp.mode)
+        initial, final = float(objective(src, tgt)), float(objective(warped, tgt))
+        min_det = jacobian_determinant(coords).flatten(1).amin(1)
+    seconds = time.perf_counter() - start
+    message = (
+        f"loss {initial:.4g} -> {final:.4g} ({final / initial if initial else 0.0:.2%}) in "
+        f"{len(history)} evaluations over {len(records)} level(s), {seconds:.1f} s; min det "
+        f"{float(min_det.min()):.3f}"
+    )
+    return ImageFit(
+        forces=module,
+        warp=warp,
+        warped=warped,
+        initial_loss=initial,
+        final_loss=final,
+        min_det=min_det,
+        loss_history=history,
+        evaluations=len(history),
+        seconds=seconds,
+        converged=records[-1].converged,
+        levels=records,
+        message=message,
+    )
+
+
+def _fit_level(
+    warp: FluidWarp,
+    module: ControlGrid,
+    source: Tensor,
+    target: Tensor,
+    objective: ImageLoss,
+    points: tuple[Tensor, Tensor] | None,
+    full_size: tuple[int, int],
+    point_weight: float,
+    regularization: float,
+    max_iter: int,
+    history: list[float],
+    progress: bool,
+    desc: str,
+    history_size: int,
+) -> LevelFit:
+    """L-BFGS on one level with :func:`~torchfluidwarp.control.optim.minimize`; appends its losses to ``history``."""
+
+    def phi() -> Tensor:
+        value = objective(_warp_last(warp, module, source), target)
+        if points is not None and point_weight > 0:
+            p, q = points
+            carried = warp.advect_points(p, module, full_size)[:, -1]
+            value = value + point_weight * ((carried - q) ** 2).sum(-1).mean(-1).sum()
+        if regularization > 0:
+            value = value + regularization * (module.weight**2).sum()
+        return value
+
+    result = minimize(
+        phi,
+        [module.weight],
+        max_iter=max_iter,
+        progress=progress,
+        desc=desc,
+        history_size=history_size,
+        # looser than the driver's defaults, as this fit has always run: image losses flatten out sooner
+        tolerance_grad=1e-10,
+        tolerance_change=1e-12,
+    )
+    history.extend(result.loss_history)
+    return LevelFit(
+        grid=warp.grid.shape,
+        image_size=(source.shape[-2], source.shape[-1]),
+        initial_loss=result.loss_history[0] if result.loss_history else math.nan,
+        final_loss=result.best_loss,
+        evaluations=result.evaluations,
+        seconds=result.seconds,
+        converged=result.converged,
+    )

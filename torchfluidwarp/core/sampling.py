@@ -1,0 +1,64 @@
+"""The one place the library calls ``grid_sample``.
+
+``grid_sample`` given a NaN in its grid returns garbage (with border padding it even looks finite), and its CPU
+backward crashes the process. So every sampling path goes through :func:`sample`, whose ``check`` argument
+says, at each call site, whether that grid is guarded here or is finite by construction.
+
+The policy (see ``docs/design.rst``, "Sampling"):
+
+* **Once per frame** (an image read through a map: :func:`~torchfluidwarp.warp.layer.warp_image`, the frames of
+  :class:`~torchfluidwarp.warp.layer.FluidWarp`, the morph): the grid is checked here, one reduction per call.
+* **Per sub-step** (velocity sampling in advection, carrying points, composing maps): unchecked. These run
+  dozens of times per fluid step; their inputs are validated once at the public boundary (forces, velocities,
+  points, viscosity, ``dt``), the positions they sample are clamped into the box, and each step's velocity is
+  checked by the simulator and by :func:`~torchfluidwarp.core.fluid.substeps`. A check here would add a reduction
+  and, on an accelerator, a host synchronisation to every call.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch.nn.functional as F
+from torch import Tensor
+
+from torchfluidwarp._checks import all_finite
+
+__all__ = ["sample", "SampleMode"]
+
+SampleMode = Literal["bilinear", "bicubic", "nearest"]
+
+
+def sample(
+    image: Tensor, grid: Tensor, *, mode: SampleMode = "bilinear", align_corners: bool, check: str | None
+) -> Tensor:
+    """``grid_sample`` with border padding: the library's only call to it.
+
+    Args:
+        image: ``(N, C, H_in, W_in)`` what is sampled.
+        grid: ``(N, H_out, W_out, 2)`` normalised positions ``(x, y)`` in ``[-1, 1]``; beyond that, the border.
+        mode: ``"bilinear"``, ``"bicubic"`` or ``"nearest"``.
+        align_corners: as for ``torch.nn.functional.grid_sample``.
+        check: the name of what the grid was made from (e.g. ``"coords"``), quoted in the error, to refuse a
+            non-finite grid; ``None`` where the caller guarantees a finite grid (the per-sub-step paths, whose
+            inputs were checked at the public boundary).
+
+    Returns:
+        ``(N, C, H_out, W_out)``.
+
+    Raises:
+        ValueError: ``check`` is given and the grid holds NaN or inf.
+
+    Example:
+        >>> import torch
+        >>> grid = torch.zeros(1, 1, 1, 2)  # the centre of the image
+        >>> sample(torch.arange(4.0).view(1, 1, 2, 2), grid, align_corners=False, check="grid").item()
+        1.5
+        >>> sample(torch.zeros(1, 1, 2, 2), grid * float("nan"), align_corners=False, check="coords")
+        Traceback (most recent call last):
+        ...
+        ValueError: non-finite sampling positions (NaN or inf) from coords; grid of shape (1, 1, 1, 2)
+    """
+    if check is not None and grid.numel() and not all_finite(grid):
+        raise ValueError(f"non-finite sampling positions (NaN or inf) from {check}; grid of shape {tuple(grid.shape)}")
+    return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)

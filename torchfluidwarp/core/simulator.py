@@ -1,0 +1,258 @@
+"""The solver as ``nn.Module`` objects: one module per operator, a step, and a roll-out.
+
+:class:`StableFluidsStep` is ``AddForce -> Advect -> Diffuse -> Project`` (Stam 1999), each a thin module over
+the functions of :mod:`torchfluidwarp.core.fluid`. :class:`FluidSimulator` rolls a step out over a force schedule
+and carries passive points along.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import cast
+
+import torch
+from torch import Tensor, nn
+
+from torchfluidwarp._checks import all_finite, check_positive, check_tensor
+from torchfluidwarp.core.fluid import (
+    Viscosity,
+    _advect_points,
+    _advect_velocity,
+    check_viscosity,
+    diffuse,
+    faces_from_cells,
+    project,
+)
+from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.core.linalg import CGConfig
+
+__all__ = ["AddForce", "Advect", "Diffuse", "Project", "StableFluidsStep", "FluidSimulator", "FluidRollout"]
+
+
+class AddForce(nn.Module):
+    """``v + dt * f``: a cell-centred force ``(B, 2, h, w)`` (cells per time unit^2) added on the faces."""
+
+    def __init__(self, dt: float = 1.0) -> None:
+        super().__init__()
+        self.dt = check_positive("dt", dt)
+
+    def forward(self, velocity: Tensor, force: Tensor, staggered: bool = False) -> Tensor:
+        """``velocity`` ``(B, 2, h + 1, w + 1)`` plus ``dt`` times ``force``: cell-centred ``(B, 2, h, w)``, or
+        already on the faces ``(B, 2, h + 1, w + 1)`` with ``staggered=True``."""
+        return velocity + self.dt * (force if staggered else faces_from_cells(force))
+
+
+class Advect(nn.Module):
+    """Semi-Lagrangian self-advection of the velocity (:func:`~torchfluidwarp.core.fluid.advect_velocity`)."""
+
+    def __init__(self, dt: float = 1.0) -> None:
+        super().__init__()
+        self.dt = check_positive("dt", dt)
+
+    def forward(self, velocity: Tensor) -> Tensor:
+        return _advect_velocity(velocity, self.dt)
+
+
+class Diffuse(nn.Module):
+    """Implicit diffusion (:func:`~torchfluidwarp.core.fluid.diffuse`); the viscosity is passed per call."""
+
+    def __init__(self, dt: float = 1.0, config: CGConfig = CGConfig(), adjoint_config: CGConfig | None = None):
+        super().__init__()
+        self.dt = check_positive("dt", dt)
+        self.config, self.adjoint_config = config, adjoint_config
+
+    def forward(self, velocity: Tensor, viscosity: Viscosity) -> tuple[Tensor, int]:
+        return diffuse(
+            velocity, viscosity, self.dt, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True
+        )  # type: ignore[return-value]
+
+
+class Project(nn.Module):
+    """Pressure projection (:func:`~torchfluidwarp.core.fluid.project`)."""
+
+    def __init__(self, config: CGConfig = CGConfig(), adjoint_config: CGConfig | None = None) -> None:
+        super().__init__()
+        self.config, self.adjoint_config = config, adjoint_config
+
+    def forward(self, velocity: Tensor) -> tuple[Tensor, int]:
+        return project(velocity, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True)  # type: ignore[return-value]
+
+
+class StableFluidsStep(nn.Module):
+    """One Stable Fluids step: add force -> advect -> diffuse -> project.
+
+    Args:
+        dt: time step (time units).
+        pressure: CG settings of the pressure solve (and ``adjoint`` those of every backward solve).
+        diffusion: CG settings of the viscosity solve.
+        compressible: ``False`` (incompressible), ``True`` (skip the projection: the flow may compress and
+            expand), or a weight ``c`` in ``[0, 1]``: the step keeps ``c`` of the divergent part,
+            ``v <- c v + (1 - c) P(v)`` with ``P`` the projection.
+
+    Example:
+        >>> step = StableFluidsStep()
+        >>> v = torch.zeros(1, 2, 9, 9)
+        >>> f = torch.zeros(1, 2, 8, 8); f[:, 0, 3:5, 3:5] = 1.0
+        >>> v1, _ = step(v, f, 0.0)
+        >>> v1.shape
+        torch.Size([1, 2, 9, 9])
+    """
+
+    def __init__(
+        self,
+        dt: float = 1.0,
+        *,
+        pressure: CGConfig = CGConfig(),
+        diffusion: CGConfig = CGConfig(),
+        adjoint: CGConfig | None = None,
+        compressible: bool | float = False,
+    ) -> None:
+        super().__init__()
+        self.add_force = AddForce(dt)
+        self.advect = Advect(dt)
+        self.diffuse = Diffuse(dt, diffusion, adjoint)
+        keep = float(compressible)
+        if not 0.0 <= keep <= 1.0:
+            raise ValueError(f"compressible must be a bool or a weight in [0, 1], got {compressible!r}")
+        self.keep_divergence = keep
+        self.project = None if keep == 1.0 else Project(pressure, adjoint)
+
+    def forward(
+        self, velocity: Tensor, force: Tensor, viscosity: Viscosity, staggered: bool = False
+    ) -> tuple[Tensor, tuple[int, int]]:
+        """Advance ``velocity`` ``(B, 2, h + 1, w + 1)`` by one step under ``force`` ``(B, 2, h, w)`` (or the
+        force already averaged onto the faces, ``(B, 2, h + 1, w + 1)``, with ``staggered=True``).
+
+        Returns:
+            the new staggered velocity and the CG iteration counts ``(viscosity, pressure)``.
+        """
+        v = self.advect(self.add_force(velocity, force, staggered))
+        v, it_visc = self.diffuse(v, viscosity)
+        it_p = 0
+        if self.project is not None:
+            projected, it_p = self.project(v)
+            v = projected if self.keep_divergence == 0 else torch.lerp(projected, v, self.keep_divergence)
+        return v, (it_visc, it_p)
+
+
+@dataclass
+class FluidRollout:
+    """What :class:`FluidSimulator` returns.
+
+    Attributes:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` the staggered velocity at the end of each step (cells per
+            time unit); step ``t`` moves points from time ``t`` to ``t + 1``.
+        points: ``(B, T + 1, M, 2)`` trajectories of the passive points in fluid cells, or ``None``.
+        iterations: per step, the CG iteration counts ``(viscosity, pressure)``.
+    """
+
+    velocities: Tensor
+    points: Tensor | None = None
+    iterations: list[tuple[int, int]] = field(default_factory=list)
+
+
+class FluidSimulator(nn.Module):
+    """Roll Stable Fluids out over a force schedule, starting from rest.
+
+    Args:
+        grid: ``(h, w)`` fluid cells (or an int for a square grid).
+        dt: time step in time units; forces are in cells per time unit^2.
+        viscosity: float ``>= 0``, a field ``(B|1, 1, h, w)`` (stored as a buffer, or a parameter if it is one),
+            or a module called as ``viscosity(grid, image_size)`` that returns such a field (see
+            :mod:`torchfluidwarp.warp.forces`; ``image_size`` is the grid's own size unless a warp passes the image's).
+        pressure, diffusion, adjoint: CG settings (see :class:`StableFluidsStep`).
+        compressible: see :class:`StableFluidsStep`.
+
+    Example:
+        >>> sim = FluidSimulator(grid=(16, 24), dt=1.0)
+        >>> forces = torch.zeros(2, 5, 2, 16, 24); forces[:, :, 0, 6:10, 8:12] = 0.2
+        >>> out = sim(forces, points=torch.tensor([[[10.0, 8.0]]]).expand(2, 1, 2))
+        >>> out.velocities.shape, out.points.shape
+        (torch.Size([2, 5, 2, 17, 25]), torch.Size([2, 6, 1, 2]))
+    """
+
+    def __init__(
+        self,
+        grid: FluidGrid | int | tuple[int, int],
+        dt: float = 1.0,
+        viscosity: Viscosity | nn.Module = 0.0,
+        *,
+        pressure: CGConfig = CGConfig(),
+        diffusion: CGConfig = CGConfig(),
+        adjoint: CGConfig | None = None,
+        compressible: bool | float = False,
+    ) -> None:
+        super().__init__()
+        self.grid = FluidGrid.of(grid)
+        self.dt = check_positive("dt", dt)
+        self.step = StableFluidsStep(
+            dt, pressure=pressure, diffusion=diffusion, adjoint=adjoint, compressible=compressible
+        )
+        self.viscosity: Viscosity | nn.Module
+        if isinstance(viscosity, (nn.Module, nn.Parameter)):
+            self.viscosity = viscosity
+        elif isinstance(viscosity, Tensor):
+            self.register_buffer(
+                "viscosity", cast(Tensor, check_viscosity(viscosity, viscosity.shape[0], self.grid.shape))
+            )
+        else:
+            self.viscosity = check_viscosity(viscosity, 1, self.grid.shape)
+
+    def current_viscosity(self, batch: int, image_size: tuple[int, int] | None = None) -> Viscosity:
+        """The viscosity in force: a float or a validated field ``(B|1, 1, h, w)``."""
+        mu = self.viscosity
+        if isinstance(mu, nn.Module) and not isinstance(mu, nn.Parameter):
+            mu = mu(self.grid, image_size or self.grid.shape)
+        return check_viscosity(mu, batch, self.grid.shape)
+
+    def check_forces(self, forces: Tensor) -> Tensor:
+        """Validate a force schedule ``(B, T, 2, h, w)`` on this grid."""
+        h, w = self.grid.shape
+        return check_tensor("forces", forces, shape=[None, None, 2, h, w])
+
+    def forward(
+        self,
+        forces: Tensor,
+        points: Tensor | None = None,
+        velocity: Tensor | None = None,
+        image_size: tuple[int, int] | None = None,
+    ) -> FluidRollout:
+        """Simulate ``T`` steps.
+
+        Args:
+            forces: ``(B, T, 2, h, w)`` cell-centred forces per step, channel 0 = x (cells per time unit^2).
+            points: optional ``(B, M, 2)`` passive points ``(x, y)`` in fluid cells (cell centres at integers),
+                carried by RK2 through each step's velocity.
+            velocity: optional initial staggered velocity ``(B, 2, h + 1, w + 1)``; zero by default.
+            image_size: ``(H, W)`` handed to a viscosity module (pixel-based maps); the grid's size by default.
+
+        Returns:
+            a :class:`FluidRollout`.
+        """
+        forces = self.check_forces(forces)
+        B, T = forces.shape[:2]
+        h, w = self.grid.shape
+        if T < 1:
+            raise ValueError(f"forces must hold at least one step, got T = {T} in shape {tuple(forces.shape)}")
+        if velocity is None:
+            velocity = forces.new_zeros(B, 2, h + 1, w + 1)
+        else:
+            check_tensor("velocity", velocity, shape=[B, 2, h + 1, w + 1])
+        if points is not None:
+            check_tensor("points", points, shape=[B, None, 2])
+        mu = self.current_viscosity(B, image_size)
+        vels, iters = [], []
+        traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
+        # all steps' forces onto the faces at once, then unbind: one backward node each for the whole schedule
+        # (per-step selects would each scatter their gradient into a full-size zero tensor)
+        on_faces = faces_from_cells(forces.flatten(0, 1)).view(B, T, 2, h + 1, w + 1)
+        for t, force in enumerate(on_faces.unbind(1)):
+            velocity, it = self.step(velocity, force, mu, staggered=True)
+            vels.append(velocity)
+            iters.append(it)
+            if points is not None:
+                traj.append(_advect_points(traj[-1], velocity, self.dt))
+            if not all_finite(velocity):
+                raise FloatingPointError(f"the flow blew up at step {t}: non-finite velocity (forces or dt too large?)")
+        pts = torch.stack(traj, 1).transpose(2, 3) if points is not None else None
+        return FluidRollout(torch.stack(vels, 1), pts, iters)

@@ -1,0 +1,45 @@
+"""Forces in, warped images out: force modules, texture-coordinate maps and the :class:`FluidWarp` layer.
+
+* :mod:`~torchfluidwarp.warp.forces`: force fields over time, ``(B, T, 2, h, w)`` in cells per step²: control
+  grids, brushes, landmark forces, viscosity maps;
+* :mod:`~torchfluidwarp.warp.layer`: texture-coordinate maps ``(B, T+1, H, W, 2)``, the Jacobian determinant,
+  ``warp_image`` and the differentiable :class:`FluidWarp` layer.
+"""
+
+from torchfluidwarp.warp.forces import (
+    Brushes,
+    CellForces,
+    ControlGrid,
+    LandmarkForces,
+    SumForces,
+    ViscosityBrushes,
+    viscosity_from_mask,
+)
+from torchfluidwarp.warp.layer import (
+    FluidWarp,
+    backward_maps,
+    forward_maps,
+    identity_map,
+    iter_backward_maps,
+    jacobian_determinant,
+    maps_to_end,
+    warp_image,
+)
+
+__all__ = [
+    "Brushes",
+    "CellForces",
+    "ControlGrid",
+    "LandmarkForces",
+    "SumForces",
+    "ViscosityBrushes",
+    "viscosity_from_mask",
+    "FluidWarp",
+    "backward_maps",
+    "forward_maps",
+    "identity_map",
+    "iter_backward_maps",
+    "jacobian_determinant",
+    "maps_to_end",
+    "warp_image",
+]
