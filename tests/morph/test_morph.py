@@ -86,7 +86,6 @@ def test_bad_inputs(pair):
 
 def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(gen, monkeypatch):
     feather = 4.0  # a narrow hand-over band, so that a 64-pixel frame has room beyond it
-    monkeypatch.setattr(sys.modules["torchfluidwarp.morph.morphing"], "FEATHER", feather)
     # B's points spread 2.2 times as far as A's: the similarity pre-alignment magnifies, so the middle
     # frames read B far beyond its edges near the frame's borders
     a = _blobs((64, 64), POINTS_A.tolist(), gen)
@@ -95,7 +94,7 @@ def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(ge
     inside = ((points_b > 0) & (points_b < 63)).all()
     assert inside, "the test's points must stay in the image"
     b = _blobs((64, 64), points_b.tolist(), gen)
-    r = morph(a, b, POINTS_A, points_b, frames=5, compressible=0.5, **KW)
+    r = morph(a, b, POINTS_A, points_b, frames=5, compressible=0.5, feather=feather, **KW)
     k = 2
     x, y = r.maps_b[k, ..., 0], r.maps_b[k, ..., 1]
     f = feather + 0.5  # B read more than the feather beyond its edge
@@ -240,7 +239,7 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
 
 def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
     a, b = pair
-    morph_module = sys.modules["torchfluidwarp.morph.morphing"]
+    morph_module = sys.modules["torchfluidwarp.morph.render"]  # where the frames are rendered
     real = morph_module.jacobian_determinant
     calls = []
 
@@ -259,3 +258,12 @@ def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
     assert len(folds) == 1
     assert "fold on 3 of" in str(folds[0].message)
     assert r.folded == pytest.approx(3 / (2 * 3 * 64 * 64))
+
+
+def test_feather_is_an_argument_checked_by_name(pair):
+    a, b = pair
+    with pytest.raises(ValueError, match="feather"):
+        morph(a, b, POINTS_A, POINTS_B, feather=-1.0, **KW)
+    # no band at all: where both images are read inside their edges the dissolve is the plain lerp
+    r0 = morph(a, b, POINTS_A, POINTS_B, frames=3, feather=0.0, **KW)
+    assert torch.isfinite(r0.frames).all()

@@ -38,7 +38,7 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     b = check_tensor("points_b", points_b, shape=[None, 2]).double()
     if a.shape != b.shape:
         raise ValueError(f"points_a has {a.shape[0]} points but points_b has {b.shape[0]}")
-    eye = torch.eye(3, dtype=torch.float64)
+    eye = torch.eye(3, dtype=torch.float64, device=a.device)
     if kind in (None, "none"):
         return eye.to(points_a.dtype)
     ca, cb = a.mean(0), b.mean(0)
@@ -47,7 +47,7 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
         if a.shape[0] < 2 or float((da**2).sum()) == 0:
             raise ValueError("a similarity alignment needs at least 2 distinct points")
         u, s, vh = torch.linalg.svd(db.T @ da / a.shape[0])
-        d = torch.ones(2, dtype=torch.float64)
+        d = torch.ones(2, dtype=torch.float64, device=a.device)
         d[1] = torch.sign(torch.linalg.det(u @ vh))  # no reflections
         rot = u @ torch.diag(d) @ vh
         scale = float((s * d).sum() / (da**2).sum(1).mean())
@@ -77,19 +77,19 @@ def interpolate_alignment(matrix: Tensor, u: float, center: Tensor | None = None
     m = matrix.double()
     lin = m[:2, :2]
     ata = lin.T @ lin
-    is_similarity = bool(
-        torch.allclose(ata, ata[0, 0] * torch.eye(2, dtype=torch.float64), atol=1e-9 * float(ata.abs().max() + 1))
-    )
+    eye = torch.eye(2, dtype=torch.float64, device=m.device)
+    is_similarity = bool(torch.allclose(ata, ata[0, 0] * eye, atol=1e-9 * float(ata.abs().max() + 1)))
     if is_similarity and float(torch.linalg.det(lin)) > 0:
         s = math.sqrt(float(ata[0, 0]))
         angle = math.atan2(float(lin[1, 0]), float(lin[0, 0]))
         su, au = s**u, angle * u
-        lin_u = su * torch.tensor([[math.cos(au), -math.sin(au)], [math.sin(au), math.cos(au)]], dtype=torch.float64)
+        rotation = [[math.cos(au), -math.sin(au)], [math.sin(au), math.cos(au)]]
+        lin_u = su * torch.tensor(rotation, dtype=torch.float64, device=m.device)
     else:
-        lin_u = (1 - u) * torch.eye(2, dtype=torch.float64) + u * lin
-    c = torch.zeros(2, dtype=torch.float64) if center is None else center.double()
+        lin_u = (1 - u) * eye + u * lin
+    c = m.new_zeros(2) if center is None else center.to(m)
     target = c + u * (lin @ c + m[:2, 2] - c)
-    out = torch.eye(3, dtype=torch.float64)
+    out = torch.eye(3, dtype=torch.float64, device=m.device)
     out[:2, :2] = lin_u
     out[:2, 2] = target - lin_u @ c
     return out.to(matrix.dtype)

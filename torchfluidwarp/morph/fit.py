@@ -1,0 +1,141 @@
+"""Fitting a morph's flow: checking the marks, the natural morph's straight paths, and its fit.
+
+Points are ``(M, 2)`` in pixels, ``(x, y)``, pixel centres at integers; the fluid's box is given in the same
+pixels as ``(x0, y0, x1, y1)``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
+from torchfluidwarp.core.spline import tps_fit
+from torchfluidwarp.warp.forces import LandmarkForces, solve_midpoints
+
+PAD = 0.125
+"""The natural morph's fluid box reaches this fraction of the image's longer side beyond each edge: the walls,
+which no flow crosses, stay outside the picture, and the forces fade to zero between the picture and the walls."""
+
+MIN_AREA = 0.1
+"""The natural morph never squeezes an area below this fraction of its size in the middle frame (see
+:func:`straight_paths`): a margin that keeps the discrete flow and its resampled maps from folding."""
+
+
+def check_marks(pa: Tensor, pb: Tensor) -> None:
+    """Refuse marks that cannot be morphed, and warn about marks whose order crosses."""
+    for name, p in (("points_a", pa), ("points_b", pb)):
+        d = torch.cdist(p.double(), p.double())
+        d.fill_diagonal_(math.inf)
+        i, j = torch.nonzero(d < 1e-6, as_tuple=True)
+        pairs = [(int(a), int(b)) for a, b in zip(i, j) if a < b]
+        if pairs:
+            raise ValueError(
+                f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
+                "position; each feature must be marked once"
+            )
+    # a pair of marks crosses when the segment between them turns by more than 90 degrees relative to the
+    # rest of the marks, or when close marks (under a tenth of the spread) end up far apart (over half)
+    if pa.shape[0] >= 3:
+        M = estimate_alignment(pa.double(), pb.double(), "similarity")
+        qa, qb = apply_alignment(M, pa.double()), pb.double()
+        da, db = qa[:, None] - qa[None], qb[:, None] - qb[None]  # (M, M, 2)
+        spread = float((qb - qb.mean(0)).norm(dim=-1).max())
+        la, lb = da.norm(dim=-1), db.norm(dim=-1)
+        turned = ((da * db).sum(-1) < 0) & (la > 0.02 * spread) & (lb > 0.02 * spread)
+        torn = (la < 0.1 * spread) & (lb > 0.5 * spread)
+        bad = torch.triu(turned | torn, diagonal=1).nonzero().tolist()
+        if bad:
+            listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
+            warnings.warn(
+                f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth morph "
+                "can do without folding; check their order (result.fit.error shows which points were not reached)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
+def _least_area(travel: Tensor, spacing: float) -> float:
+    """The least area ratio ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` of a field ``(n, n, 2)`` of
+    displacements ``D`` sampled ``spacing`` pixels apart: how far the straight paths ``m + sigma D(m)`` of the
+    natural morph squeeze the picture, relative to its middle frame."""
+    dux_dy, dux_dx = torch.gradient(travel[..., 0], spacing=spacing)
+    duy_dy, duy_dx = torch.gradient(travel[..., 1], spacing=spacing)
+    trace, det = dux_dx + duy_dy, dux_dx * duy_dy - dux_dy * duy_dx
+    # det(I + sigma J) = 1 + sigma trace + sigma^2 det: a parabola; its least value is at an end or its vertex
+    safe = torch.where(det > 0, det, torch.ones_like(det))
+    vertex = -trace / (2 * safe)
+    inner = (det > 0) & (vertex.abs() < 0.5)
+    ends = torch.minimum(1 + 0.5 * trace + 0.25 * det, 1 - 0.5 * trace + 0.25 * det)
+    least = torch.where(inner, 1 - trace.square() / (4 * safe), ends)
+    return float(least.min())
+
+
+def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> tuple[Tensor, Tensor]:
+    """The natural morph's motion: midpoints and displacements ``(M, 2)`` with ``m - d / 2 = src``.
+
+    The marks travel from ``src`` to ``tgt`` on straight lines, ``m = (src + tgt) / 2``, ``d = tgt - src``,
+    unless the spline ``D`` through them would squeeze part of the picture (the rectangle ``inside``) below
+    :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Then the
+    spline's smoothing (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until
+    none does, and each mark travels as that spline says; the marks it then misses show in ``fit.error``.
+    """
+    x0, y0, x1, y1 = inside
+    n = 64
+    spacing = max(x1 - x0, y1 - y0) / (n - 1)
+    gy, gx = torch.meshgrid(
+        torch.linspace(y0, y1, n, dtype=torch.float64, device=src.device),
+        torch.linspace(x0, x1, n, dtype=torch.float64, device=src.device),
+        indexing="ij",
+    )
+    at = torch.stack([gx, gy], -1).reshape(-1, 2)
+    mids, disp = 0.5 * (src + tgt), tgt - src
+
+    def least(smoothing: float) -> float:
+        return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
+
+    if least(0.0) >= MIN_AREA:
+        return mids, disp
+    lo, hi = -8.0, 4.0  # log10 of the smoothing: from interpolating to nearly affine
+    for _ in range(14):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
+    travel = tps_fit(mids, disp, 10.0**hi)
+    m = solve_midpoints(travel, src, -0.5)
+    return m, travel(m)
+
+
+def fit_natural(
+    pa: Tensor,
+    target: Tensor,
+    size: tuple[int, int],
+    steps: int,
+    fit_kwargs: dict[str, Any],
+    warm_start: KeyframeFit | None,
+) -> tuple[KeyframeFit, tuple[int, int, int, int]]:
+    """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see :func:`morph`)."""
+    H, W = size
+    pad = max(1, round(PAD * max(H, W)))
+    box = (-pad, -pad, W + pad, H + pad)
+    offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
+    src = pa.double() - offset
+    inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+    mids, disp = straight_paths(src, target - offset, inside)
+    # the ends stay clear of the walls, where the forces fade out
+    end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
+    mids, disp = (src + end) / 2, end - src
+    forces = LandmarkForces(mids, disp, steps, inside=inside)
+    previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
+    if previous is not None and previous.shape == forces.weight.shape:
+        with torch.no_grad():
+            forces.weight.copy_(previous)
+    along = torch.linspace(0, 1, steps + 1, dtype=torch.float64, device=pa.device).view(-1, 1, 1)
+    straight = mids + (along - 0.5) * disp  # (T + 1, M, 2) box pixels
+    keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
+    fit = fit_keyframes(src, keyframes, steps=steps, forces=forces, image_size=(H + 2 * pad, W + 2 * pad), **fit_kwargs)
+    return fit, box
