@@ -12,10 +12,11 @@ import pytest
 import torch
 from PIL import Image
 
-from torchfluidwarp import io as tio
 from torchfluidwarp.io import (
+    animation,
     check_point_counts,
     encode_animation,
+    images,
     read_image,
     read_image_bytes,
     read_points,
@@ -309,7 +310,7 @@ def test_failing_gif_write_leaves_old_file_and_no_temp(tmp_path, gen, monkeypatc
 
 
 def test_failing_frames_write_leaves_no_folder(tmp_path, gen, monkeypatch):
-    real_imwrite = tio.iio.imwrite
+    real_imwrite = animation.iio.imwrite
     calls = []
 
     def flaky_imwrite(uri, image, **kwargs):
@@ -318,7 +319,7 @@ def test_failing_frames_write_leaves_no_folder(tmp_path, gen, monkeypatch):
             raise OSError("disk full")
         return real_imwrite(uri, image, **kwargs)
 
-    monkeypatch.setattr(tio.iio, "imwrite", flaky_imwrite)
+    monkeypatch.setattr(animation.iio, "imwrite", flaky_imwrite)
     with pytest.raises(OSError, match="disk full"):
         write_animation(tmp_path / "frames", random_image(gen, (5, 3, 4, 4)))
     assert listing(tmp_path) == []
@@ -368,8 +369,8 @@ def test_frames_convert_in_chunks_identically(monkeypatch, tmp_path):
     frames = torch.rand(7, 3, 5, 6, generator=torch.Generator().manual_seed(3))
     frames[0, 0, 0, 0], frames[1, 0, 0, 0] = -0.2, 1.3  # clamped
     expected = (frames.double().clamp(0, 1) * 255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
-    monkeypatch.setattr(tio, "_CONVERT_BYTES", 2 * 8 * 3 * 5 * 6)
-    np.testing.assert_array_equal(tio._uint8_frames(frames, "frames"), expected)
+    monkeypatch.setattr(images, "_CONVERT_BYTES", 2 * 8 * 3 * 5 * 6)
+    np.testing.assert_array_equal(images._uint8_frames(frames, "frames"), expected)
     write_animation(tmp_path / "out/", frames, fps=5)
     last = iio.imread(sorted((tmp_path / "out").iterdir())[6])
     np.testing.assert_array_equal(last, expected[6])

@@ -1,0 +1,37 @@
+"""Reading and writing images, landmark points and animations.
+
+Conventions:
+
+* Images are float tensors ``(B, C, H, W)`` with values in ``[0, 1]`` and ``C`` = 1 (gray), 3 (RGB) or
+  4 (RGBA). ``uint8`` appears only at the file boundary: writers clamp to ``[0, 1]`` and round to 8 bits.
+* Points are float tensors ``(M, 2)`` in ``(x, y)`` order, in pixel coordinates with pixel centres at
+  integers (see :mod:`torchfluidwarp.core.grid`).
+* Animations are float tensors ``(T, C, H, W)``: ``T`` frames, values in ``[0, 1]``.
+* Every writer writes to a temporary sibling of its output and moves it into place with ``os.replace``,
+  so a failure never leaves a half-written file behind.
+
+Modules: :mod:`~torchfluidwarp.io.images` (image files, resizing), :mod:`~torchfluidwarp.io.points`
+(``.pts``, ``.json``, ``.csv`` landmark files) and :mod:`~torchfluidwarp.io.animation` (GIF, MP4, PNG folders).
+"""
+
+from __future__ import annotations
+
+from torchfluidwarp.io.animation import FFMPEG_HINT as FFMPEG_HINT
+from torchfluidwarp.io.animation import AnimationFormat as AnimationFormat
+from torchfluidwarp.io.animation import encode_animation, write_animation
+from torchfluidwarp.io.images import read_image, read_image_bytes, resize_image, shrink_image, write_image
+from torchfluidwarp.io.points import POINT_SUFFIXES as POINT_SUFFIXES
+from torchfluidwarp.io.points import check_point_counts, read_points, write_points
+
+__all__ = [
+    "read_image",
+    "read_image_bytes",
+    "write_image",
+    "resize_image",
+    "shrink_image",
+    "read_points",
+    "write_points",
+    "check_point_counts",
+    "write_animation",
+    "encode_animation",
+]

@@ -1,0 +1,227 @@
+"""Image files to and from ``(B, C, H, W)`` tensors, and the one antialiased resize.
+
+Images are float tensors ``(B, C, H, W)`` with values in ``[0, 1]`` and ``C`` = 1 (gray), 3 (RGB) or
+4 (RGBA). ``uint8`` appears only at the file boundary: writers clamp to ``[0, 1]`` and round to 8 bits.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_tensor, describe
+from torchfluidwarp.io._files import DECODE_ERRORS, PathLike, atomic_output, first_line
+
+__all__ = ["read_image", "read_image_bytes", "write_image", "resize_image", "shrink_image"]
+
+# ITU-R BT.601 luma weights, the ones Pillow uses for RGB -> L.
+_LUMA = (0.299, 0.587, 0.114)
+
+
+def read_image(path: PathLike, *, channels: int | None = None, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Read an image file into a ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
+
+    8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
+    A multi-frame file (GIF, TIFF) gives its first frame.
+
+    Args:
+        path: the image file; any format imageio reads (PNG, JPEG, GIF, TIFF, ...).
+        channels: ``None`` keeps the file's channels (gray gives 1, RGB 3, RGBA 4, gray+alpha 4);
+            1 converts to gray (BT.601 luma, alpha dropped), 3 to RGB (gray repeated, alpha dropped),
+            4 to RGBA (opaque alpha added where missing).
+        dtype: a floating-point dtype for the result.
+
+    Returns:
+        ``(1, C, H, W)`` tensor on the CPU.
+
+    Raises:
+        ValueError: the file does not exist or is not a readable image, or ``channels`` is not
+            ``None``, 1, 3 or 4.
+        TypeError: ``dtype`` is not floating point.
+
+    Example:
+        >>> import tempfile, torch
+        >>> path = tempfile.mkdtemp() + "/gray.png"
+        >>> _ = write_image(path, torch.full((1, 4, 6), 0.5))
+        >>> read_image(path, channels=3).shape
+        torch.Size([1, 3, 4, 6])
+    """
+    _check_image_options(channels, dtype)
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"cannot read image {str(path)!r}: no such file")
+    try:
+        array = iio.imread(path, index=0)
+    except DECODE_ERRORS as exc:
+        raise ValueError(f"cannot read image {str(path)!r}: not a readable image ({first_line(exc)})") from exc
+    return _tensor_from_array(array, f"image {str(path)!r}", channels, dtype)
+
+
+def read_image_bytes(data: bytes, *, channels: int | None = None, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Decode an encoded image (the bytes of a PNG, JPEG, ... file, e.g. an upload).
+
+    Args:
+        data: the encoded file contents.
+        channels: as in :func:`read_image`.
+        dtype: as in :func:`read_image`.
+
+    Returns:
+        ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
+
+    Raises:
+        TypeError: ``data`` is not bytes-like, or ``dtype`` is not floating point.
+        ValueError: ``data`` is not a readable image, or ``channels`` is invalid.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise TypeError(f"data must be bytes, got {describe(data)}")
+    _check_image_options(channels, dtype)
+    source = f"image bytes ({len(data)} bytes)"
+    try:
+        array = iio.imread(bytes(data), index=0)
+    except DECODE_ERRORS as exc:
+        raise ValueError(f"cannot read {source}: not a readable image ({first_line(exc)})") from exc
+    return _tensor_from_array(array, source, channels, dtype)
+
+
+def write_image(path: PathLike, image: Tensor) -> Path:
+    """Write an image tensor to a file, atomically, as 8 bits per channel.
+
+    Values are clamped to ``[0, 1]`` and rounded to ``uint8``; the format follows the suffix
+    (``.png`` is lossless). An existing file is replaced.
+
+    Args:
+        path: the output file.
+        image: ``(C, H, W)`` or ``(1, C, H, W)`` float tensor, ``C`` in 1, 3, 4.
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError, ValueError: ``image`` is not a finite float tensor of one of those shapes.
+    """
+    check_tensor("image", image, ndim=(3, 4))
+    if image.ndim == 4 and image.shape[0] != 1:
+        raise ValueError(f"image must be (C, H, W) or (1, C, H, W), got shape {tuple(image.shape)}")
+    array = _uint8_frames(image.reshape(1, *image.shape[-3:]), "image")[0]  # (H, W, C)
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        iio.imwrite(tmp, array[..., 0] if array.shape[-1] == 1 else array)
+    return path
+
+
+def resize_image(image: Tensor, size: tuple[int, int]) -> Tensor:
+    """Resize an image to ``size``: bilinear, antialiased when it shrinks.
+
+    torch's antialiased bilinear (``F.interpolate(..., antialias=True)``): each output pixel averages the input
+    under a triangle as wide as the scale factor, so fine detail is averaged away rather than aliased. Its
+    weights are non-negative and sum to one: values stay within the input's range. (kornia's ``resize`` blurs
+    with a Gaussian first and then samples; it is slower and aliases at mild factors: ``docs/design.rst``.)
+
+    Conventions: ``align_corners=False``; pixel centres at integers, and the image's outer edges (``-0.5`` and
+    ``H - 0.5``) map onto each other.
+
+    Args:
+        image: ``(B, C, H, W)`` floats.
+        size: ``(H', W')`` in pixels.
+
+    Returns:
+        ``(B, C, H', W')``; ``image`` itself when it already has that size.
+
+    Example:
+        >>> resize_image(torch.ones(1, 3, 8, 6), (4, 3)).shape
+        torch.Size([1, 3, 4, 3])
+    """
+    check_tensor("image", image, ndim=4, finite=False)
+    if tuple(image.shape[-2:]) == tuple(size):
+        return image
+    return F.interpolate(image, size=size, mode="bilinear", align_corners=False, antialias=True)
+
+
+def shrink_image(image: Tensor, longest: int) -> Tensor:
+    """Downscale an image so that its longer side is at most ``longest`` pixels, keeping its aspect ratio.
+
+    Each side is rounded, and kept at least 2 pixels; the result is :func:`resize_image`'s, clamped to
+    ``[0, 1]`` (which only trims roundoff for an image in ``[0, 1]``).
+
+    Args:
+        image: ``(B, C, H, W)`` floats in ``[0, 1]``.
+        longest: the longest side allowed, in pixels; 0 keeps every size.
+
+    Returns:
+        ``(B, C, H', W')``; ``image`` itself when it is small enough already.
+
+    Example:
+        >>> shrink_image(torch.ones(1, 3, 300, 200), 150).shape
+        torch.Size([1, 3, 150, 100])
+    """
+    check_int("longest", longest, minimum=0)
+    H, W = image.shape[-2:]
+    if longest == 0 or max(H, W) <= longest:
+        return image
+    scale = longest / max(H, W)
+    return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale)))).clamp(0, 1)
+
+
+def _check_image_options(channels: int | None, dtype: torch.dtype) -> None:
+    if channels is not None and channels not in (1, 3, 4):
+        raise ValueError(f"channels must be None, 1, 3 or 4, got {channels!r}")
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"dtype must be a floating-point torch.dtype, got {describe(dtype)}")
+
+
+def _tensor_from_array(array: np.ndarray, source: str, channels: int | None, dtype: torch.dtype) -> Tensor:
+    """``(H, W)`` or ``(H, W, C)`` decoded pixels -> ``(1, C', H, W)`` in ``[0, 1]``."""
+    if array.ndim == 2:
+        array = array[..., None]
+    if array.ndim != 3 or not 1 <= array.shape[-1] <= 4:
+        raise ValueError(f"cannot read {source}: unsupported pixel layout {array.shape}")
+    if array.dtype == np.bool_:
+        values = array.astype(np.float64)
+    elif np.issubdtype(array.dtype, np.integer):
+        values = array.astype(np.float64) / np.iinfo(array.dtype).max
+    else:
+        values = np.clip(np.nan_to_num(array.astype(np.float64)), 0.0, 1.0)
+    image = torch.from_numpy(values).permute(2, 0, 1).unsqueeze(0)  # (1, C, H, W)
+    if image.shape[1] == 2:  # gray + alpha: keep the alpha, as RGBA
+        image = torch.cat([image[:, :1].expand(-1, 3, -1, -1), image[:, 1:]], dim=1)
+    return _convert_channels(image, channels).to(dtype).contiguous()
+
+
+def _convert_channels(image: Tensor, channels: int | None) -> Tensor:
+    """``(B, C, H, W)`` with ``C`` in 1, 3, 4 -> ``(B, channels, H, W)``."""
+    c = image.shape[1]
+    if channels is None or channels == c:
+        return image
+    color = image[:, :3] if c >= 3 else image[:, :1]
+    if channels == 1:
+        weights = torch.tensor(_LUMA, dtype=image.dtype, device=image.device).view(1, 3, 1, 1)
+        return color if c == 1 else (color * weights).sum(dim=1, keepdim=True)
+    rgb = color.expand(-1, 3, -1, -1)
+    if channels == 3:
+        return rgb
+    alpha = image[:, 3:] if c == 4 else torch.ones_like(image[:, :1])
+    return torch.cat([rgb, alpha], dim=1)
+
+
+_CONVERT_BYTES = 64 * 2**20
+"""Frames are converted to uint8 in chunks of about this many bytes of float64, not all at once (300 frames
+of 1920 x 1080 RGB would take 15 GB as float64)."""
+
+
+def _uint8_frames(frames: Tensor, name: str) -> np.ndarray:
+    """``(T, C, H, W)`` floats in ``[0, 1]`` -> ``(T, H, W, C)`` uint8, after validating them."""
+    check_tensor(name, frames, ndim=4)
+    t, c, h, w = frames.shape
+    if c not in (1, 3, 4) or min(t, h, w) < 1:
+        raise ValueError(f"{name} must have C in 1, 3, 4 and non-empty T, H, W; got shape {tuple(frames.shape)}")
+    out = torch.empty(t, h, w, c, dtype=torch.uint8)
+    chunk = max(1, _CONVERT_BYTES // (8 * c * h * w))  # frames per float64 chunk: memory stays bounded
+    for i in range(0, t, chunk):
+        part = frames[i : i + chunk].detach().to("cpu", torch.float64).clamp(0.0, 1.0).mul(255.0).round()
+        out[i : i + chunk] = part.to(torch.uint8).permute(0, 2, 3, 1)
+    return out.numpy()

@@ -1,0 +1,216 @@
+"""Landmark point files: ``.pts`` (iBUG), ``.json`` and ``.csv``, read to and written from ``(M, 2)`` tensors.
+
+Points are float tensors ``(M, 2)`` in ``(x, y)`` order, in pixel coordinates with pixel centres at
+integers (see :mod:`torchfluidwarp.core.grid`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_tensor
+from torchfluidwarp.io._files import PathLike, atomic_output, first_line
+
+__all__ = ["read_points", "write_points", "check_point_counts", "POINT_SUFFIXES"]
+
+POINT_SUFFIXES = (".pts", ".json", ".csv")
+
+
+def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Read landmark points from a ``.pts``, ``.json`` or ``.csv`` file.
+
+    Formats (chosen by the suffix):
+
+    * ``.pts`` (iBUG): ``version: 1``, ``n_points: N``, ``{``, then N lines ``x y``, then ``}``.
+    * ``.json``: ``[[x, y], ...]`` or ``{"points": [[x, y], ...]}``.
+    * ``.csv``: one ``x,y`` row per point, after an optional header row ``x,y``.
+
+    Conventions:
+        Coordinates are returned exactly as written, as pixel coordinates with pixel centres at
+        integers. Some tools write iBUG ``.pts`` files 1-based (the top-left pixel centre at
+        ``(1, 1)``); no offset is applied here, so subtract 1 from such files yourself.
+
+    Args:
+        path: the points file.
+        dtype: a floating-point dtype for the result.
+
+    Returns:
+        ``(M, 2)`` tensor of ``(x, y)`` pixel coordinates.
+
+    Raises:
+        ValueError: the file is missing, its suffix is unknown, it is malformed, a value is not
+            finite, or a ``.pts`` file's ``n_points`` disagrees with its point lines.
+    """
+    path = Path(path)
+    suffix = _point_suffix(path)
+    if not path.is_file():
+        raise ValueError(f"cannot read points {str(path)!r}: no such file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read points {str(path)!r}: {first_line(exc)}") from exc
+    parse = {".pts": _parse_pts, ".json": _parse_json, ".csv": _parse_csv}[suffix]
+    try:
+        rows = parse(text)
+    except ValueError as exc:
+        raise ValueError(f"malformed points file {str(path)!r}: {exc}") from None
+    points = torch.tensor(rows, dtype=torch.float64).reshape(-1, 2)
+    if not bool(torch.isfinite(points).all()):
+        raise ValueError(f"malformed points file {str(path)!r}: contains non-finite values (NaN or inf)")
+    return points.to(dtype)
+
+
+def write_points(path: PathLike, points: Tensor) -> Path:
+    """Write landmark points to a ``.pts``, ``.json`` or ``.csv`` file, atomically.
+
+    The format follows the suffix as in :func:`read_points` (``.json`` is written as
+    ``{"points": [[x, y], ...]}``, ``.csv`` with an ``x,y`` header). Each value is written with the
+    fewest digits that read back to the same number in the tensor's dtype.
+
+    Args:
+        path: the output file; an existing file is replaced.
+        points: ``(M, 2)`` float tensor of ``(x, y)`` pixel coordinates.
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError, ValueError: ``points`` is not a finite ``(M, 2)`` float tensor, or the suffix is
+            not ``.pts``, ``.json`` or ``.csv``.
+
+    Example:
+        >>> import tempfile, torch
+        >>> path = tempfile.mkdtemp() + "/face.pts"
+        >>> _ = write_points(path, torch.tensor([[10.5, 20.25], [30.0, 40.0]]))
+        >>> read_points(path).tolist()
+        [[10.5, 20.25], [30.0, 40.0]]
+    """
+    check_tensor("points", points, shape=(None, 2))
+    path = Path(path)
+    suffix = _point_suffix(path)
+    array = points.detach().cpu().numpy()
+    rows = [[_shortest(x), _shortest(y)] for x, y in array]
+    if suffix == ".pts":
+        lines = ["version: 1", f"n_points: {len(rows)}", "{", *(f"{x} {y}" for x, y in rows), "}"]
+        text = "\n".join(lines) + "\n"
+    elif suffix == ".json":
+        text = json.dumps({"points": [[float(x), float(y)] for x, y in rows]}) + "\n"
+    else:
+        text = "x,y\n" + "".join(f"{x},{y}\n" for x, y in rows)
+    with atomic_output(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+def check_point_counts(points_a: Tensor, points_b: Tensor, name_a: str = "points_a", name_b: str = "points_b") -> None:
+    """Check that two point sets are ``(M, 2)`` tensors with the same ``M``.
+
+    Args:
+        points_a: ``(M, 2)`` points.
+        points_b: ``(N, 2)`` points.
+        name_a: how ``points_a`` is named in the error (e.g. a file name).
+        name_b: how ``points_b`` is named in the error.
+
+    Raises:
+        TypeError, ValueError: either is not a finite ``(M, 2)`` float tensor.
+        ValueError: ``M != N``; the message names both counts.
+
+    Example:
+        >>> import torch
+        >>> check_point_counts(torch.zeros(3, 2), torch.zeros(2, 2), "src", "dst")
+        Traceback (most recent call last):
+        ...
+        ValueError: src has 3 points but dst has 2
+    """
+    check_tensor(name_a, points_a, shape=(None, 2))
+    check_tensor(name_b, points_b, shape=(None, 2))
+    if points_a.shape[0] != points_b.shape[0]:
+        raise ValueError(f"{name_a} has {points_a.shape[0]} points but {name_b} has {points_b.shape[0]}")
+
+
+def _point_suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in POINT_SUFFIXES:
+        raise ValueError(f"unknown points format for {str(path)!r}: suffix must be one of {', '.join(POINT_SUFFIXES)}")
+    return suffix
+
+
+def _shortest(value: np.floating) -> str:
+    """The shortest decimal that reads back to ``value`` in its own dtype."""
+    return np.format_float_positional(value, unique=True, trim="-")
+
+
+def _parse_pair(fields: list[str], where: str) -> list[float]:
+    if len(fields) != 2:
+        raise ValueError(f"{where}: expected 2 values 'x y', got {len(fields)}")
+    try:
+        return [float(fields[0]), float(fields[1])]
+    except ValueError:
+        raise ValueError(f"{where}: not a number in {fields!r}") from None
+
+
+def _parse_pts(text: str) -> list[list[float]]:
+    lines = [(n, line.strip()) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    header: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and lines[i][1] != "{":
+        n, line = lines[i]
+        key, sep, value = line.partition(":")
+        if not sep:
+            raise ValueError(f"line {n}: expected 'key: value' or '{{', got {line!r}")
+        header[key.strip().lower()] = value.strip()
+        i += 1
+    if i == len(lines):
+        raise ValueError("no '{' opening the point list")
+    try:
+        expected = int(header["n_points"])
+    except (KeyError, ValueError):
+        raise ValueError(f"missing or invalid 'n_points' header, got {header.get('n_points')!r}") from None
+    close = next((j for j in range(i + 1, len(lines)) if lines[j][1] == "}"), None)
+    if close is None:
+        raise ValueError("no '}' closing the point list")
+    if close != len(lines) - 1:
+        raise ValueError(f"line {lines[close + 1][0]}: unexpected text after '}}'")
+    rows = [_parse_pair(line.split(), f"line {n}") for n, line in lines[i + 1 : close]]
+    if len(rows) != expected:
+        raise ValueError(f"header says n_points: {expected} but the file has {len(rows)} point lines")
+    return rows
+
+
+def _parse_json(text: str) -> list[list[float]]:
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"invalid JSON: {exc}") from None
+    if isinstance(data, dict):
+        if "points" not in data:
+            raise ValueError('expected a list [[x, y], ...] or an object {"points": [[x, y], ...]}')
+        data = data["points"]
+    if not isinstance(data, list):
+        raise ValueError(f"expected a list of [x, y] pairs, got {type(data).__name__}")
+    rows = []
+    for k, item in enumerate(data):
+        ok = isinstance(item, list) and len(item) == 2
+        if not ok or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in item):
+            raise ValueError(f"point {k}: expected [x, y] with two numbers, got {item!r}")
+        rows.append([float(item[0]), float(item[1])])
+    return rows
+
+
+def _parse_csv(text: str) -> list[list[float]]:
+    rows: list[list[float]] = []
+    for n, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
+        fields = [f.strip() for f in fields]
+        if not any(fields):
+            continue
+        if not rows and [f.lower() for f in fields] == ["x", "y"]:
+            continue
+        rows.append(_parse_pair(fields, f"line {n}"))
+    return rows
