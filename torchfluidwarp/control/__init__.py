@@ -4,12 +4,14 @@
   policy, progress, history) that every fit runs through;
 * :mod:`~torchfluidwarp.control.keyframes`: :func:`fit_keyframes`, marked points to their targets, with
   adjoint gradients;
-* :mod:`~torchfluidwarp.control.images`: :func:`fit_images`, one image onto another by its pixels;
+* :mod:`~torchfluidwarp.control.images`: :func:`fit_images`, one image onto another by its pixels, with the
+  image terms of :mod:`~torchfluidwarp.control.losses` (MSE, NCC, kornia's SSIM);
 * :mod:`~torchfluidwarp.control.alignment`: the similarity/affine pre-alignment of two point sets.
 """
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, interpolate_alignment
-from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images
+from torchfluidwarp.control.losses import image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.keyframes import (
     KeyframeFit,
     check_points,
