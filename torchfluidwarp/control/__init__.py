@@ -11,7 +11,6 @@
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images
-from torchfluidwarp.control.losses import image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.keyframes import (
     KeyframeFit,
     check_points,
@@ -19,6 +18,7 @@ from torchfluidwarp.control.keyframes import (
     keyframe_loss,
     velocity_gradient_energy,
 )
+from torchfluidwarp.control.losses import image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.optim import OptimResult, minimize
 
 __all__ = [
