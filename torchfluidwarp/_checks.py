@@ -2,6 +2,8 @@
 
 Every public function calls these at its boundary, so errors name the argument and what was received,
 and nothing non-finite can travel on to ``grid_sample`` (whose CPU backward crashes the process on NaN).
+The dtype policy (:func:`compute_dtype`) and the memory limit (:data:`MAX_BYTES`, :func:`check_memory`)
+live here too.
 """
 
 from __future__ import annotations
@@ -116,3 +118,61 @@ def check_size(name: str, value: object, *, minimum: int = 1) -> tuple[int, int]
         if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
             raise ValueError(f"{name} must be a pair of ints >= {minimum}, got {tuple(value)!r}")
     return int(h), int(w)
+
+
+def check_fraction(name: str, value: object) -> float:
+    """Validate a weight in ``[0, 1]``; ``True`` means 1 and ``False`` 0 (e.g. ``compressible``)."""
+    if isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a bool or a number in [0, 1], got {describe(value)}")
+    if not 0 <= value <= 1:  # also refuses NaN
+        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+    return float(value)
+
+
+def check_instance(name: str, value: object, kind: type | tuple[type, ...], *, optional: bool = False) -> object:
+    """Validate that ``value`` is an instance of ``kind`` (or ``None`` when ``optional``)."""
+    if (value is None and optional) or isinstance(value, kind):
+        return value
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    names = " or ".join(k.__name__ for k in kinds) + (" or None" if optional else "")
+    raise TypeError(f"{name} must be a {names}, got {describe(value)}")
+
+
+# The dtype policy. Images, points and forces of different float dtypes are promoted to the wider one
+# (torch.promote_types); half precision (float16, bfloat16) is computed in float32 and returned in the
+# input's dtype. Non-float and complex inputs are refused by check_tensor.
+def compute_dtype(*dtypes: torch.dtype) -> torch.dtype:
+    """The dtype to compute in for inputs of ``dtypes``: their promotion, at least float32."""
+    out = dtypes[0]
+    for d in dtypes[1:]:
+        out = torch.promote_types(out, d)
+    return torch.float32 if out in (torch.float16, torch.bfloat16) else out
+
+
+MAX_BYTES = 8 * 2**30
+"""The memory one call may set out to hold for its results, in bytes (8 GiB), unless its ``max_memory``
+argument says otherwise. A request above it is refused before any work starts."""
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes, in the largest binary unit that keeps it >= 1 (``'1.5 GiB'``)."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n) < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"  # unreachable
+
+
+def check_memory(what: str, nbytes: float, limit: float | None, setting: str) -> None:
+    """Refuse a request whose estimated memory ``nbytes`` exceeds ``limit`` (default :data:`MAX_BYTES`).
+
+    The message gives the estimate, the limit and the ``setting`` that raises it.
+    """
+    limit = MAX_BYTES if limit is None else check_positive(setting, limit)
+    if nbytes > limit:
+        raise ValueError(
+            f"{what} would need about {format_bytes(nbytes)}, above the limit of {format_bytes(limit)}; "
+            f"ask for less, or raise the limit with {setting}"
+        )
