@@ -5,7 +5,8 @@ Subcommands:
 * ``animate``: warp a photo with oscillating brushes and viscosity regions (the paper's indirect control) and
   write a GIF, an MP4 or a folder of PNG frames. The settings come from options or a JSON file (its format is
   in :mod:`torchfluidwarp.apps.animate` and in ``torchfluidwarp animate --help``).
-* ``morph``: morph image A into image B along corresponding points (:func:`torchfluidwarp.morph.morphing.morph`).
+* ``morph``: morph image A into image B along corresponding points (:func:`torchfluidwarp.morph.morph`,
+  in :mod:`torchfluidwarp.apps.cli_morph`).
 * ``demo``: the morph of the bundled samples (astronaut into cat), written to ``morph.gif``.
 * ``studio``: the local web page (:mod:`torchfluidwarp.apps.studio`, the ``[studio]`` extra).
 
@@ -22,37 +23,37 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
-import importlib.util
+import itertools
 import sys
-from collections.abc import Callable
-from pathlib import Path
 from typing import NoReturn
 
 import torch
-from torch import Tensor
 from tqdm import tqdm
 
 from torchfluidwarp._version import __version__
 from torchfluidwarp.apps.animate import (
     AnimationConfig,
-    BrushSpec,
-    RegionSpec,
-    auto_grid,
+    animate_frames,
     brush_from_values,
-    build_forces,
-    build_viscosity,
     load_config,
     region_from_values,
 )
-from torchfluidwarp.io import FFMPEG_HINT, read_image, shrink_image, write_animation
-from torchfluidwarp.warp.forces import Brushes
-from torchfluidwarp.warp.layer import FluidWarp
+from torchfluidwarp.apps.cli_args import (
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROG,
+    check_output,
+    count,
+    fail,
+    numbers,
+)
+from torchfluidwarp.apps.cli_morph import add_demo, add_morph
+from torchfluidwarp.io import read_image, write_animation
 
 __all__ = ["build_parser", "main"]
-
-PROG = "torchfluidwarp"
-EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
 
 ANIMATE_EPILOG = """\
 config file (--config), every key optional, unknown keys are an error:
@@ -97,8 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     _add_animate(commands)
-    _add_demo(commands)
-    _add_morph(commands)
+    add_demo(commands)
+    add_morph(commands)
     _add_studio(commands)
     return parser
 
@@ -124,52 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
-def _fail(command: str, message: object) -> int:
-    text = str(message).strip().splitlines()
-    print(f"{PROG} {command}: error: {text[0] if text else type(message).__name__}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 # ----------------------------------------------------------------------------------------------- animate
-
-
-def _numbers(text: str) -> list[float]:
-    try:
-        return [float(v) for v in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
-
-def _brush(text: str) -> BrushSpec:
-    try:
-        return brush_from_values(_numbers(text), "brush")
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
-
-
-def _region(text: str) -> RegionSpec:
-    try:
-        return region_from_values(_numbers(text), "region")
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
-
-
-def _bounded(kind: Callable[[str], float], minimum: float, strict: bool) -> Callable[[str], float]:
-    bound = f"> {minimum:g}" if strict else f">= {minimum:g}"
-
-    def parse(text: str) -> float:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected {'an integer' if kind is int else 'a number'} {bound}, got {text!r}"
-            ) from None
-        if not (value > minimum if strict else value >= minimum) or value != value or value == float("inf"):
-            raise argparse.ArgumentTypeError(f"must be {bound}, got {text!r}")
-        return value
-
-    parse.__name__ = kind.__name__  # argparse names the type in some messages
-    return parse
 
 
 def _add_animate(commands: argparse._SubParsersAction) -> None:
@@ -193,7 +149,7 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--brush",
         metavar="X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE]",
-        type=_brush,
+        type=numbers(brush_from_values, "brush"),
         action="append",
         help="an oscillating brush: centre (px), push direction, Gaussian radius (px), frequency "
         "(cycles per time unit, 0 = steady), amplitude (px/time^2), phase (radians); repeatable",
@@ -201,30 +157,30 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--stiff",
         metavar="X,Y,RADIUS,VALUE",
-        type=_region,
+        type=numbers(region_from_values, "region"),
         action="append",
         help="a viscosity region: centre (px), radius (px), added viscosity (cells^2/time); repeatable",
     )
     p.add_argument(
         "--viscosity",
         metavar="BASE",
-        type=_bounded(float, 0.0, strict=False),
+        type=NON_NEGATIVE,
         help="background viscosity (cells^2/time, default 0)",
     )
     p.add_argument(
         "--grid",
         metavar="N",
         nargs="+",
-        type=_bounded(int, 2, strict=False),
+        type=count(2),
         help="fluid grid: 'H W' cells, or N for N x N (default: 64 cells along the image's longer side)",
     )
-    p.add_argument("--steps", type=_bounded(int, 1, strict=False), help="fluid steps; frames = steps + 1 (default 60)")
-    p.add_argument("--dt", type=_bounded(float, 0.0, strict=True), help="time step in time units (default 1.0)")
-    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), help="output frames per second (default 20)")
+    p.add_argument("--steps", type=count(1), help="fluid steps; frames = steps + 1 (default 60)")
+    p.add_argument("--dt", type=POSITIVE, help="time step in time units (default 1.0)")
+    p.add_argument("--fps", type=POSITIVE, help="output frames per second (default 20)")
     p.add_argument(
         "--max-size",
         metavar="PX",
-        type=_bounded(int, 0, strict=False),
+        type=count(0),
         default=800,
         help="downscale the photo so its longer side is at most PX pixels, for speed (0 = keep; "
         "default 800); brush positions stay in the original's pixels",
@@ -241,50 +197,20 @@ def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig
         viscosity = dataclasses.replace(viscosity, regions=tuple(args.stiff))
     if args.viscosity is not None:
         viscosity = dataclasses.replace(viscosity, base=args.viscosity)
+    grid = config.grid
+    if args.grid is not None:
+        if len(args.grid) > 2:
+            raise ValueError(f"--grid takes 1 or 2 integers (N, or H W), got {len(args.grid)}: {args.grid}")
+        grid = (args.grid[0], args.grid[-1])
     return dataclasses.replace(
         config,
         brushes=tuple(args.brush) if args.brush else config.brushes,
         viscosity=viscosity,
+        grid=grid,
         steps=config.steps if args.steps is None else args.steps,
         dt=config.dt if args.dt is None else args.dt,
         fps=config.fps if args.fps is None else args.fps,
     )
-
-
-def _grid(args: argparse.Namespace, config: AnimationConfig, size: tuple[int, int]) -> tuple[int, int]:
-    if args.grid is None:
-        return config.grid or auto_grid(size)
-    if len(args.grid) == 1:
-        return (args.grid[0], args.grid[0])
-    if len(args.grid) == 2:
-        return (args.grid[0], args.grid[1])
-    raise ValueError(f"--grid takes 1 or 2 integers (N, or H W), got {len(args.grid)}: {args.grid}")
-
-
-def _check_output(path: str, overwrite: bool) -> None:
-    """Fail before rendering on what :func:`~torchfluidwarp.io.write_animation` would refuse after it."""
-    target = Path(path)
-    folder = path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
-    if not folder and target.suffix.lower() not in (".gif", ".mp4"):
-        raise ValueError(f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4 or a folder ending in '/'")
-    if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
-        raise ValueError(FFMPEG_HINT)
-    exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
-    if exists and not overwrite:
-        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
-
-
-def _render(warp: FluidWarp, image: Tensor, forces: Brushes, *, quiet: bool) -> Tensor:
-    """All ``steps + 1`` frames ``(T + 1, C, H, W)``, with a progress bar on an interactive stderr."""
-    frames = torch.empty(warp.steps + 1, *image.shape[1:], dtype=image.dtype)
-    bar = tqdm(
-        total=warp.steps + 1, unit="frame", desc="animate", leave=False, disable=quiet or not sys.stderr.isatty()
-    )
-    with torch.no_grad(), bar:
-        for t, frame in enumerate(warp.iter_frames(image, forces)):
-            frames[t] = frame[0]
-            bar.update()
-    return frames
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
@@ -292,191 +218,22 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
         if not config.brushes:
             raise ValueError('nothing to animate: give at least one --brush (or "brushes" in --config)')
-        _check_output(args.output, args.overwrite)
-        original = read_image(args.image)
-        image = shrink_image(original, args.max_size)
-        size = (image.shape[-2], image.shape[-1])
-        config = config.rescaled(size[1] / original.shape[-1], size[0] / original.shape[-2])
-        grid = _grid(args, config, size)
-        viscosity = build_viscosity(config, grid, size, mask_size=(original.shape[-2], original.shape[-1]))
-        warp = FluidWarp(grid, config.steps, config.dt, viscosity)
-        frames = _render(warp, image, build_forces(config), quiet=args.quiet)
-        path = write_animation(args.output, frames, fps=config.fps, overwrite=args.overwrite)
+        check_output(args.output, args.overwrite)
+        frames = animate_frames(config, read_image(args.image), max_size=args.max_size)
+        first = next(frames)
+        video = torch.empty(config.steps + 1, *first.shape, dtype=first.dtype)  # (T + 1, C, H, W)
+        bar = tqdm(
+            total=len(video), unit="frame", desc="animate", leave=False, disable=args.quiet or not sys.stderr.isatty()
+        )
+        with bar:
+            for t, frame in enumerate(itertools.chain([first], frames)):
+                video[t] = frame
+                bar.update()
+        path = write_animation(args.output, video, fps=config.fps, overwrite=args.overwrite)
     except (ValueError, TypeError, OSError) as exc:  # FileExistsError and unwritable outputs are OSErrors
-        return _fail("animate", exc)
+        return fail("animate", exc)
     print(path)  # even with --quiet: it is the command's result, for scripts
     return EXIT_OK
-
-
-# ------------------------------------------------------------------------------------------ morph and demo
-
-
-def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
-    p.add_argument(
-        "-o",
-        "--output",
-        metavar="OUT",
-        default=None,
-        help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/')",
-    )
-    p.add_argument("--frames", type=_bounded(int, 2, strict=False), default=frames, help=f"frames (default {frames})")
-    p.add_argument("--fps", type=_bounded(float, 0.0, strict=True), default=15.0, help="frames per second (default 15)")
-    p.add_argument(
-        "--method",
-        choices=["natural", "paper"],
-        default="natural",
-        help="natural (default: straight paths, a thin-plate spline between the points, compressible) or the "
-        "paper's incompressible keyframe fit",
-    )
-    p.add_argument(
-        "--grid",
-        metavar="N",
-        type=_bounded(int, 4, strict=False),
-        default=None,
-        help="fluid grid N x N cells (default 80 for natural, 64 for paper)",
-    )
-    p.add_argument("--steps", type=_bounded(int, 1, strict=False), default=10, help="fluid steps (default 10)")
-    p.add_argument(
-        "--control",
-        metavar="K",
-        type=_bounded(int, 2, strict=False),
-        default=8,
-        help="--method paper: control points per axis and step of the fitted forces (default 8)",
-    )
-    p.add_argument(
-        "--align",
-        choices=["similarity", "affine", "none"],
-        default="similarity",
-        help="global pre-alignment from the points (default similarity)",
-    )
-    p.add_argument(
-        "--inverse",
-        choices=["flow", "paper"],
-        default="flow",
-        help="how image B is pulled back: along the same flow (default) or the paper's stepwise fits",
-    )
-    p.add_argument("--blend", choices=["linear", "smooth"], default="linear", help="cross-dissolve schedule")
-    p.add_argument(
-        "--compressible",
-        metavar="W",
-        type=_bounded(float, 0.0, strict=False),
-        default=None,
-        help="fraction of the divergent flow kept (0 = incompressible, 1 = no projection; default 1 for natural, "
-        "0 for paper)",
-    )
-    p.add_argument(
-        "--smoothness",
-        metavar="S",
-        type=_bounded(float, 0.0, strict=False),
-        default=None,
-        help="how strongly the fit keeps the flow calm (default 3 for natural, 5 for paper; see morph())",
-    )
-    p.add_argument(
-        "--max-iter",
-        type=_bounded(int, 1, strict=False),
-        default=None,
-        help="L-BFGS iterations (default 30 for natural, 100 for paper)",
-    )
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-
-
-def _add_morph(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser(
-        "morph",
-        help="morph image A into image B along corresponding points (GIF, MP4 or PNG frames)",
-        description="Morph A into B: fluid forces are fitted (adjoint gradients + L-BFGS) so that A's points reach "
-        "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
-        'cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {"points": ...}) or CSV, '
-        "pixels with pixel centres at integers.",
-        epilog="example:\n  torchfluidwarp morph a.png b.png --points-a a.pts --points-b b.pts -o morph.gif "
-        "--frames 30",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("image_a", metavar="A", help="source image")
-    p.add_argument("image_b", metavar="B", help="target image (resized to A's size if needed)")
-    p.add_argument("--points-a", required=True, metavar="FILE", help="A's points (.pts, .json or .csv)")
-    p.add_argument("--points-b", required=True, metavar="FILE", help="B's points, same count and order")
-    _add_morph_options(p, frames=30)
-    p.set_defaults(handler=_cmd_morph)
-
-
-def _add_demo(commands: argparse._SubParsersAction) -> None:
-    p = commands.add_parser(
-        "demo",
-        help="morph the bundled astronaut into the bundled cat: writes morph.gif",
-        description="Morph the bundled public-domain samples (a photo of an astronaut into a "
-        "photo of a cat, 23 corresponding points each) and write morph.gif.",
-    )
-    _add_morph_options(p, frames=30)
-    p.set_defaults(handler=_cmd_demo)
-
-
-def _run_morph(
-    command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
-) -> int:
-    from torchfluidwarp.morph.morphing import morph
-
-    _check_output(args.output, args.overwrite)
-    progress = not args.quiet and sys.stderr.isatty()
-    result = morph(
-        image_a,
-        image_b,
-        points_a,
-        points_b,
-        frames=args.frames,
-        method=args.method,
-        grid=args.grid,
-        steps=args.steps,
-        control=args.control,
-        align=None if args.align == "none" else args.align,
-        inverse=args.inverse,
-        blend=args.blend,
-        compressible=args.compressible,
-        smoothness=args.smoothness,
-        max_iter=args.max_iter,
-        progress=progress,
-    )
-    path = write_animation(args.output, result.frames, fps=args.fps, overwrite=args.overwrite)
-    if not args.quiet:
-        err = result.fit.error
-        print(
-            f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
-            f"{result.seconds['total']:.1f} s",
-            file=sys.stderr,
-        )
-    print(path)
-    return EXIT_OK
-
-
-def _cmd_morph(args: argparse.Namespace) -> int:
-    from torchfluidwarp.io import check_point_counts, read_points
-
-    try:
-        args.output = args.output or "morph.gif"
-        a, b = read_image(args.image_a), read_image(args.image_b)
-        pa, pb = read_points(args.points_a), read_points(args.points_b)
-        check_point_counts(pa, pb, "--points-a", "--points-b")
-        return _run_morph("morph", args, a, b, pa, pb)
-    except (ValueError, TypeError, OSError) as exc:
-        return _fail("morph", exc)
-
-
-def _cmd_demo(args: argparse.Namespace) -> int:
-    from torchfluidwarp.data import load_sample, load_sample_points
-
-    try:
-        args.output = args.output or "morph.gif"
-        return _run_morph(
-            "demo",
-            args,
-            load_sample("astronaut"),
-            load_sample("cat"),
-            load_sample_points("astronaut"),
-            load_sample_points("cat"),
-        )
-    except (ValueError, TypeError, OSError) as exc:
-        return _fail("demo", exc)
 
 
 # ------------------------------------------------------------------------------------------------ studio
@@ -498,7 +255,7 @@ def _add_studio(commands: argparse._SubParsersAction) -> None:
 
 
 def _cmd_studio_missing(args: argparse.Namespace) -> int:
-    return _fail("studio", "the studio needs its extra: pip install 'torchfluidwarp[studio]'")
+    return fail("studio", "the studio needs its extra: pip install 'torchfluidwarp[studio]'")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,4 @@
-"""The animation settings of ``torchfluidwarp animate``: parse and validate them, then build the force and
-viscosity modules that drive :class:`~torchfluidwarp.warp.layer.FluidWarp`.
+"""The animation settings: one frozen configuration, read from JSON or built from ``--brush``-style values.
 
 The JSON file (every key optional; unknown keys are an error, to catch typos)::
 
@@ -36,48 +35,42 @@ Units and meaning:
   side. ``steps``: fluid steps (the animation has ``steps + 1`` frames); ``dt``: time units per step;
   ``fps``: frames per second of the output.
 
+Values are checked with the library's validators (:mod:`torchfluidwarp._checks`); every error is a
+``ValueError`` naming the key path, e.g. ``brushes[1].radius``, and the value received.
+
 Example:
     >>> cfg = parse_config({"brushes": [{"position": [20, 30], "direction": [0, 1], "radius": 8,
     ...                                  "frequency": 0.05, "amplitude": 0.5}], "steps": 10})
     >>> cfg.steps, cfg.brushes[0].position
     (10, (20.0, 30.0))
-    >>> build_forces(cfg)(FluidGrid(16, 16), steps=10, dt=1.0, image_size=(48, 48)).shape
-    torch.Size([1, 10, 2, 16, 16])
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
-from torch import Tensor
 
-from torchfluidwarp.core.grid import FluidGrid
-from torchfluidwarp.io import read_image
-from torchfluidwarp.warp.forces import Brushes, ViscosityBrushes, viscosity_from_mask
+from torchfluidwarp._checks import check_int, check_positive, check_real, check_size, describe
+from torchfluidwarp.core.grid import rescale_points
 
 __all__ = [
     "BrushSpec",
     "RegionSpec",
     "ViscositySpec",
     "AnimationConfig",
-    "DEFAULT_GRID",
     "parse_config",
     "load_config",
+    "config_json",
     "brush_from_values",
     "region_from_values",
-    "auto_grid",
-    "build_forces",
-    "build_viscosity",
 ]
-
-DEFAULT_GRID = 64
-"""Fluid cells along the image's longer side when no grid is given."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +107,8 @@ class ViscositySpec:
 
 @dataclass(frozen=True)
 class AnimationConfig:
-    """Everything ``torchfluidwarp animate`` needs besides the image. ``grid=None`` means :func:`auto_grid`."""
+    """Everything an animation needs besides the image. ``grid=None`` means
+    :func:`~torchfluidwarp.apps.animate.pipeline.auto_grid`."""
 
     brushes: tuple[BrushSpec, ...] = ()
     viscosity: ViscositySpec = ViscositySpec()
@@ -126,12 +120,15 @@ class AnimationConfig:
     def rescaled(self, sx: float, sy: float) -> AnimationConfig:
         """The same animation on the image resized by ``(sx, sy)``: positions, radii and amplitudes scale.
 
-        Positions keep the pixel-centre convention, ``x' = (x + 0.5) sx - 0.5``; radii and accelerations scale
-        by the mean factor. Viscosities are per fluid cell and do not change.
+        Positions move with :func:`~torchfluidwarp.core.grid.rescale_points` (pixel centres at integers,
+        ``x' = (x + 0.5) sx - 0.5``); radii and accelerations scale by the mean factor. Viscosities are per
+        fluid cell and do not change.
         """
+        scale = torch.tensor([sx, sy], dtype=torch.float64)
 
         def pos(p: tuple[float, float]) -> tuple[float, float]:
-            return ((p[0] + 0.5) * sx - 0.5, (p[1] + 0.5) * sy - 0.5)
+            x, y = rescale_points(torch.tensor(p, dtype=torch.float64), scale).tolist()
+            return (x, y)
 
         s = 0.5 * (sx + sy)
         brushes = tuple(
@@ -145,7 +142,7 @@ class AnimationConfig:
         return dataclasses.replace(self, brushes=brushes, viscosity=viscosity)
 
 
-# ----------------------------------------------------------------------------------------------- parsing
+# ----------------------------------------------------------------------------------------------- reading
 
 _TOP_KEYS = ("brushes", "viscosity", "grid", "steps", "dt", "fps")
 _BRUSH_KEYS = ("position", "direction", "radius", "frequency", "amplitude", "phase")
@@ -193,21 +190,23 @@ def parse_config(data: object, *, base_dir: Path | None = None) -> AnimationConf
         ValueError: a wrong type or value, a missing required key, or an unknown key; the message names the key
             path, e.g. ``brushes[1].radius``, and the value received.
     """
-    obj = _object("the top level", data, _TOP_KEYS)
-    fields: dict[str, object] = {}
-    if "brushes" in obj:
-        fields["brushes"] = tuple(_brush(f"brushes[{k}]", b) for k, b in enumerate(_list("brushes", obj["brushes"])))
-    if "viscosity" in obj:
-        fields["viscosity"] = _viscosity(obj["viscosity"], base_dir)
-    if "grid" in obj:
-        fields["grid"] = _grid("grid", obj["grid"])
-    if "steps" in obj:
-        fields["steps"] = _int("steps", obj["steps"], minimum=1)
-    if "dt" in obj:
-        fields["dt"] = _number("dt", obj["dt"], positive=True)
-    if "fps" in obj:
-        fields["fps"] = _number("fps", obj["fps"], positive=True)
-    return AnimationConfig(**fields)  # type: ignore[arg-type]
+    with _as_value_error():
+        obj = _object("the top level", data, _TOP_KEYS)
+        fields: dict[str, Any] = {}
+        if "brushes" in obj:
+            fields["brushes"] = tuple(
+                _brush(f"brushes[{k}]", b) for k, b in enumerate(_list("brushes", obj["brushes"]))
+            )
+        if "viscosity" in obj:
+            fields["viscosity"] = _viscosity(obj["viscosity"], base_dir)
+        if "grid" in obj:
+            fields["grid"] = check_size("grid", obj["grid"], minimum=2)
+        if "steps" in obj:
+            fields["steps"] = check_int("steps", obj["steps"], minimum=1)
+        for key in ("dt", "fps"):
+            if key in obj:
+                fields[key] = check_positive(key, obj[key])
+        return AnimationConfig(**fields)
 
 
 def brush_from_values(values: Sequence[float], where: str = "brush") -> BrushSpec:
@@ -219,17 +218,9 @@ def brush_from_values(values: Sequence[float], where: str = "brush") -> BrushSpe
     if len(values) not in (7, 8):
         raise ValueError(f"{where} needs 7 or 8 values X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE], got {len(values)}")
     x, y, dx, dy, radius, freq, amp, *phase = values
-    return _brush(
-        where,
-        {
-            "position": [x, y],
-            "direction": [dx, dy],
-            "radius": radius,
-            "frequency": freq,
-            "amplitude": amp,
-            "phase": phase[0] if phase else 0.0,
-        },
-    )
+    spec = {"position": [x, y], "direction": [dx, dy], "radius": radius, "frequency": freq, "amplitude": amp}
+    with _as_value_error():
+        return _brush(where, {**spec, "phase": phase[0] if phase else 0.0})
 
 
 def region_from_values(values: Sequence[float], where: str = "region") -> RegionSpec:
@@ -241,24 +232,37 @@ def region_from_values(values: Sequence[float], where: str = "region") -> Region
     if len(values) != 4:
         raise ValueError(f"{where} needs 4 values X,Y,RADIUS,VALUE, got {len(values)}")
     x, y, radius, value = values
-    return _region(where, {"position": [x, y], "radius": radius, "value": value})
+    with _as_value_error():
+        return _region(where, {"position": [x, y], "radius": radius, "value": value})
 
 
-def _describe(value: object) -> str:
-    return f"{type(value).__name__} {json.dumps(value) if _jsonable(value) else repr(value)}"
+def config_json(config: AnimationConfig) -> dict[str, Any]:
+    """``config`` as the JSON :func:`parse_config` reads (a mask path is left out: it names a local file)."""
+    viscosity = config.viscosity
+    out: dict[str, Any] = {
+        "brushes": [dataclasses.asdict(b) for b in config.brushes],
+        "viscosity": {"base": viscosity.base, "regions": [dataclasses.asdict(r) for r in viscosity.regions]},
+        "steps": config.steps,
+        "dt": config.dt,
+        "fps": config.fps,
+    }
+    if config.grid is not None:
+        out["grid"] = list(config.grid)
+    return out
 
 
-def _jsonable(value: object) -> bool:
+@contextlib.contextmanager
+def _as_value_error() -> Iterator[None]:
+    """Turn the validators' ``TypeError`` (a wrong JSON type) into the ``ValueError`` this module promises."""
     try:
-        json.dumps(value, allow_nan=False)
-    except (TypeError, ValueError):
-        return False
-    return len(repr(value)) < 60
+        yield
+    except TypeError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def _object(where: str, value: object, allowed: Sequence[str], required: Sequence[str] = ()) -> Mapping:
     if not isinstance(value, Mapping):
-        raise ValueError(f"{where} must be a JSON object, got {_describe(value)}")
+        raise ValueError(f"{where} must be a JSON object, got {describe(value)}")
     unknown = [k for k in value if k not in allowed]
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
@@ -270,43 +274,14 @@ def _object(where: str, value: object, allowed: Sequence[str], required: Sequenc
 
 def _list(where: str, value: object) -> list:
     if not isinstance(value, list):
-        raise ValueError(f"{where} must be a list, got {_describe(value)}")
-    return value
-
-
-def _number(where: str, value: object, *, positive: bool = False, non_negative: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{where} must be a number, got {_describe(value)}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{where} must be finite, got {value!r}")
-    if positive and v <= 0:
-        raise ValueError(f"{where} must be > 0, got {value!r}")
-    if non_negative and v < 0:
-        raise ValueError(f"{where} must be >= 0, got {value!r}")
-    return v
-
-
-def _int(where: str, value: object, *, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{where} must be an integer, got {_describe(value)}")
-    if value < minimum:
-        raise ValueError(f"{where} must be >= {minimum}, got {value}")
+        raise ValueError(f"{where} must be a list, got {describe(value)}")
     return value
 
 
 def _pair(where: str, value: object) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{where} must be a pair [x, y] of numbers, got {_describe(value)}")
-    return (_number(f"{where}[0]", value[0]), _number(f"{where}[1]", value[1]))
-
-
-def _grid(where: str, value: object) -> tuple[int, int]:
-    if isinstance(value, int) and not isinstance(value, bool):
-        value = [value, value]
-    if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{where} must be [h, w] or one integer, got {_describe(value)}")
-    return (_int(f"{where}[0]", value[0], minimum=2), _int(f"{where}[1]", value[1], minimum=2))
+        raise ValueError(f"{where} must be a pair [x, y] of numbers, got {describe(value)}")
+    return (check_real(f"{where}[0]", value[0]), check_real(f"{where}[1]", value[1]))
 
 
 def _brush(where: str, value: object) -> BrushSpec:
@@ -317,10 +292,10 @@ def _brush(where: str, value: object) -> BrushSpec:
     return BrushSpec(
         position=_pair(f"{where}.position", obj["position"]),
         direction=direction,
-        radius=_number(f"{where}.radius", obj["radius"], positive=True),
-        frequency=_number(f"{where}.frequency", obj.get("frequency", 0.0), non_negative=True),
-        amplitude=_number(f"{where}.amplitude", obj["amplitude"]),
-        phase=_number(f"{where}.phase", obj.get("phase", 0.0)),
+        radius=check_positive(f"{where}.radius", obj["radius"]),
+        frequency=check_positive(f"{where}.frequency", obj.get("frequency", 0.0), allow_zero=True),
+        amplitude=check_real(f"{where}.amplitude", obj["amplitude"]),
+        phase=check_real(f"{where}.phase", obj.get("phase", 0.0)),
     )
 
 
@@ -328,8 +303,8 @@ def _region(where: str, value: object) -> RegionSpec:
     obj = _object(where, value, _REGION_KEYS, required=_REGION_KEYS)
     return RegionSpec(
         position=_pair(f"{where}.position", obj["position"]),
-        radius=_number(f"{where}.radius", obj["radius"], positive=True),
-        value=_number(f"{where}.value", obj["value"]),
+        radius=check_positive(f"{where}.radius", obj["radius"]),
+        value=check_real(f"{where}.value", obj["value"]),
     )
 
 
@@ -338,91 +313,13 @@ def _viscosity(value: object, base_dir: Path | None) -> ViscositySpec:
     mask = obj.get("mask")
     if mask is not None:
         if not isinstance(mask, str) or not mask:
-            raise ValueError(f"viscosity.mask must be an image path (a string), got {_describe(mask)}")
+            raise ValueError(f"viscosity.mask must be an image path (a string), got {describe(mask)}")
         mask = Path(mask) if base_dir is None else base_dir / mask
-    regions = tuple(
-        _region(f"viscosity.regions[{k}]", r) for k, r in enumerate(_list("viscosity.regions", obj.get("regions", [])))
-    )
+    regions = obj.get("regions", [])
     return ViscositySpec(
-        base=_number("viscosity.base", obj.get("base", 0.0), non_negative=True),
-        regions=regions,
+        base=check_positive("viscosity.base", obj.get("base", 0.0), allow_zero=True),
+        regions=tuple(_region(f"viscosity.regions[{k}]", r) for k, r in enumerate(_list("viscosity.regions", regions))),
         mask=mask,
-        stiff=_number("viscosity.stiff", obj.get("stiff", 5.0), non_negative=True),
-        soft=_number("viscosity.soft", obj.get("soft", 0.0), non_negative=True),
+        stiff=check_positive("viscosity.stiff", obj.get("stiff", 5.0), allow_zero=True),
+        soft=check_positive("viscosity.soft", obj.get("soft", 0.0), allow_zero=True),
     )
-
-
-# ---------------------------------------------------------------------------------------------- building
-
-
-def auto_grid(image_size: tuple[int, int], cells: int = DEFAULT_GRID) -> tuple[int, int]:
-    """A fluid grid with ``cells`` along the image's longer side and about square cells.
-
-    Example:
-        >>> auto_grid((300, 600))
-        (32, 64)
-    """
-    H, W = image_size
-    scale = cells / max(H, W)
-    return (max(2, round(H * scale)), max(2, round(W * scale)))
-
-
-def build_forces(config: AnimationConfig) -> Brushes:
-    """The configuration's brushes as one :class:`~torchfluidwarp.warp.forces.Brushes` module.
-
-    Raises:
-        ValueError: the configuration has no brushes.
-    """
-    if not config.brushes:
-        raise ValueError("nothing to animate: give at least one brush")
-    b = config.brushes
-    return Brushes(
-        centers=[p.position for p in b],
-        directions=[p.direction for p in b],
-        radius=[p.radius for p in b],
-        amplitude=[p.amplitude for p in b],
-        frequency=[p.frequency for p in b],
-        phase=[p.phase for p in b],
-    )
-
-
-def build_viscosity(
-    config: AnimationConfig,
-    grid: tuple[int, int],
-    image_size: tuple[int, int],
-    mask_size: tuple[int, int] | None = None,
-) -> float | Tensor:
-    """The viscosity: a float when it is uniform, else a field ``(1, 1, h, w)`` in cells^2 per time unit.
-
-    Args:
-        config: the animation settings, its positions in pixels of an image of size ``image_size``.
-        grid: the fluid grid ``(h, w)``.
-        image_size: ``(H, W)`` of the image being animated.
-        mask_size: the size a mask image must have (the original image's, before any resizing);
-            ``image_size`` by default.
-
-    Raises:
-        ValueError: the mask cannot be read or its size differs from ``mask_size``.
-    """
-    spec = config.viscosity
-    field: float | Tensor = spec.base
-    if spec.regions:
-        r = spec.regions
-        module = ViscosityBrushes(
-            centers=[p.position for p in r], radius=[p.radius for p in r], value=[p.value for p in r], base=spec.base
-        )
-        with torch.no_grad():
-            field = module(FluidGrid.of(grid), image_size).detach()
-    if spec.mask is not None:
-        try:
-            mask = read_image(spec.mask, channels=1)
-        except ValueError as exc:
-            raise ValueError(f"viscosity.mask: {exc}") from None
-        want = mask_size or image_size
-        if tuple(mask.shape[-2:]) != tuple(want):
-            raise ValueError(
-                f"viscosity.mask {str(spec.mask)!r} is {mask.shape[-1]}x{mask.shape[-2]} pixels, "
-                f"but the image is {want[1]}x{want[0]}"
-            )
-        field = field + viscosity_from_mask(mask, grid, stiff=spec.stiff, soft=spec.soft)
-    return field

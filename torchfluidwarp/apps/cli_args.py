@@ -1,0 +1,110 @@
+"""What the command line's subcommands share: exit codes, the one-line error, argument types, the output check.
+
+Argument types parse the text, then validate the value with :mod:`torchfluidwarp._checks` (the library's one
+validation layer), so a bad option reads ``argument --steps: the value must be >= 1, got 0``.
+
+Example:
+    >>> count(2)("16"), POSITIVE("0.5")
+    (16, 0.5)
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+from torchfluidwarp._checks import check_int, check_positive
+from torchfluidwarp.io import FFMPEG_HINT
+
+__all__ = [
+    "PROG",
+    "EXIT_OK",
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERRUPTED",
+    "fail",
+    "checked",
+    "count",
+    "numbers",
+    "POSITIVE",
+    "NON_NEGATIVE",
+    "check_output",
+]
+
+PROG = "torchfluidwarp"
+EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
+
+T = TypeVar("T")
+
+
+def fail(command: str, message: object) -> int:
+    """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr; returns exit status 2."""
+    text = str(message).strip().splitlines()
+    print(f"{PROG} {command}: error: {text[0] if text else type(message).__name__}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def checked(kind: Callable[[str], Any], check: Callable[..., T], **bounds: Any) -> Callable[[str], T]:
+    """An argparse ``type``: ``kind(text)``, then ``check("the value", value, **bounds)`` from ``_checks``."""
+
+    def parse(text: str) -> T:
+        try:
+            value = kind(text)
+        except ValueError:
+            noun = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        try:
+            return check("the value", value, **bounds)
+        except (TypeError, ValueError) as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = getattr(kind, "__name__", "value")  # argparse names the type in some messages
+    return parse
+
+
+def count(minimum: int) -> Callable[[str], int]:
+    """An argparse ``type``: an integer ``>= minimum``."""
+    return checked(int, check_int, minimum=minimum)
+
+
+POSITIVE: Callable[[str], float] = checked(float, check_positive)
+"""An argparse ``type``: a finite number ``> 0``."""
+NON_NEGATIVE: Callable[[str], float] = checked(float, check_positive, allow_zero=True)
+"""An argparse ``type``: a finite number ``>= 0``."""
+
+
+def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[[str], T]:
+    """An argparse ``type``: comma-separated numbers passed to ``build(values, where)``, e.g. a brush."""
+
+    def parse(text: str) -> T:
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+        try:
+            return build(values, where)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
+
+    parse.__name__ = where
+    return parse
+
+
+def check_output(path: str, overwrite: bool) -> None:
+    """Fail before rendering on what :func:`~torchfluidwarp.io.write_animation` would refuse after it.
+
+    Raises:
+        ValueError: an unknown suffix, MP4 without imageio-ffmpeg, or an existing output without ``overwrite``.
+    """
+    target = Path(path)
+    folder = path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
+    if not folder and target.suffix.lower() not in (".gif", ".mp4"):
+        raise ValueError(f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4 or a folder ending in '/'")
+    if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise ValueError(FFMPEG_HINT)
+    exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
+    if exists and not overwrite:
+        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
