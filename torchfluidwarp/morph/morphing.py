@@ -23,7 +23,15 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_int, check_positive, check_tensor
+from torchfluidwarp._checks import (
+    check_fraction,
+    check_instance,
+    check_int,
+    check_memory,
+    check_positive,
+    check_tensor,
+    compute_dtype,
+)
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.core.fluid import Viscosity
@@ -73,9 +81,33 @@ class MorphResult:
 def _as_image(name: str, image: Tensor) -> Tensor:
     img = check_tensor(name, image, ndim=(3, 4))
     img = img.unsqueeze(0) if img.ndim == 3 else img
-    if img.shape[0] != 1:
-        raise ValueError(f"{name} must be a single image (C, H, W) or (1, C, H, W), got {tuple(image.shape)}")
-    return img
+    if img.shape[0] != 1 or min(img.shape[1:]) < 1:
+        raise ValueError(
+            f"{name} must be a single image (C, H, W) or (1, C, H, W) with C, H, W >= 1, got {tuple(image.shape)}"
+        )
+    return img.detach()
+
+
+def _as_points(name: str, points: object, image: Tensor) -> Tensor:
+    """One set of points ``(M, 2)`` inside ``image``, detached, on the image's device."""
+    p = check_points(name, points, (image.shape[-2], image.shape[-1]))
+    if p.shape[0] != 1:
+        raise ValueError(f"{name} must be one set of points (M, 2) for a morph, got shape {tuple(p.shape)}")
+    return p[0].detach().to(image.device)
+
+
+MAX_MARGIN = 10.0
+"""The largest ``margin`` of :func:`morph`: a box ten times the points' extent on each side already holds a fluid
+21 times wider than the points."""
+
+
+def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid: object, itemsize: int) -> float:
+    """Bytes a morph sets out to hold: its frames, maps and images ``(N, ...)`` and the fit's fluid states."""
+    H, W = size
+    per_frame = H * W * (3 * channels + 2 * 2 + 2 * 2 * 2)  # frames, A and B warped; maps; maps on the fluid box
+    g = FluidGrid.of(grid)  # type: ignore[arg-type]
+    fluid = (steps + 1) * g.height * g.width * 2 * 8 * 8  # float64 velocities, forces and their adjoints
+    return float(frames * per_frame * itemsize + fluid)
 
 
 def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Tensor, Tensor]:
@@ -145,6 +177,7 @@ def morph(
     margin: float | None = 0.5,
     warm_start: KeyframeFit | None = None,
     progress: bool = True,
+    max_memory: float | None = None,
 ) -> MorphResult:
     """Morph ``image_a`` into ``image_b`` so that ``points_a`` travel to ``points_b``.
 
@@ -197,6 +230,11 @@ def morph(
         warm_start: a previous :class:`KeyframeFit` of the same method whose control values start the
             optimisation (interactive use); ignored when its shape does not match.
         progress: show progress bars.
+        max_memory: bytes the morph may set out to hold (its frames, maps and fluid states); default
+            8 GiB (:data:`~torchfluidwarp._checks.MAX_BYTES`). A request above it is refused before any work.
+
+    Mixed dtypes: A and B of different float dtypes are computed in the wider one, half precision in float32;
+    the frames come back in the promoted dtype of A and B.
 
     Returns:
         a :class:`MorphResult`.
@@ -212,9 +250,13 @@ def morph(
     t0 = time.perf_counter()
     a = _as_image("image_a", image_a)
     b = _as_image("image_b", image_b)
+    if b.device != a.device:
+        raise ValueError(f"image_a is on {a.device} but image_b is on {b.device}; put both on one device")
+    out_dtype = torch.promote_types(a.dtype, b.dtype)
+    a, b = a.to(compute_dtype(out_dtype)), b.to(compute_dtype(out_dtype))
     n = check_int("frames", frames, minimum=2)
-    pa = check_points("points_a", points_a, (a.shape[-2], a.shape[-1]))[0]
-    pb = check_points("points_b", points_b, (b.shape[-2], b.shape[-1]))[0]
+    pa = _as_points("points_a", points_a, a)
+    pb = _as_points("points_b", points_b, b)
     if pa.shape[0] != pb.shape[0]:
         raise ValueError(f"points_a has {pa.shape[0]} points but points_b has {pb.shape[0]}")
     if method not in DEFAULTS:
@@ -225,8 +267,15 @@ def morph(
         raise ValueError(f"method='natural' needs at least 3 points, got {pa.shape[0]}; method='paper' takes fewer")
     steps = check_int("steps", steps)
     defaults = DEFAULTS[method]
-    compressible = defaults["compressible"] if compressible is None else compressible
-    grid = defaults["grid"] if grid is None else grid
+    compressible = defaults["compressible"] if compressible is None else check_fraction("compressible", compressible)
+    grid = FluidGrid.of(defaults["grid"] if grid is None else grid)
+    if margin is not None:
+        margin = check_positive("margin", margin, allow_zero=True)
+        if margin > MAX_MARGIN:
+            raise ValueError(f"margin must be <= {MAX_MARGIN} (a fraction of the points' extent), got {margin!r}")
+    check_instance("warm_start", warm_start, KeyframeFit, optional=True)
+    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], n, steps, grid, a.element_size())
+    check_memory(f"morph(frames={n}, steps={steps}, grid={grid})", estimate, max_memory, "morph(max_memory=...)")
     smoothness = defaults["smoothness"] if smoothness is None else smoothness
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)
     feather = check_positive("feather", feather, allow_zero=True)
@@ -299,9 +348,9 @@ def morph(
             stacklevel=2,
         )
     return MorphResult(
-        frames=frames_t,
-        forward_frames=fwd,
-        backward_frames=bwd,
+        frames=frames_t.to(out_dtype),
+        forward_frames=fwd.to(out_dtype),
+        backward_frames=bwd.to(out_dtype),
         maps=maps_a,
         maps_b=maps_b,
         fit=fit,

@@ -95,22 +95,21 @@ def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], 
     traj = fit.trajectories  # (1, T + 1, M, 2) in the fluid frame
     T = traj.shape[1] - 1
     current = identity_map(size, device=traj.device, dtype=traj.dtype)  # P_T
-    by_step: dict[int, list[tuple[float, Tensor]]] = {}
-    for s in times:
-        by_step.setdefault(min(int(s), T - 1) if s < T else T, []).append((s, None))  # type: ignore[arg-type]
-    out: dict[float, Tensor] = {float(T): current} if T in by_step else {}
+    # the step whose one-step flow each frame's time falls in, and how far back from its end it lies
+    step_of = [min(int(s), T - 1) for s in times]
+    out: list[Tensor | None] = [current if s >= T else None for s in times]
     for step in range(T - 1, -1, -1):
         small = fit_keyframes(traj[:, step + 1], traj[:, step], steps=1, **kwargs)
         vel = small.warp.rollout(small.forces, size).velocities
-        wanted = sorted({step + 1 - s for s, _ in by_step.get(step, [])} | {1.0})
-        maps = backward_maps(vel, size, small.warp.dt, times=wanted)
-        for frac, m in zip(wanted, maps.unbind(1)):
-            composed = _sample_map(current, m)
-            if frac == 1.0:
-                nxt = composed
-            out[float(step + 1 - frac)] = composed
-        current = nxt
-    return [out[float(s)] for s in times]
+        mine = [k for k, s in enumerate(times) if out[k] is None and step_of[k] == step]
+        back = [step + 1 - times[k] for k in mine]  # how far back from the step's end each frame lies
+        wanted = sorted(set(back) | {1.0})  # the whole step too: it carries on to P_step
+        maps = backward_maps(vel, size, small.warp.dt, times=wanted).unbind(1)
+        composed = {frac: _sample_map(current, m) for frac, m in zip(wanted, maps)}
+        for k, frac in zip(mine, back):
+            out[k] = composed[frac]
+        current = composed[1.0]
+    return [m for m in out if m is not None]
 
 
 def render(

@@ -1,0 +1,100 @@
+"""Bad and unusual input to :func:`torchfluidwarp.morph` (issue #19): each case gets a clear error that names the
+argument, or a valid result, before any work starts."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+from torchfluidwarp import morph
+
+A = torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(0))
+PA = torch.tensor([[4.0, 4.0], [11.0, 9.0], [5.0, 12.0]])
+KW = dict(progress=False, max_iter=3, grid=12, steps=2)
+
+
+def _morph(*args, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return morph(*args, **{**KW, **kwargs})
+
+
+@pytest.mark.parametrize("method", ["natural", "paper"])
+def test_frame_counts_that_do_not_divide_the_steps_work_with_the_paper_inverse(method):
+    r = _morph(A, A, PA, PA + 0.5, frames=4, steps=1, inverse="paper", method=method)
+    assert r.frames.shape == (4, 3, 16, 16)
+    assert torch.isfinite(r.frames).all()
+    # the paper's inverse and the flow's agree on where B is read, up to the small fits' error (pixels)
+    flow = _morph(A, A, PA, PA + 0.5, frames=4, steps=1, inverse="flow", method=method)
+    assert float((r.maps_b - flow.maps_b).abs().max()) < 1.0
+
+
+def test_mixed_float_dtypes_are_promoted_and_half_precision_computed_in_float32():
+    r = _morph(A, A.double(), PA, PA + 0.5, frames=3)
+    assert r.frames.dtype == torch.float64
+    r = _morph(A.bfloat16(), torch.rand(3, 20, 20).bfloat16(), PA, PA + 0.5, frames=3)
+    assert r.frames.dtype == torch.bfloat16
+    assert torch.isfinite(r.frames.float()).all()
+    # the endpoints are the inputs, in the caller's dtype
+    torch.testing.assert_close(r.frames[0], A.bfloat16())
+
+
+def test_points_that_require_grad_are_used_as_values_and_left_unchanged():
+    pa = PA.clone().requires_grad_()
+    r = _morph(A, A, pa, PA + 0.5, frames=3)
+    assert not r.frames.requires_grad
+    assert pa.grad is None
+    torch.testing.assert_close(pa.detach(), PA)
+
+
+def test_several_point_sets_are_refused_instead_of_using_the_first():
+    with pytest.raises(ValueError, match=r"points_a must be one set of points \(M, 2\).*\(2, 3, 2\)"):
+        _morph(A, A, torch.stack([PA, PA]), torch.stack([PA, PA]) + 0.5, frames=3)
+
+
+def test_identical_target_points_are_refused_by_name():
+    with pytest.raises(ValueError, match="points_b repeats points"):
+        _morph(A, A, PA, torch.full_like(PA, 5.0), frames=3)
+
+
+@pytest.mark.parametrize("margin", [float("inf"), float("nan"), -0.5, 1e30])
+def test_margin_is_checked(margin):
+    with pytest.raises(ValueError, match="margin must be"):
+        _morph(A, A, PA, PA + 0.5, frames=3, method="paper", margin=margin)
+
+
+def test_warm_start_and_compressible_of_the_wrong_type_name_themselves():
+    with pytest.raises(TypeError, match="warm_start must be a KeyframeFit or None, got str 'x'"):
+        _morph(A, A, PA, PA + 0.5, frames=3, warm_start="x")
+    with pytest.raises(TypeError, match="compressible must be a bool or a number in \\[0, 1\\], got str 'yes'"):
+        _morph(A, A, PA, PA + 0.5, frames=3, compressible="yes")
+    with pytest.raises(ValueError, match="compressible must be in \\[0, 1\\], got 2"):
+        _morph(A, A, PA, PA + 0.5, frames=3, compressible=2)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"frames": 10**9}, {"steps": 10**9}, {"grid": 100_000}], ids=["frames", "steps", "grid"]
+)
+def test_requests_beyond_the_memory_limit_are_refused_before_work_with_the_setting_that_raises_it(kwargs):
+    with pytest.raises(ValueError, match=r"would need about .* above the limit of 8\.0 GiB.*max_memory"):
+        _morph(A, A, PA, PA + 0.5, **{"frames": 3, **kwargs})
+    # the limit is a setting: a small one refuses an ordinary morph, naming both numbers
+    with pytest.raises(ValueError, match=r"above the limit of 1\.0 KiB"):
+        _morph(A, A, PA, PA + 0.5, frames=3, max_memory=1024)
+
+
+@pytest.mark.parametrize(
+    "image, match",
+    [
+        (torch.rand(0, 16, 16), "image_a must be a single image"),
+        ((A * 255).to(torch.uint8), "image_a must be a floating-point tensor"),
+        (A.to(torch.complex64), "image_a must be a floating-point tensor"),
+        (torch.rand(2, 3, 16, 16), "image_a must be a single image"),
+    ],
+    ids=["no-channels", "uint8", "complex", "batch"],
+)
+def test_images_that_cannot_be_morphed_are_refused(image, match):
+    with pytest.raises((TypeError, ValueError), match=match):
+        _morph(image, A, PA, PA + 0.5, frames=3)
