@@ -1,3 +1,4 @@
+import importlib
 import math
 
 import kornia.augmentation as K
@@ -5,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from torchfluidwarp.augment.tensor import (
+from torchfluidwarp.augment import (
     MAX_SHEAR,
     MIN_DET,
     FluidWarpAugment,
@@ -16,6 +17,7 @@ from torchfluidwarp.augment.tensor import (
     min_quad_determinant,
     raster_map,
 )
+from torchfluidwarp.augment import tensor as augment_tensor
 from torchfluidwarp.warp.layer import FluidWarp, identity_map, jacobian_determinant, warp_image
 
 
@@ -223,3 +225,13 @@ def test_mismatched_inputs_are_refused():
         aug(torch.rand(2, 1, 16, 16), masks=torch.zeros(2, 1, 8, 8))
     with pytest.raises(ValueError, match="boxes"):
         aug(torch.rand(1, 1, 16, 16), boxes=torch.zeros(1, 2, 3))
+
+
+@pytest.mark.parametrize("name", sorted(augment_tensor._MOVED))
+def test_a_name_moved_out_of_tensor_warns_and_is_the_same_object(name):
+    module = f"torchfluidwarp.augment.{augment_tensor._MOVED[name]}"
+    with pytest.warns(DeprecationWarning, match=rf"moved to {module}"):
+        value = getattr(augment_tensor, name)
+    assert value is getattr(importlib.import_module(module), name)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        augment_tensor.no_such_name  # noqa: B018

@@ -29,6 +29,7 @@ fluid covers the canvas whatever its resolution.
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -40,17 +41,9 @@ from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as TF
 
 from torchfluidwarp._checks import check_tensor
-from torchfluidwarp.augment.tensor import (
-    FluidWarpAugment,
-    FluidWarpParams,
-    RangeArg,
-    _resample,
-    carry_boxes,
-    carry_points,
-    fluid_warp_map,
-    polygon_outline,
-)
-from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.augment.carry import _resample, carry_boxes, carry_points, fluid_warp_map, polygon_outline
+from torchfluidwarp.augment.draw import FluidWarpParams
+from torchfluidwarp.augment.tensor import FluidWarpAugment
 
 __all__ = ["RandomFluidWarp", "fluid_warp", "register_fluid_kernel"]
 
@@ -212,17 +205,12 @@ class RandomFluidWarp(v2.Transform):
     batch of plain tensors, with keypoints, masks and boxes as keyword tensors, use the tensor-level
     :class:`~torchfluidwarp.augment.tensor.FluidWarpAugment`, which this transform draws through.
 
-    Args are those of :class:`~torchfluidwarp.augment.tensor.FluidWarpAugment` (ranges ``(min, max)`` or a number):
-
     Args:
-        count: brushes per call (ints).
-        strength: peak acceleration of a brush, pixels per time unit^2.
-        radius: Gaussian radius of a brush, pixels.
-        steps: fluid steps (ints).
-        grid: fluid grid ``(h, w)``; it covers the canvas whatever its size.
-        dt: time step. viscosity: constant viscosity (cells^2 per time unit).
-        edge_points: points carried per box edge.
-        max_retries: re-draws at half force for a map that would fold (see the plain module).
+        count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries: the settings, as for
+            :class:`~torchfluidwarp.augment.tensor.FluidWarpAugment` and documented once in
+            :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` (ranges ``(min, max)`` or a number; the
+            grid covers the canvas whatever its size).
+        settings: a ready :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` instead.
         generator: ``torch.Generator`` or ``None`` (torch's global RNG, which ``DataLoader`` seeds per worker).
             A generator is pickled into each ``DataLoader`` worker and re-seeded there from its seed and the
             worker's seed, so workers draw different warps.
@@ -257,33 +245,11 @@ class RandomFluidWarp(v2.Transform):
         TF.is_pure_tensor,
     )
 
-    def __init__(
-        self,
-        count: RangeArg = (1, 4),
-        strength: RangeArg = (0.1, 0.5),
-        radius: RangeArg = (16.0, 48.0),
-        steps: RangeArg = (4, 8),
-        *,
-        grid: FluidGrid | int | tuple[int, int] = 32,
-        dt: float = 1.0,
-        viscosity: float = 0.0,
-        edge_points: int = 8,
-        max_retries: int = 3,
-        generator: torch.Generator | None = None,
-    ) -> None:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__()
-        self.sampler = FluidWarpAugment(
-            count,
-            strength,
-            radius,
-            steps,
-            grid=grid,
-            dt=dt,
-            viscosity=viscosity,
-            edge_points=edge_points,
-            max_retries=max_retries,
-            generator=generator,
-        )
+        self.sampler = FluidWarpAugment(*args, **kwargs)  # the settings are checked there, once
+
+    __init__.__signature__ = inspect.signature(FluidWarpAugment.__init__)  # type: ignore[attr-defined]
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.sampler.extra_repr()})"
@@ -299,4 +265,4 @@ class RandomFluidWarp(v2.Transform):
         return {"fluid": self.sampler.make_params(1, size, device=device, dtype=dtype)}
 
     def transform(self, inpt: Any, params: dict[str, Any]) -> Any:
-        return fluid_warp(inpt, params["fluid"], edge_points=self.sampler.edge_points)
+        return fluid_warp(inpt, params["fluid"], edge_points=self.sampler.settings.edge_points)
