@@ -17,11 +17,18 @@ Modules: :mod:`~torchfluidwarp.io.images` (image files, resizing), :mod:`~torchf
 from __future__ import annotations
 
 from torchfluidwarp.io.animation import FFMPEG_HINT as FFMPEG_HINT
+from torchfluidwarp.io.animation import MAX_FPS, MAX_LOOP, MIN_FPS, check_fps, encode_animation, write_animation
 from torchfluidwarp.io.animation import AnimationFormat as AnimationFormat
-from torchfluidwarp.io.animation import encode_animation, write_animation
-from torchfluidwarp.io.images import read_image, read_image_bytes, resize_image, shrink_image, write_image
+from torchfluidwarp.io.images import (
+    MAX_IMAGE_PIXELS,
+    read_image,
+    read_image_bytes,
+    resize_image,
+    shrink_image,
+    write_image,
+)
+from torchfluidwarp.io.points import MAX_POINTS_BYTES, check_point_counts, read_points, write_points
 from torchfluidwarp.io.points import POINT_SUFFIXES as POINT_SUFFIXES
-from torchfluidwarp.io.points import check_point_counts, read_points, write_points
 
 __all__ = [
     "read_image",
@@ -34,4 +41,10 @@ __all__ = [
     "check_point_counts",
     "write_animation",
     "encode_animation",
+    "check_fps",
+    "MAX_IMAGE_PIXELS",
+    "MAX_POINTS_BYTES",
+    "MIN_FPS",
+    "MAX_FPS",
+    "MAX_LOOP",
 ]

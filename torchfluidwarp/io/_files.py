@@ -10,6 +10,10 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import torch
+
+from torchfluidwarp._checks import describe
+
 PathLike = str | os.PathLike[str]
 
 # Decoders raise all of these for files that are not (complete) images; Pillow uses SyntaxError for
@@ -21,6 +25,42 @@ def first_line(exc: BaseException) -> str:
     """The first line of an exception's message (its type's name when it has none), for one-line errors."""
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
+
+
+def check_path(name: str, path: object) -> Path:
+    """Validate a path argument (a ``str`` or ``os.PathLike``, not empty) and return it as a :class:`Path`."""
+    if isinstance(path, bytes) or not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"{name} must be a str or os.PathLike path, got {describe(path)}")
+    text = os.fspath(path)
+    if not isinstance(text, str) or not text:
+        raise ValueError(f"{name} must be a non-empty path, got {path!r}")
+    return Path(text)
+
+
+def check_output_path(name: str, path: object, *, folder_ok: bool = False) -> Path:
+    """Validate an output path: it must name a file (not ``.`` or ``..``) and, unless ``folder_ok``, must not be
+    an existing folder (replacing a folder by a file would delete what it holds)."""
+    target = check_path(name, path)
+    if target.name in ("", ".", ".."):
+        raise ValueError(f"{name} {str(path)!r} names no file or folder of its own; give it a name")
+    if not folder_ok and target.is_dir():
+        raise ValueError(f"{name} {str(path)!r} is a folder; give a file name (refusing to replace a folder)")
+    return target
+
+
+def make_parents(name: str, target: Path) -> None:
+    """Create ``target``'s missing parent folders (after the data was validated, so a refusal leaves none)."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise ValueError(f"{name} {str(target)!r}: a parent of it is a file, not a folder") from None
+
+
+def check_float_dtype(name: str, dtype: object) -> torch.dtype:
+    """Validate a floating-point ``torch.dtype`` argument."""
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"{name} must be a floating-point torch.dtype, got {describe(dtype)}")
+    return dtype
 
 
 def check_overwrite(target: Path, overwrite: bool) -> None:

@@ -17,15 +17,34 @@ import numpy as np
 from PIL import Image
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_positive
-from torchfluidwarp.io._files import PathLike, atomic_output, check_overwrite
+from torchfluidwarp._checks import check_int, check_real, describe
+from torchfluidwarp.io._files import PathLike, atomic_output, check_output_path, check_overwrite, make_parents
 from torchfluidwarp.io.images import _uint8_frames
 
-__all__ = ["write_animation", "encode_animation", "FFMPEG_HINT", "AnimationFormat"]
+__all__ = [
+    "write_animation",
+    "encode_animation",
+    "check_fps",
+    "FFMPEG_HINT",
+    "MIN_FPS",
+    "MAX_FPS",
+    "MAX_LOOP",
+    "AnimationFormat",
+]
 
 AnimationFormat = Literal["gif", "mp4"]
 
 FFMPEG_HINT = "MP4 output needs imageio-ffmpeg: pip install 'torchfluidwarp[video]'"
+
+MIN_FPS = 0.01
+"""The slowest frame rate :func:`write_animation` and :func:`encode_animation` accept: one frame per 100 s.
+(A GIF delay is a 16-bit count of hundredths of a second, at most 655.35 s; ffmpeg refuses rates that round to
+0.00.)"""
+MAX_FPS = 1000.0
+"""The fastest frame rate accepted. A GIF shows frames for whole hundredths of a second, at least 0.01 s, so
+past 100 fps every GIF frame is shown for 0.01 s; MP4 keeps the rate."""
+MAX_LOOP = 65535
+"""The largest GIF repeat count (a 16-bit field)."""
 
 
 def write_animation(
@@ -47,29 +66,32 @@ def write_animation(
     Args:
         path: the output file or folder. Missing parent folders are created.
         frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4.
-        fps: frames per second (> 0).
-        overwrite: replace an existing output. Without it an existing file, or a non-empty folder,
+        fps: frames per second, from :data:`MIN_FPS` (0.01) to :data:`MAX_FPS` (1000).
+        overwrite: replace an existing output (a bool). Without it an existing file, or a non-empty folder,
             raises ``FileExistsError``. A folder is only replaced if it holds nothing but frames.
-        loop: GIF repeat count; 0 loops forever.
+        loop: GIF repeat count, 0 to :data:`MAX_LOOP`; 0 loops forever.
 
     Returns:
         The path written.
 
     Raises:
-        TypeError, ValueError: bad ``frames``, ``fps`` or ``loop``, or an unknown suffix.
+        TypeError, ValueError: bad ``path``, ``frames``, ``fps``, ``loop`` or ``overwrite``, or an unknown
+            suffix. They are checked before anything is written.
         FileExistsError: the output exists and ``overwrite`` is false.
         RuntimeError: MP4 output without imageio-ffmpeg installed.
     """
-    target = Path(path)
+    target = check_output_path("path", path, folder_ok=True)
     as_folder = os.fspath(path).endswith(("/", os.sep)) or target.is_dir() or not target.suffix
     kind = "frames" if as_folder else _animation_format(target.suffix)
+    fps = check_fps(fps)
+    _check_loop(loop)
+    if not isinstance(overwrite, bool):
+        raise TypeError(f"overwrite must be a bool, got {describe(overwrite)}")
     data = _uint8_frames(frames, "frames")
-    fps = check_positive("fps", fps)
-    check_int("loop", loop, minimum=0)
     if kind == "mp4":
         _require_ffmpeg()
     check_overwrite(target, overwrite)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    make_parents("path", target)
     with atomic_output(target, folder=kind == "frames") as tmp:
         if kind == "frames":
             digits = max(4, len(str(len(data) - 1)))
@@ -89,8 +111,8 @@ def encode_animation(frames: Tensor, fmt: AnimationFormat = "gif", *, fps: float
     Args:
         frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4.
         fmt: ``"gif"`` or ``"mp4"`` (MP4 needs imageio-ffmpeg and passes through a temporary file).
-        fps: frames per second (> 0).
-        loop: GIF repeat count; 0 loops forever.
+        fps: frames per second, from :data:`MIN_FPS` (0.01) to :data:`MAX_FPS` (1000).
+        loop: GIF repeat count, 0 to :data:`MAX_LOOP`; 0 loops forever.
 
     Returns:
         The encoded file contents, as :func:`write_animation` would write them.
@@ -106,9 +128,9 @@ def encode_animation(frames: Tensor, fmt: AnimationFormat = "gif", *, fps: float
     """
     if fmt not in ("gif", "mp4"):
         raise ValueError(f"fmt must be 'gif' or 'mp4', got {fmt!r}")
+    fps = check_fps(fps)
+    _check_loop(loop)
     data = _uint8_frames(frames, "frames")
-    fps = check_positive("fps", fps)
-    check_int("loop", loop, minimum=0)
     if fmt == "gif":
         buffer = io.BytesIO()
         _write_gif(buffer, data, fps, loop)
@@ -118,6 +140,28 @@ def encode_animation(frames: Tensor, fmt: AnimationFormat = "gif", *, fps: float
         file = Path(folder) / "animation.mp4"
         _write_mp4(file, data, fps)
         return file.read_bytes()
+
+
+def check_fps(fps: object) -> float:
+    """Validate a frame rate for :func:`write_animation` and :func:`encode_animation` and return it as a float.
+
+    Raises:
+        TypeError: ``fps`` is not a real number.
+        ValueError: ``fps`` is not finite, or outside :data:`MIN_FPS` to :data:`MAX_FPS`.
+
+    Example:
+        >>> check_fps(25)
+        25.0
+    """
+    value = check_real("fps", fps)
+    if not MIN_FPS <= value <= MAX_FPS:
+        raise ValueError(f"fps must be from {MIN_FPS} to {MAX_FPS:g} frames per second, got {fps!r}")
+    return value
+
+
+def _check_loop(loop: object) -> None:
+    if check_int("loop", loop, minimum=0) > MAX_LOOP:
+        raise ValueError(f"loop must be at most {MAX_LOOP} (a GIF's 16-bit repeat count; 0 loops forever), got {loop}")
 
 
 def _animation_format(suffix: str) -> str:
@@ -182,6 +226,8 @@ def _write_mp4(file: Path, frames: np.ndarray, fps: float) -> None:
     rgb = np.pad(rgb, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")  # yuv420p needs even sizes
     # macro_block_size=1: the size is already even, so imageio must not rescale the frames.
     iio.imwrite(file, rgb, extension=".mp4", plugin="FFMPEG", fps=fps, codec="libx264", macro_block_size=1)
+    if not file.is_file() or file.stat().st_size == 0:  # imageio does not always pass ffmpeg's failure on
+        raise RuntimeError(f"ffmpeg wrote no video for {len(rgb)} frames of {w} x {h} at {fps:g} fps")
 
 
 def _rgb(frames: np.ndarray) -> np.ndarray:

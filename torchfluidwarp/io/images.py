@@ -6,28 +6,58 @@ Images are float tensors ``(B, C, H, W)`` with values in ``[0, 1]`` and ``C`` = 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
 import torch
 import torch.nn.functional as F
+from imageio.plugins.pillow import PillowPlugin
+from PIL import Image
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_tensor, describe
-from torchfluidwarp.io._files import DECODE_ERRORS, PathLike, atomic_output, first_line
+from torchfluidwarp._checks import check_int, check_memory, check_size, check_tensor, compute_dtype, describe
+from torchfluidwarp.io._files import (
+    DECODE_ERRORS,
+    PathLike,
+    atomic_output,
+    check_float_dtype,
+    check_output_path,
+    check_path,
+    first_line,
+    make_parents,
+)
 
-__all__ = ["read_image", "read_image_bytes", "write_image", "resize_image", "shrink_image"]
+__all__ = ["read_image", "read_image_bytes", "write_image", "resize_image", "shrink_image", "MAX_IMAGE_PIXELS"]
 
 # ITU-R BT.601 luma weights, the ones Pillow uses for RGB -> L.
 _LUMA = (0.299, 0.587, 0.114)
 
 
-def read_image(path: PathLike, *, channels: int | None = None, dtype: torch.dtype = torch.float32) -> Tensor:
+MAX_IMAGE_PIXELS = 2**26
+"""The most pixels (``H * W``) that :func:`read_image` and :func:`read_image_bytes` decode unless told otherwise
+(``max_pixels``): 67,108,864, e.g. 8192 x 8192, or a 61-megapixel camera's 9504 x 6336. Such an image takes
+about 1 GiB as a float32 RGBA tensor, and twice that while it is converted. A file whose header claims more is
+refused before its pixels are decoded, so a few bytes that claim gigapixels (a "decompression bomb") cost
+nothing. Pillow also refuses, whatever ``max_pixels`` says, more than twice ``PIL.Image.MAX_IMAGE_PIXELS``
+(about 358 million), and warns above ``PIL.Image.MAX_IMAGE_PIXELS``."""
+
+_BOMB_PIXELS = re.compile(r"\((\d+) pixels\)")
+
+
+def read_image(
+    path: PathLike,
+    *,
+    channels: int | None = None,
+    dtype: torch.dtype = torch.float32,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+) -> Tensor:
     """Read an image file into a ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
 
     8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
-    A multi-frame file (GIF, TIFF) gives its first frame.
+    A multi-frame file (GIF, TIFF) gives its first frame. CMYK images are converted to RGB, and palette
+    images with a transparent colour to RGBA.
 
     Args:
         path: the image file; any format imageio reads (PNG, JPEG, GIF, TIFF, ...).
@@ -35,14 +65,16 @@ def read_image(path: PathLike, *, channels: int | None = None, dtype: torch.dtyp
             1 converts to gray (BT.601 luma, alpha dropped), 3 to RGB (gray repeated, alpha dropped),
             4 to RGBA (opaque alpha added where missing).
         dtype: a floating-point dtype for the result.
+        max_pixels: the most pixels ``H * W`` to decode (:data:`MAX_IMAGE_PIXELS` by default); a file whose
+            header claims more is refused before decoding.
 
     Returns:
         ``(1, C, H, W)`` tensor on the CPU.
 
     Raises:
-        ValueError: the file does not exist or is not a readable image, or ``channels`` is not
-            ``None``, 1, 3 or 4.
-        TypeError: ``dtype`` is not floating point.
+        ValueError: the file does not exist or is not a readable image, its header claims more than
+            ``max_pixels`` pixels, or ``channels`` is not ``None``, 1, 3 or 4.
+        TypeError: ``path`` is not a path, ``dtype`` is not floating point, or ``max_pixels`` not an int.
 
     Example:
         >>> import tempfile, torch
@@ -51,48 +83,53 @@ def read_image(path: PathLike, *, channels: int | None = None, dtype: torch.dtyp
         >>> read_image(path, channels=3).shape
         torch.Size([1, 3, 4, 6])
     """
-    _check_image_options(channels, dtype)
-    path = Path(path)
+    path = check_path("path", path)
+    _check_image_options(channels, dtype, max_pixels)
+    if path.is_dir():
+        raise ValueError(f"cannot read image {str(path)!r}: it is a folder, not a file")
     if not path.is_file():
         raise ValueError(f"cannot read image {str(path)!r}: no such file")
-    try:
-        array = iio.imread(path, index=0)
-    except DECODE_ERRORS as exc:
-        raise ValueError(f"cannot read image {str(path)!r}: not a readable image ({first_line(exc)})") from exc
-    return _tensor_from_array(array, f"image {str(path)!r}", channels, dtype)
+    source = f"image {str(path)!r}"
+    return _tensor_from_array(_decode(path, source, max_pixels), source, channels, dtype)
 
 
-def read_image_bytes(data: bytes, *, channels: int | None = None, dtype: torch.dtype = torch.float32) -> Tensor:
+def read_image_bytes(
+    data: bytes,
+    *,
+    channels: int | None = None,
+    dtype: torch.dtype = torch.float32,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+) -> Tensor:
     """Decode an encoded image (the bytes of a PNG, JPEG, ... file, e.g. an upload).
 
     Args:
         data: the encoded file contents.
         channels: as in :func:`read_image`.
         dtype: as in :func:`read_image`.
+        max_pixels: as in :func:`read_image`.
 
     Returns:
         ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
 
     Raises:
-        TypeError: ``data`` is not bytes-like, or ``dtype`` is not floating point.
-        ValueError: ``data`` is not a readable image, or ``channels`` is invalid.
+        TypeError: ``data`` is not bytes-like, ``dtype`` is not floating point, or ``max_pixels`` not an int.
+        ValueError: ``data`` is not a readable image, claims more than ``max_pixels`` pixels, or ``channels``
+            is invalid.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise TypeError(f"data must be bytes, got {describe(data)}")
-    _check_image_options(channels, dtype)
+    _check_image_options(channels, dtype, max_pixels)
     source = f"image bytes ({len(data)} bytes)"
-    try:
-        array = iio.imread(bytes(data), index=0)
-    except DECODE_ERRORS as exc:
-        raise ValueError(f"cannot read {source}: not a readable image ({first_line(exc)})") from exc
-    return _tensor_from_array(array, source, channels, dtype)
+    return _tensor_from_array(_decode(bytes(data), source, max_pixels), source, channels, dtype)
 
 
 def write_image(path: PathLike, image: Tensor) -> Path:
     """Write an image tensor to a file, atomically, as 8 bits per channel.
 
     Values are clamped to ``[0, 1]`` and rounded to ``uint8``; the format follows the suffix
-    (``.png`` is lossless). An existing file is replaced.
+    (``.png`` is lossless). The image is encoded in memory first, so a format that cannot hold it (no
+    known suffix, an alpha channel in a JPEG) is refused before anything is written. An existing file is
+    replaced; an existing folder is not. Missing parent folders are created.
 
     Args:
         path: the output file.
@@ -102,19 +139,31 @@ def write_image(path: PathLike, image: Tensor) -> Path:
         The path written.
 
     Raises:
-        TypeError, ValueError: ``image`` is not a finite float tensor of one of those shapes.
+        TypeError, ValueError: ``image`` is not a finite float tensor of one of those shapes; ``path`` is not
+            a path, is a folder, or has a suffix whose format cannot hold the image.
     """
+    target = check_output_path("path", path)
     check_tensor("image", image, ndim=(3, 4))
     if image.ndim == 4 and image.shape[0] != 1:
         raise ValueError(f"image must be (C, H, W) or (1, C, H, W), got shape {tuple(image.shape)}")
     array = _uint8_frames(image.reshape(1, *image.shape[-3:]), "image")[0]  # (H, W, C)
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        iio.imwrite(tmp, array[..., 0] if array.shape[-1] == 1 else array)
-    return path
+    if not target.suffix:
+        raise ValueError(f"path {str(path)!r} has no suffix to choose an image format by (e.g. .png)")
+    try:
+        encoded = iio.imwrite("<bytes>", array[..., 0] if array.shape[-1] == 1 else array, extension=target.suffix)
+    except (*DECODE_ERRORS, KeyError, IndexError) as exc:
+        known = target.suffix.lower() in Image.registered_extensions()
+        why = first_line(exc) if known else "no image format has this suffix (e.g. use .png)"
+        raise ValueError(
+            f"cannot write image {str(path)!r} (suffix {target.suffix!r}, {array.shape[-1]} channels): {why}"
+        ) from exc
+    make_parents("path", target)
+    with atomic_output(target) as tmp:
+        tmp.write_bytes(encoded)
+    return target
 
 
-def resize_image(image: Tensor, size: tuple[int, int]) -> Tensor:
+def resize_image(image: Tensor, size: tuple[int, int], *, max_memory: float | None = None) -> Tensor:
     """Resize an image to ``size``: bilinear, antialiased when it shrinks.
 
     torch's antialiased bilinear (``F.interpolate(..., antialias=True)``): each output pixel averages the input
@@ -126,20 +175,34 @@ def resize_image(image: Tensor, size: tuple[int, int]) -> Tensor:
     ``H - 0.5``) map onto each other.
 
     Args:
-        image: ``(B, C, H, W)`` floats.
-        size: ``(H', W')`` in pixels.
+        image: ``(B, C, H, W)`` floats, ``C``, ``H``, ``W`` >= 1; float16 and bfloat16 are resized in float32
+            and returned in their own dtype.
+        size: ``(H', W')`` in pixels, each >= 1 (an int means a square).
+        max_memory: the most bytes the result may take (:data:`torchfluidwarp._checks.MAX_BYTES`, 8 GiB, by
+            default); a larger request is refused before any work.
 
     Returns:
         ``(B, C, H', W')``; ``image`` itself when it already has that size.
+
+    Raises:
+        TypeError, ValueError: ``image`` is not a 4-D float tensor with non-empty ``C, H, W``, or ``size`` is
+            not a pair of ints >= 1; the result would exceed ``max_memory``.
 
     Example:
         >>> resize_image(torch.ones(1, 3, 8, 6), (4, 3)).shape
         torch.Size([1, 3, 4, 3])
     """
     check_tensor("image", image, ndim=4, finite=False)
-    if tuple(image.shape[-2:]) == tuple(size):
+    size = check_size("size", size)
+    if min(image.shape[1:]) < 1:
+        raise ValueError(f"image must have C, H and W >= 1, got shape {tuple(image.shape)}")
+    if tuple(image.shape[-2:]) == size:
         return image
-    return F.interpolate(image, size=size, mode="bilinear", align_corners=False, antialias=True)
+    work = compute_dtype(image.dtype)  # float16 and bfloat16 in float32: torch's CPU antialiased kernel has neither
+    nbytes = image.shape[0] * image.shape[1] * size[0] * size[1] * (work.itemsize + image.dtype.itemsize)
+    check_memory(f"resize_image to {size[0]} x {size[1]}", nbytes, max_memory, "max_memory")
+    out = F.interpolate(image.to(work), size=size, mode="bilinear", align_corners=False, antialias=True)
+    return out.to(image.dtype)
 
 
 def shrink_image(image: Tensor, longest: int) -> Tensor:
@@ -159,6 +222,7 @@ def shrink_image(image: Tensor, longest: int) -> Tensor:
         >>> shrink_image(torch.ones(1, 3, 300, 200), 150).shape
         torch.Size([1, 3, 150, 100])
     """
+    check_tensor("image", image, ndim=4, finite=False)
     check_int("longest", longest, minimum=0)
     H, W = image.shape[-2:]
     if longest == 0 or max(H, W) <= longest:
@@ -167,11 +231,51 @@ def shrink_image(image: Tensor, longest: int) -> Tensor:
     return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale)))).clamp(0, 1)
 
 
-def _check_image_options(channels: int | None, dtype: torch.dtype) -> None:
-    if channels is not None and channels not in (1, 3, 4):
+def _check_image_options(channels: int | None, dtype: torch.dtype, max_pixels: int) -> None:
+    if channels is not None and (
+        isinstance(channels, bool) or not isinstance(channels, int) or channels not in (1, 3, 4)
+    ):
         raise ValueError(f"channels must be None, 1, 3 or 4, got {channels!r}")
-    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
-        raise TypeError(f"dtype must be a floating-point torch.dtype, got {describe(dtype)}")
+    check_float_dtype("dtype", dtype)
+    check_int("max_pixels", max_pixels)
+
+
+def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
+    """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first."""
+    try:
+        with iio.imopen(uri, "r") as file:
+            shape = file.properties(index=0).shape
+            too_large = len(shape) >= 2 and shape[0] * shape[1] > max_pixels
+            array = None if too_large else file.read(index=0, **_pillow_conversion(file))
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
+        match = _BOMB_PIXELS.search(str(exc))
+        claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
+        raise ValueError(
+            f"cannot read {source}: its header claims {claimed}, more than Pillow decodes "
+            f"(a possible decompression bomb; the limit here is max_pixels={max_pixels:,})"
+        ) from None
+    except DECODE_ERRORS as exc:
+        raise ValueError(f"cannot read {source}: not a readable image ({first_line(exc)})") from exc
+    if array is None:
+        raise ValueError(
+            f"cannot read {source}: its header claims {shape[1]} x {shape[0]} = {shape[0] * shape[1]:,} pixels, "
+            f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)"
+        )
+    return array
+
+
+def _pillow_conversion(file: object) -> dict[str, str]:
+    """Pillow modes whose raw values would be misread: CMYK (4 channels, not RGBA) is read as RGB, and a palette
+    image with a transparent colour as RGBA (imageio would drop its alpha)."""
+    if not isinstance(file, PillowPlugin):
+        return {}
+    meta = file.metadata(index=0)
+    mode = meta.get("mode")
+    if mode == "CMYK":
+        return {"mode": "RGB"}
+    if mode == "PA" or (mode == "P" and "transparency" in meta):
+        return {"mode": "RGBA"}
+    return {}
 
 
 def _tensor_from_array(array: np.ndarray, source: str, channels: int | None, dtype: torch.dtype) -> Tensor:

@@ -15,15 +15,28 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_tensor
-from torchfluidwarp.io._files import PathLike, atomic_output, first_line
+from torchfluidwarp._checks import check_int, check_tensor
+from torchfluidwarp.io._files import (
+    PathLike,
+    atomic_output,
+    check_float_dtype,
+    check_output_path,
+    check_path,
+    first_line,
+    make_parents,
+)
 
-__all__ = ["read_points", "write_points", "check_point_counts", "POINT_SUFFIXES"]
+__all__ = ["read_points", "write_points", "check_point_counts", "POINT_SUFFIXES", "MAX_POINTS_BYTES"]
 
 POINT_SUFFIXES = (".pts", ".json", ".csv")
 
 
-def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32) -> Tensor:
+MAX_POINTS_BYTES = 16 * 2**20
+"""The largest points file :func:`read_points` reads unless told otherwise (``max_bytes``): 16 MiB, some
+500,000 points as CSV. Landmark files hold tens to thousands of points; the limit bounds the parse time."""
+
+
+def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32, max_bytes: int = MAX_POINTS_BYTES) -> Tensor:
     """Read landmark points from a ``.pts``, ``.json`` or ``.csv`` file.
 
     Formats (chosen by the suffix):
@@ -39,19 +52,31 @@ def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32) -> Tensor
 
     Args:
         path: the points file.
-        dtype: a floating-point dtype for the result.
+        dtype: a floating-point dtype for the result; every value must fit it (``float16`` tops out at 65504).
+        max_bytes: the largest file to read (:data:`MAX_POINTS_BYTES` by default).
 
     Returns:
         ``(M, 2)`` tensor of ``(x, y)`` pixel coordinates.
 
     Raises:
-        ValueError: the file is missing, its suffix is unknown, it is malformed, a value is not
-            finite, or a ``.pts`` file's ``n_points`` disagrees with its point lines.
+        ValueError: the file is missing or larger than ``max_bytes``, its suffix is unknown, it is malformed
+            (JSON nested deeper than a list of pairs included), a value is not finite in ``dtype``, or a
+            ``.pts`` file's ``n_points`` disagrees with its point lines.
+        TypeError: ``path`` is not a path, ``dtype`` is not a floating-point dtype, or ``max_bytes`` not an int.
     """
-    path = Path(path)
+    path = check_path("path", path)
+    check_float_dtype("dtype", dtype)
+    check_int("max_bytes", max_bytes)
     suffix = _point_suffix(path)
+    if path.is_dir():
+        raise ValueError(f"cannot read points {str(path)!r}: it is a folder, not a file")
     if not path.is_file():
         raise ValueError(f"cannot read points {str(path)!r}: no such file")
+    if (size := path.stat().st_size) > max_bytes:
+        raise ValueError(
+            f"cannot read points {str(path)!r}: {size:,} bytes, more than max_bytes={max_bytes:,} "
+            "(pass a larger max_bytes to read it)"
+        )
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -64,7 +89,11 @@ def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32) -> Tensor
     points = torch.tensor(rows, dtype=torch.float64).reshape(-1, 2)
     if not bool(torch.isfinite(points).all()):
         raise ValueError(f"malformed points file {str(path)!r}: contains non-finite values (NaN or inf)")
-    return points.to(dtype)
+    converted = points.to(dtype)
+    if not bool(torch.isfinite(converted).all()):
+        largest = float(points.abs().max())
+        raise ValueError(f"points file {str(path)!r}: a value ({largest:g}) is out of the range of dtype {dtype}")
+    return converted
 
 
 def write_points(path: PathLike, points: Tensor) -> Path:
@@ -75,15 +104,16 @@ def write_points(path: PathLike, points: Tensor) -> Path:
     fewest digits that read back to the same number in the tensor's dtype.
 
     Args:
-        path: the output file; an existing file is replaced.
-        points: ``(M, 2)`` float tensor of ``(x, y)`` pixel coordinates.
+        path: the output file; an existing file is replaced, an existing folder is not. Missing parent
+            folders are created.
+        points: ``(M, 2)`` float tensor of ``(x, y)`` pixel coordinates (bfloat16 is written as float32).
 
     Returns:
         The path written.
 
     Raises:
-        TypeError, ValueError: ``points`` is not a finite ``(M, 2)`` float tensor, or the suffix is
-            not ``.pts``, ``.json`` or ``.csv``.
+        TypeError, ValueError: ``points`` is not a finite ``(M, 2)`` float tensor, ``path`` is not a path or
+            is a folder, or the suffix is not ``.pts``, ``.json`` or ``.csv``.
 
     Example:
         >>> import tempfile, torch
@@ -92,10 +122,11 @@ def write_points(path: PathLike, points: Tensor) -> Path:
         >>> read_points(path).tolist()
         [[10.5, 20.25], [30.0, 40.0]]
     """
+    path = check_output_path("path", path)
     check_tensor("points", points, shape=(None, 2))
-    path = Path(path)
     suffix = _point_suffix(path)
-    array = points.detach().cpu().numpy()
+    # numpy has no bfloat16; float32 holds each of its values exactly
+    array = points.detach().cpu().to(torch.float32 if points.dtype == torch.bfloat16 else points.dtype).numpy()
     rows = [[_shortest(x), _shortest(y)] for x, y in array]
     if suffix == ".pts":
         lines = ["version: 1", f"n_points: {len(rows)}", "{", *(f"{x} {y}" for x, y in rows), "}"]
@@ -104,6 +135,7 @@ def write_points(path: PathLike, points: Tensor) -> Path:
         text = json.dumps({"points": [[float(x), float(y)] for x, y in rows]}) + "\n"
     else:
         text = "x,y\n" + "".join(f"{x},{y}\n" for x, y in rows)
+    make_parents("path", path)
     with atomic_output(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return path
@@ -153,7 +185,7 @@ def _parse_pair(fields: list[str], where: str) -> list[float]:
     try:
         return [float(fields[0]), float(fields[1])]
     except ValueError:
-        raise ValueError(f"{where}: not a number in {fields!r}") from None
+        raise ValueError(f"{where}: not a number in {_shorten(repr(fields))}") from None
 
 
 def _parse_pts(text: str) -> list[list[float]]:
@@ -164,7 +196,7 @@ def _parse_pts(text: str) -> list[list[float]]:
         n, line = lines[i]
         key, sep, value = line.partition(":")
         if not sep:
-            raise ValueError(f"line {n}: expected 'key: value' or '{{', got {line!r}")
+            raise ValueError(f"line {n}: expected 'key: value' or '{{', got {_shorten(repr(line))}")
         header[key.strip().lower()] = value.strip()
         i += 1
     if i == len(lines):
@@ -189,6 +221,8 @@ def _parse_json(text: str) -> list[list[float]]:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"invalid JSON: {exc}") from None
+    except RecursionError:  # the decoder recurses once per level: a few bytes of "[[[[..." exhaust the stack
+        raise ValueError('JSON nested too deeply; expected [[x, y], ...] or {"points": [[x, y], ...]}') from None
     if isinstance(data, dict):
         if "points" not in data:
             raise ValueError('expected a list [[x, y], ...] or an object {"points": [[x, y], ...]}')
@@ -199,18 +233,30 @@ def _parse_json(text: str) -> list[list[float]]:
     for k, item in enumerate(data):
         ok = isinstance(item, list) and len(item) == 2
         if not ok or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in item):
-            raise ValueError(f"point {k}: expected [x, y] with two numbers, got {item!r}")
-        rows.append([float(item[0]), float(item[1])])
+            raise ValueError(f"point {k}: expected [x, y] with two numbers, got {_shorten(repr(item))}")
+        try:
+            rows.append([float(item[0]), float(item[1])])
+        except OverflowError:  # an integer literal beyond float64
+            raise ValueError(f"point {k}: a value is too large for a float, in {_shorten(repr(item))}") from None
     return rows
+
+
+def _shorten(text: str, limit: int = 60) -> str:
+    """``text`` cut to about ``limit`` characters, for messages that quote a file's contents."""
+    return text if len(text) <= limit else f"{text[: limit - 5]}...({len(text):,} characters)"
 
 
 def _parse_csv(text: str) -> list[list[float]]:
     rows: list[list[float]] = []
-    for n, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
-        fields = [f.strip() for f in fields]
-        if not any(fields):
-            continue
-        if not rows and [f.lower() for f in fields] == ["x", "y"]:
-            continue
-        rows.append(_parse_pair(fields, f"line {n}"))
+    reader = csv.reader(io.StringIO(text))
+    try:
+        for n, fields in enumerate(reader, start=1):
+            fields = [f.strip() for f in fields]
+            if not any(fields):
+                continue
+            if not rows and [f.lower() for f in fields] == ["x", "y"]:
+                continue
+            rows.append(_parse_pair(fields, f"line {n}"))
+    except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit()
+        raise ValueError(f"line {reader.line_num}: {exc}") from None
     return rows
