@@ -17,7 +17,7 @@ with warnings.catch_warnings():  # newer Starlette suggests httpx2 for its TestC
     from starlette.testclient import TestClient
 
 from torchfluidwarp.apps.studio import StudioConfig, create_app, loopback_hosts
-from torchfluidwarp.apps.studio.app import LatestOnly, Superseded
+from torchfluidwarp.apps.studio.jobs import LatestOnly, Superseded
 from torchfluidwarp.apps.studio.server import add_arguments, main
 from torchfluidwarp.io import read_points
 

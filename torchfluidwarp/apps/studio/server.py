@@ -22,8 +22,10 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from torchfluidwarp.apps.cli_args import fail
 from torchfluidwarp.apps.studio.app import StudioConfig, create_app, loopback_hosts
-from torchfluidwarp.io import read_image, read_points
+from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp.io import check_point_counts, read_image, read_points
 
 __all__ = ["add_arguments", "run", "main", "serve_in_thread", "free_port", "DEFAULT_PORT"]
 
@@ -94,13 +96,10 @@ def _load(args: argparse.Namespace) -> tuple[dict[str, tuple[Tensor, str]], dict
             continue
         if key not in images:
             raise ValueError(f"--points-{key} needs image {key.upper()}")
-        pts = read_points(path)
-        H, W = images[key][0].shape[-2:]
-        if bool(((pts[:, 0] < -0.5) | (pts[:, 0] > W - 0.5) | (pts[:, 1] < -0.5) | (pts[:, 1] > H - 0.5)).any()):
-            raise ValueError(f"--points-{key} {path!r}: points outside the {W}x{H} image")
-        points[key] = pts
-    if "a" in points and "b" in points and points["a"].shape[0] != points["b"].shape[0]:
-        raise ValueError(f"--points-a has {points['a'].shape[0]} points but --points-b has {points['b'].shape[0]}")
+        image = images[key][0]
+        points[key] = check_points(f"--points-{key} {path!r}", read_points(path), (image.shape[-2], image.shape[-1]))[0]
+    if "a" in points and "b" in points:
+        check_point_counts(points["a"], points["b"], "--points-a", "--points-b")
     return images, points
 
 
@@ -121,9 +120,7 @@ def run(args: argparse.Namespace) -> int:
         port = args.port or free_port(args.host)
         _check_port(args.host, port)
     except (ValueError, OSError) as exc:
-        lines = str(exc).strip().splitlines()
-        print(f"{PROG}: error: {lines[0] if lines else exc}", file=sys.stderr)
-        return 2
+        return fail("studio", exc)
     if args.host not in _LOOPBACK:
         print(
             f"{PROG}: warning: listening on {args.host}, not only on this machine: anyone who can reach it and "
@@ -149,8 +146,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     except (OSError, SystemExit):  # uvicorn exits when it cannot bind
-        print(f"{PROG}: error: cannot listen on {args.host}:{port}", file=sys.stderr)
-        return 2
+        return fail("studio", f"cannot listen on {args.host}:{port}")
     return 0
 
 
