@@ -9,6 +9,19 @@
   const $ = (id) => document.getElementById(id);
   const HIT = 9; // CSS pixels within which a press grabs a point
 
+  // Panes A and B come from one template in index.html; their ids end in the side, as the code below expects
+  for (const [side, what] of [['a', 'click to add a point'], ['b', 'click to add the partner point']]) {
+    const pane = $('image-pane').content.firstElementChild.cloneNode(true);
+    pane.id = `pane-${side}`;
+    pane.querySelector('b').textContent = side.toUpperCase();
+    pane.querySelector('.name').id = `name-${side}`;
+    for (const input of pane.querySelectorAll('input[data-id]')) input.id = `${input.dataset.id}-${side}`;
+    const canvas = pane.querySelector('canvas');
+    canvas.id = `canvas-${side}`;
+    canvas.setAttribute('aria-label', `image ${side.toUpperCase()}: ${what}`);
+    $('pane-m').before(pane);
+  }
+
   // ------------------------------------------------------------------------------------- server calls
 
   function url(path, params = {}) {
