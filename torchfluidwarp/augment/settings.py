@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import KW_ONLY, dataclass
 from typing import Any, TypeVar
 
-from torchfluidwarp._checks import check_int, check_positive, describe
+from torchfluidwarp._checks import check_instance, check_int, check_positive, describe
 from torchfluidwarp.core.grid import FluidGrid
 
 __all__ = ["MAX_SHEAR", "FluidWarpSettings", "make_settings", "settings_signature"]
@@ -158,8 +158,7 @@ def make_settings(settings: FluidWarpSettings | None, *args: Any, **kwargs: Any)
         raise TypeError(f"unknown fluid warp setting(s) {unknown}; the settings are {sorted(FIELDS)}")
     if settings is None:
         return FluidWarpSettings(*args, **kwargs)
-    if not isinstance(settings, FluidWarpSettings):
-        raise TypeError(f"settings must be a FluidWarpSettings or None, got {describe(settings)}")
+    check_instance("settings", settings, FluidWarpSettings, optional=True)
     if args:
         raise TypeError(f"pass the ranges by name next to settings (to replace them), got positional {args!r}")
     return dataclasses.replace(settings, **kwargs) if kwargs else settings

@@ -42,7 +42,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_tensor, describe
+from torchfluidwarp._checks import check_instance, check_tensor
 from torchfluidwarp.augment.carry import apply_fluid_warp
 from torchfluidwarp.augment.draw import FluidWarpParams, draw_fluid_warp
 from torchfluidwarp.augment.settings import FIELDS, FluidWarpSettings, make_settings, settings_signature
@@ -135,8 +135,7 @@ class FluidWarpAugment(nn.Module):
     ) -> None:
         super().__init__()
         self.settings = make_settings(settings, *ranges, **kwargs)
-        if generator is not None and not isinstance(generator, torch.Generator):
-            raise TypeError(f"generator must be a torch.Generator or None, got {describe(generator)}")
+        check_instance("generator", generator, torch.Generator, optional=True)
         self.generator = generator
         self._worker: int | None = None
 

@@ -177,9 +177,9 @@ def _boxes_kernel(
         return x
     fmt, canvas = x.format, tuple(x.canvas_size)
     boxes = _as_float(data, params)
+    # both branches: torchvision's box edges at integers -> library pixels (centres at integers), -0.5, and back
     if not tv_tensors.is_rotated_bounding_format(fmt):
         xyxy = TF.convert_bounding_box_format(boxes, old_format=fmt, new_format=tv_tensors.BoundingBoxFormat.XYXY)
-        # box edges at integers -> library pixels (centres at integers) and back
         moved = carry_boxes(params, xyxy.reshape(1, -1, 4) - 0.5, canvas, edge_points, clip=False)[0] + 0.5
         work_fmt = tv_tensors.BoundingBoxFormat.XYXY
     else:
