@@ -289,3 +289,25 @@ def test_main_parses_arguments(capsys):
     assert main(["--help"]) == 0
     assert main(["missing.png", "--no-browser"]) == 2
     assert "missing.png" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("name", "new"),
+    [
+        ("LatestOnly", "torchfluidwarp.apps.studio.jobs"),
+        ("Superseded", "torchfluidwarp.apps.studio.jobs"),
+        ("TOKEN_HEADER", "torchfluidwarp.apps.studio.guard"),
+        ("MAX_UPLOAD", "torchfluidwarp.apps.studio.config"),
+        ("config_json", "torchfluidwarp.apps.animate"),
+    ],
+)
+def test_names_moved_out_of_studio_app_still_resolve_with_a_warning(name, new):
+    import importlib
+
+    import torchfluidwarp.apps.studio.app as app
+
+    with pytest.warns(DeprecationWarning, match=new):
+        value = getattr(app, name)
+    assert value is getattr(importlib.import_module(new), name)
+    with pytest.raises(AttributeError):
+        app.no_such_name  # noqa: B018
