@@ -8,16 +8,15 @@ and carries passive points along.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import cast
+from typing import TYPE_CHECKING, TypedDict, cast
 
 import torch
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import all_finite, check_positive, check_tensor
+from torchfluidwarp.core.advection import _advect_points, _advect_velocity
 from torchfluidwarp.core.fluid import (
     Viscosity,
-    _advect_points,
-    _advect_velocity,
     check_viscosity,
     diffuse,
     faces_from_cells,
@@ -25,6 +24,9 @@ from torchfluidwarp.core.fluid import (
 )
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.core.linalg import CGConfig
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack  # typing.Unpack from Python 3.11
 
 __all__ = ["AddForce", "Advect", "Diffuse", "Project", "StableFluidsStep", "FluidSimulator", "FluidRollout"]
 
@@ -76,6 +78,15 @@ class Project(nn.Module):
 
     def forward(self, velocity: Tensor) -> tuple[Tensor, int]:
         return project(velocity, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True)  # type: ignore[return-value]
+
+
+class StepSettings(TypedDict, total=False):
+    """The keyword settings of :class:`StableFluidsStep`, which :class:`FluidSimulator` passes on to it."""
+
+    pressure: CGConfig
+    diffusion: CGConfig
+    adjoint: CGConfig | None
+    compressible: bool | float
 
 
 class StableFluidsStep(nn.Module):
@@ -160,8 +171,8 @@ class FluidSimulator(nn.Module):
         viscosity: float ``>= 0``, a field ``(B|1, 1, h, w)`` (stored as a buffer, or a parameter if it is one),
             or a module called as ``viscosity(grid, image_size)`` that returns such a field (see
             :mod:`torchfluidwarp.warp.forces`; ``image_size`` is the grid's own size unless a warp passes the image's).
-        pressure, diffusion, adjoint: CG settings (see :class:`StableFluidsStep`).
-        compressible: see :class:`StableFluidsStep`.
+        **step: the keyword settings of :class:`StableFluidsStep` (:class:`StepSettings`): ``pressure``,
+            ``diffusion`` and ``adjoint`` CG settings, and ``compressible``; its defaults otherwise.
 
     Example:
         >>> sim = FluidSimulator(grid=(16, 24), dt=1.0)
@@ -176,18 +187,12 @@ class FluidSimulator(nn.Module):
         grid: FluidGrid | int | tuple[int, int],
         dt: float = 1.0,
         viscosity: Viscosity | nn.Module = 0.0,
-        *,
-        pressure: CGConfig = CGConfig(),
-        diffusion: CGConfig = CGConfig(),
-        adjoint: CGConfig | None = None,
-        compressible: bool | float = False,
+        **step: Unpack[StepSettings],
     ) -> None:
         super().__init__()
         self.grid = FluidGrid.of(grid)
         self.dt = check_positive("dt", dt)
-        self.step = StableFluidsStep(
-            dt, pressure=pressure, diffusion=diffusion, adjoint=adjoint, compressible=compressible
-        )
+        self.step = StableFluidsStep(dt, **step)
         self.viscosity: Viscosity | nn.Module
         if isinstance(viscosity, (nn.Module, nn.Parameter)):
             self.viscosity = viscosity
