@@ -20,7 +20,7 @@ def test_gradient_matches_central_finite_differences(gen):
     tgt = src + torch.tensor([1.5, -1.0], dtype=torch.float64)
 
     def phi():
-        return keyframe_loss(warp.advect_points(src, forces), [(3, tgt)])
+        return keyframe_loss(warp.carry_points(src, forces), [(3, tgt)])
 
     loss = phi()
     (grad,) = torch.autograd.grad(loss, forces.weight)
@@ -67,7 +67,7 @@ def test_the_returned_warp_replays_the_fitted_forces():
         src, src + torch.tensor([2.0, 1.0]), image_size=(32, 32), grid=16, steps=4, control=3, progress=False
     )
     with torch.no_grad():
-        replay = fit.warp.advect_points(src[None], fit.forces)
+        replay = fit.warp.carry_points(src[None], fit.forces)
         frames = fit.animate(torch.rand(1, 3, 32, 32))
     torch.testing.assert_close(replay[:, -1], fit.points)
     assert frames.shape == (1, 5, 3, 32, 32)

@@ -126,7 +126,7 @@ ENTRY_POINTS: dict[str, tuple[list[str | tuple[str, str]], Call]] = {
     "FluidWarp.iter_frames": (["image", "forces"], lambda a: list(_warp().iter_frames(a["image"], a["forces"]))),
     "FluidWarp.maps": (["forces"], lambda a: _warp().maps(a["forces"])),
     "FluidWarp.forward_maps": (["forces"], lambda a: _warp().forward_maps(a["forces"])),
-    "FluidWarp.advect_points": (["points", "forces"], lambda a: _warp().advect_points(a["points"], a["forces"])),
+    "FluidWarp.carry_points": (["points", "forces"], lambda a: _warp().carry_points(a["points"], a["forces"])),
     "warp_image": (["image", "coords"], lambda a: tfw.warp_image(a["image"], a["coords"])),
     "advect": (["quantity", "velocity", "dt"], lambda a: fluid.advect(a["quantity"], a["velocity"], a["dt"])),
     "advect_velocity": (["velocity", "dt"], lambda a: fluid.advect_velocity(a["velocity"], a["dt"])),
@@ -207,7 +207,7 @@ def test_a_flow_that_blows_up_inside_is_refused_before_sampling(bad: str):
         fluid._advect_points(torch.full((1, 2, 3), 4.0), velocity, 1.0)
 
 
-@pytest.mark.parametrize("entry", ["forward", "iter_frames", "advect_points"])
+@pytest.mark.parametrize("entry", ["forward", "iter_frames", "carry_points"])
 def test_fluid_warp_refuses_a_batch_mismatch_naming_both(entry: str):
     a = _inputs()
     forces = a["forces"].expand(3, -1, -1, -1, -1)
@@ -215,7 +215,7 @@ def test_fluid_warp_refuses_a_batch_mismatch_naming_both(entry: str):
     call: dict[str, Callable[[], Any]] = {
         "forward": lambda: _warp()(image, forces),
         "iter_frames": lambda: list(_warp().iter_frames(image, forces)),
-        "advect_points": lambda: _warp().advect_points(points, forces),
+        "carry_points": lambda: _warp().carry_points(points, forces),
     }
     with pytest.raises(ValueError, match=r"forces have batch 3, but (image|points) has batch 2"):
         call[entry]()

@@ -9,8 +9,11 @@ from torchfluidwarp.warp.forces import (
     Brushes,
     CellForces,
     ControlGrid,
+    LandmarkForces,
     SumForces,
     ViscosityBrushes,
+    cell_centres,
+    gaussian_bumps,
     viscosity_from_mask,
 )
 
@@ -97,3 +100,27 @@ def test_viscosity_maps():
 def test_bad_brushes(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Brushes(**kwargs)
+
+
+def test_gaussian_bumps_profile_and_batching(gen):
+    x = cell_centres(FluidGrid(6, 7), (30, 35), torch.zeros((), dtype=torch.float64))  # (6, 7, 2) pixels
+    centers = torch.rand(3, 4, 2, generator=gen, dtype=torch.float64) * 30
+    radius = torch.rand(3, 4, generator=gen, dtype=torch.float64) * 5 + 2
+    bumps = gaussian_bumps(x, centers, radius)
+    assert bumps.shape == (3, 4, 6, 7)
+    for b in range(3):  # a batch of brush sets is each set on its own, bit for bit
+        torch.testing.assert_close(bumps[b], gaussian_bumps(x, centers[b], radius[b]), rtol=0, atol=0)
+    at = torch.stack([centers[0, 0], centers[0, 0] + radius[0, 0] * torch.tensor([0.6, 0.8], dtype=torch.float64)])
+    values = gaussian_bumps(at.view(1, 2, 2), centers[0, :1], radius[0, :1])[0, 0]
+    torch.testing.assert_close(values, torch.tensor([1.0, math.exp(-0.5)], dtype=torch.float64))
+
+
+def test_force_modules_build_their_parameters_where_asked():
+    assert ControlGrid(2, (2, 2), dtype=torch.float64).weight.dtype == torch.float64
+    assert CellForces(2, (4, 4), dtype=torch.float64).weight.dtype == torch.float64
+    assert ControlGrid(2, (2, 2)).weight.dtype == torch.get_default_dtype()
+    mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]], dtype=torch.float64)
+    landmarks = LandmarkForces(mid, torch.ones(3, 2, dtype=torch.float64), steps=2)
+    assert landmarks.weight.dtype == torch.float64 and landmarks.weight.device == mid.device
+    brushes = Brushes(torch.tensor([[5.0, 5.0]]), [[1.0, 0.0]], radius=[3.0], amplitude=torch.tensor(0.5))
+    assert {p.device for p in brushes.parameters()} == {brushes.centers.device}

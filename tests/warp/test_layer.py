@@ -96,7 +96,7 @@ def test_points_follow_the_forward_map(gen):
     brushes = _random_brushes(gen, 2, size, amplitude=0.5)
     fwd = warp.forward_maps(brushes, size)
     pts = torch.tensor([[[10.0, 20.0], [40.0, 33.0]]])
-    paths = warp.advect_points(pts, brushes, size)
+    paths = warp.carry_points(pts, brushes, size)
     assert paths.shape == (1, 6, 2, 2)
     torch.testing.assert_close(paths[0, :, 0], fwd[0, :, 20, 10], atol=1e-5, rtol=0)
 
@@ -113,7 +113,7 @@ def test_bad_inputs():
     with pytest.raises(ValueError, match=r"forces must have shape \(\*, 2, 2, 8, 8\)"):
         warp(torch.rand(1, 3, 16, 16), torch.zeros(1, 3, 2, 8, 8))
     with pytest.raises(ValueError, match="size is needed"):
-        warp.advect_points(torch.zeros(1, 1, 2), torch.zeros(1, 2, 2, 8, 8))
+        warp.carry_points(torch.zeros(1, 1, 2), torch.zeros(1, 2, 2, 8, 8))
     with pytest.raises(ValueError, match="coords contains non-finite"):
         warp_image(torch.rand(1, 1, 4, 4), torch.full((1, 4, 4, 2), float("nan")))
     with pytest.raises(ValueError, match="steps must be >= 1"):

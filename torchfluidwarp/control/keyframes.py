@@ -258,7 +258,7 @@ def fit_keyframes(
     result = minimize(objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes")
     start = time.perf_counter()
     with torch.no_grad():
-        paths = warp.advect_points(src, module)
+        paths = warp.carry_points(src, module)
     kf_err = [(t, (paths[:, t] - q).norm(dim=-1)) for t, q in keyframes]
     reached = all(bool(e.max() <= tolerance) for _, e in kf_err)
     err = kf_err[-1][1]

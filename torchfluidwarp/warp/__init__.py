@@ -1,22 +1,24 @@
 """Forces in, warped images out: force modules, texture-coordinate maps and the :class:`FluidWarp` layer.
 
 * :mod:`~torchfluidwarp.warp.forces`: force fields over time, ``(B, T, 2, h, w)`` in cells per step²: control
-  grids, brushes, landmark forces, viscosity maps;
-* :mod:`~torchfluidwarp.warp.layer`: texture-coordinate maps ``(B, T+1, H, W, 2)``, the Jacobian determinant,
-  ``warp_image`` and the differentiable :class:`FluidWarp` layer.
+  grids, brushes, viscosity maps;
+* :mod:`~torchfluidwarp.warp.landmarks`: the natural morph's landmark forces;
+* :mod:`~torchfluidwarp.warp.maps`: texture-coordinate maps ``(B, T+1, H, W, 2)``, their working raster and
+  its upsample, the Jacobian determinant and ``warp_image``;
+* :mod:`~torchfluidwarp.warp.layer`: the differentiable :class:`FluidWarp` layer.
 """
 
 from torchfluidwarp.warp.forces import (
     Brushes,
     CellForces,
     ControlGrid,
-    LandmarkForces,
     SumForces,
     ViscosityBrushes,
     viscosity_from_mask,
 )
-from torchfluidwarp.warp.layer import (
-    FluidWarp,
+from torchfluidwarp.warp.landmarks import LandmarkForces
+from torchfluidwarp.warp.layer import FluidWarp
+from torchfluidwarp.warp.maps import (
     backward_maps,
     forward_maps,
     identity_map,

@@ -5,14 +5,15 @@ Force modules are called as ``forces(grid, steps, dt, image_size)`` and return a
 ``viscosity(grid, image_size)`` and return a field ``(B|1, 1, h, w)`` in cells^2 per time unit. Positions and
 lengths given to them are in **pixels** of an image of size ``image_size = (H, W)`` (pixel centres at
 integers), so the same module drives any fluid resolution. Every parameter is an ``nn.Parameter``, so
-brushes and control grids are differentiable and can be fitted.
+brushes and control grids are differentiable and can be fitted. The landmark forces of the natural morph live in
+:mod:`torchfluidwarp.warp.landmarks` (importable from here too).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
@@ -21,7 +22,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.core.grid import FluidGrid, cell_scale
 from torchfluidwarp.core.grid import cell_centres as _grid_cell_centres
-from torchfluidwarp.core.spline import tps_fit
+from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints  # noqa: F401  (their old home)
 
 __all__ = [
     "Brushes",
@@ -32,6 +33,7 @@ __all__ = [
     "ViscosityBrushes",
     "viscosity_from_mask",
     "cell_centres",
+    "gaussian_bumps",
 ]
 
 
@@ -41,6 +43,26 @@ def cell_centres(grid: FluidGrid, image_size: tuple[int, int], like: Tensor) -> 
     :func:`torchfluidwarp.core.grid.cell_centres`, which it calls, is the one definition.
     """
     return _grid_cell_centres(grid, image_size, device=like.device, dtype=like.dtype)
+
+
+def gaussian_bumps(points: Tensor, centers: Tensor, radius: Tensor) -> Tensor:
+    """Gaussian brushes ``exp(-|x - c|^2 / (2 r^2))`` evaluated at points: the one brush profile.
+
+    Args:
+        points: ``(h, w, 2)`` positions ``(x, y)``, e.g. the fluid cell centres in pixels (:func:`cell_centres`).
+        centers: ``(..., 2)`` brush centres ``(x, y)`` in the same units, e.g. ``(K, 2)`` or ``(B, K, 2)``.
+        radius: ``(...)`` Gaussian radii in the same units, one per centre.
+
+    Returns:
+        ``(..., h, w)`` values in ``(0, 1]``, 1 at a brush's centre.
+
+    Example:
+        >>> x = torch.tensor([[[0.0, 0.0], [3.0, 4.0]]])  # (1, 2, 2)
+        >>> gaussian_bumps(x, torch.zeros(1, 2), torch.tensor([5.0])).squeeze().tolist()
+        [1.0, 0.6065306663513184]
+    """
+    d2 = ((points - centers[..., None, None, :]) ** 2).sum(-1)  # (..., h, w)
+    return torch.exp(-d2 / (2 * radius[..., None, None] ** 2))
 
 
 class Brushes(nn.Module):
@@ -79,13 +101,13 @@ class Brushes(nn.Module):
         k = c.shape[0]
         if k < 1:
             raise ValueError("centers must hold at least one brush, got shape (0, 2)")
-        d = torch.as_tensor(directions, dtype=c.dtype).detach().clone()
+        d = torch.as_tensor(directions, dtype=c.dtype, device=c.device).detach().clone()
         check_tensor("directions", d, shape=[k, 2])
         if bool((d.norm(dim=-1) == 0).any()):
             raise ValueError("directions must be non-zero vectors")
 
         def per_brush(name: str, v: Tensor | Sequence | float, positive: bool) -> nn.Parameter:
-            t = torch.as_tensor(v, dtype=c.dtype).detach().clone().flatten()
+            t = torch.as_tensor(v, dtype=c.dtype, device=c.device).detach().clone().flatten()
             t = t.expand(k).clone() if t.numel() == 1 else t
             check_tensor(name, t, shape=[k])
             if positive and bool((t <= 0).any()):
@@ -106,8 +128,7 @@ class Brushes(nn.Module):
         H, W = check_size("image_size", image_size)
         steps = check_int("steps", steps)
         x = cell_centres(grid, (H, W), self.centers)  # (h, w, 2) pixels
-        d2 = ((x[None] - self.centers[:, None, None]) ** 2).sum(-1)  # (K, h, w)
-        bump = torch.exp(-d2 / (2 * self.radius[:, None, None] ** 2))
+        bump = gaussian_bumps(x, self.centers, self.radius)  # (K, h, w)
         unit = self.directions / self.directions.norm(dim=-1, keepdim=True)
         # pixels -> cells: accelerations scale like lengths
         to_cells = cell_scale((H, W), grid, device=unit.device, dtype=unit.dtype)
@@ -166,8 +187,11 @@ class ControlGrid(nn.Module):
         steps: ``T``.
         control: ``(K_y, K_x)`` control points per step (each at least 2).
         batch: number of independent problems ``B``.
-        init: optional initial values ``(B, T, 2, K_y, K_x)`` of ``weight``; zero by default.
+        init: optional initial values ``(B, T, 2, K_y, K_x)`` of ``weight`` (its device and dtype are kept); zero
+            by default.
         cumulative: whether ``weight`` holds running sums of the forces (see above) or the forces.
+        device, dtype: of the zero ``weight`` when ``init`` is not given (default: the default dtype on the CPU,
+            as for ``torch.nn``'s layers; ``.to()`` moves it later).
 
     Example:
         >>> cg = ControlGrid(3, (2, 2), init=torch.ones(1, 3, 2, 2, 2))
@@ -182,12 +206,15 @@ class ControlGrid(nn.Module):
         batch: int = 1,
         init: Tensor | None = None,
         cumulative: bool = True,
+        *,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
     ) -> None:
         super().__init__()
         ky, kx = check_size("control", control, minimum=2)
         steps, batch = check_int("steps", steps), check_int("batch", batch)
         if init is None:
-            init = torch.zeros(batch, steps, 2, ky, kx)
+            init = torch.zeros(batch, steps, 2, ky, kx, device=device, dtype=dtype)
         check_tensor("init", init, shape=[batch, steps, 2, ky, kx])
         self.weight = nn.Parameter(init.detach().clone())
         self.cumulative = bool(cumulative)
@@ -211,12 +238,24 @@ class ControlGrid(nn.Module):
 
 
 class CellForces(nn.Module):
-    """One free force value per fluid cell and step: ``weight`` ``(B, T, 2, h, w)``, cells per time unit^2."""
+    """One free force value per fluid cell and step: ``weight`` ``(B, T, 2, h, w)``, cells per time unit^2.
 
-    def __init__(self, steps: int, grid: FluidGrid | tuple[int, int] | int, batch: int = 1) -> None:
+    ``device`` and ``dtype`` are those of the zero ``weight`` (default: the default dtype on the CPU, as for
+    ``torch.nn``'s layers; ``.to()`` moves it later).
+    """
+
+    def __init__(
+        self,
+        steps: int,
+        grid: FluidGrid | tuple[int, int] | int,
+        batch: int = 1,
+        *,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype | None = None,
+    ) -> None:
         super().__init__()
-        g = FluidGrid.of(grid)
-        self.weight = nn.Parameter(torch.zeros(check_int("batch", batch), check_int("steps", steps), 2, *g.shape))
+        shape = (check_int("batch", batch), check_int("steps", steps), 2, *FluidGrid.of(grid).shape)
+        self.weight = nn.Parameter(torch.zeros(shape, device=device, dtype=dtype))
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         if FluidGrid.of(grid).shape != tuple(self.weight.shape[-2:]) or steps != self.weight.shape[1]:
@@ -225,140 +264,6 @@ class CellForces(nn.Module):
                 f"and {steps} steps were asked for"
             )
         return self.weight
-
-
-def _fade(x: Tensor, lo: float, hi: float, end_lo: float, end_hi: float) -> Tensor:
-    """1 on ``[lo, hi]``, falling as a half cosine to 0 at ``end_lo < lo`` and ``end_hi > hi``."""
-    below = ((lo - x) / max(lo - end_lo, 1e-9)).clamp(0, 1)
-    above = ((x - hi) / max(end_hi - hi, 1e-9)).clamp(0, 1)
-    return 0.5 * (1 + torch.cos(math.pi * torch.maximum(below, above)))
-
-
-def solve_midpoints(
-    travel: Callable[[Tensor], Tensor], at: Tensor, sigma: float, start: Tensor | None = None
-) -> Tensor:
-    """The midpoints ``m`` ``(N, 2)`` with ``m + sigma D(m) = at``: where the particles at ``at`` ``(N, 2)`` are
-    in the middle frame of straight paths ``m + sigma D(m)`` (see :class:`LandmarkForces`).
-
-    Newton's method, with the Jacobian of ``D = travel`` by central differences (0.01 px), from ``start`` (default
-    ``at``); the map is invertible wherever the paths do not fold, and a few iterations reach round-off.
-    """
-    m = at.clone() if start is None else start.clone()
-    h = 0.01
-    ex, ey = m.new_tensor([h, 0.0]), m.new_tensor([0.0, h])
-    for _ in range(12):
-        residual = m + sigma * travel(m) - at  # (N, 2)
-        if float(residual.abs().max()) < 1e-9:
-            break
-        jx = (travel(m + ex) - travel(m - ex)) / (2 * h)  # (N, 2): dD/dx
-        jy = (travel(m + ey) - travel(m - ey)) / (2 * h)
-        a, b = 1 + sigma * jx[:, 0], sigma * jy[:, 0]  # I + sigma J, row x
-        c, d = sigma * jx[:, 1], 1 + sigma * jy[:, 1]  # row y
-        det = a * d - b * c
-        det = torch.where(det.abs() > 1e-6, det, torch.full_like(det, 1e-6))
-        step = (
-            torch.stack([d * residual[:, 0] - b * residual[:, 1], a * residual[:, 1] - c * residual[:, 0]], -1)
-            / det[:, None]
-        )
-        m = m - step
-    return m
-
-
-class LandmarkForces(nn.Module):
-    """Forces that move marked points on straight lines at constant speed, and the rest of the picture as a
-    thin-plate spline between them says: the natural morph's control.
-
-    Point ``i`` travels ``x_i(s) = m_i + (s - 1/2) d_i`` over the roll-out's fraction ``s = t / T`` in
-    ``[0, 1]``, from ``m_i - d_i / 2`` to ``m_i + d_i / 2``; every other particle travels likewise,
-    ``x(s) = m + (s - 1/2) D(m)``, with ``D`` the thin-plate spline (:func:`~torchfluidwarp.core.spline.tps_cardinal`)
-    through the ``d_i`` at the midpoints ``m_i``. Defined at the midpoints, the middle frame is the spline
-    morph to the average shape, and A's and B's sides are treated alike. An inviscid compressible fluid keeps
-    every particle's velocity (Burgers' equation), so one kick at step 0 sets this motion going and the fluid
-    coasts; the discrete fluid does so only approximately, and a fit corrects the kicks.
-
-    The control vector ``weight`` ``(B, T, M, 2)`` holds corrections to the points' velocities (pixels per
-    time unit, running sums: ``weight[:, t]`` is the correction in force during step ``t``); it starts at 0. The
-    force of step ``t`` is the spline through the change of the velocities since step ``t - 1``, evaluated
-    at each cell's particle (where it is at the middle), so a correction moves the point it belongs to, and
-    its neighbours as the spline says.
-
-    Args:
-        midpoints: ``(M, 2)`` pixels: ``m_i``, distinct, at least 3 and not all on one line.
-        displacements: ``(M, 2)`` pixels: ``d_i``, each point's whole travel.
-        steps: ``T``.
-        batch: number of independent problems ``B``.
-        inside: optional ``(x0, y0, x1, y1)`` pixels: the forces act fully inside this rectangle and fade to
-            zero (a half cosine) at the image's edges, where the fluid's walls are. A morph puts the walls
-            outside the picture and the picture inside, so the walls leave no seam.
-
-    Example:
-        >>> mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
-        >>> f = LandmarkForces(mid, torch.ones(3, 2), steps=2)
-        >>> f(FluidGrid(16, 16), steps=2, dt=1.0, image_size=(32, 32)).shape
-        torch.Size([1, 2, 2, 16, 16])
-    """
-
-    def __init__(
-        self,
-        midpoints: Tensor,
-        displacements: Tensor,
-        steps: int,
-        batch: int = 1,
-        inside: tuple[float, float, float, float] | None = None,
-    ) -> None:
-        super().__init__()
-        m = check_tensor("midpoints", midpoints, shape=[None, 2])
-        if m.shape[0] < 3:
-            raise ValueError(f"midpoints must hold at least 3 points, got shape {tuple(m.shape)}")
-        d = check_tensor("displacements", displacements, shape=[m.shape[0], 2]).to(m.dtype)
-        steps, batch = check_int("steps", steps), check_int("batch", batch)
-        self.register_buffer("midpoints", m.detach().clone())
-        self.register_buffer("displacements", d.detach().clone())
-        self.midpoints: Tensor
-        self.displacements: Tensor
-        self.weight = nn.Parameter(torch.zeros(batch, steps, m.shape[0], 2, dtype=m.dtype))
-        self.inside = None if inside is None else tuple(float(v) for v in inside)
-        self._basis: dict[tuple, Tensor] = {}  # (T, h w, M) per grid, image size, device and dtype
-
-    def extra_repr(self) -> str:
-        return f"steps={self.weight.shape[1]}, points={self.weight.shape[2]}, inside={self.inside}"
-
-    def basis(self, grid: FluidGrid, image_size: tuple[int, int]) -> Tensor:
-        """``(T, h w, M)``: per step, the points' cardinal splines at each cell's particle, faded toward the walls."""
-        key = (grid.shape, image_size, self.midpoints.device, self.weight.dtype)
-        if key not in self._basis:
-            with torch.no_grad():
-                mids, disp = self.midpoints.double(), self.displacements.double()
-                cells = cell_centres(grid, image_size, mids).reshape(-1, 2)  # (h w, 2) pixels
-                fade = torch.ones(cells.shape[0], 1, dtype=torch.float64, device=cells.device)
-                if self.inside is not None:
-                    x0, y0, x1, y1 = self.inside
-                    H, W = image_size
-                    fade = (_fade(cells[:, 0], x0, x1, -0.5, W - 0.5) * _fade(cells[:, 1], y0, y1, -0.5, H - 0.5))[
-                        :, None
-                    ]
-                travel = tps_fit(mids, disp)  # D
-                cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
-                T = self.weight.shape[1]
-                rows, at = [], cells
-                for t in range(T):
-                    # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
-                    at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
-                    rows.append(fade * cardinal(at))
-                self._basis[key] = torch.stack(rows).to(self.weight.dtype)
-        return self._basis[key]
-
-    def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
-        B, T, m, _ = self.weight.shape
-        if steps != T:
-            raise ValueError(f"this LandmarkForces holds {T} steps, but {steps} were asked for")
-        g = FluidGrid.of(grid)
-        H, W = check_size("image_size", image_size)
-        v = self.displacements.to(self.weight.dtype) / (T * dt) + self.weight  # (B, T, M, 2) pixels per time unit
-        kicks = torch.cat([v[:, :1], v.diff(dim=1)], dim=1)
-        to_cells = cell_scale((H, W), g, device=v.device, dtype=v.dtype) / dt
-        field = torch.einsum("tnm,btmc->btcn", self.basis(g, (H, W)), kicks * to_cells)  # (B, T, 2, h w)
-        return field.reshape(B, T, 2, *g.shape)
 
 
 def viscosity_from_mask(
@@ -403,8 +308,8 @@ class ViscosityBrushes(nn.Module):
         c = torch.as_tensor(centers, dtype=torch.get_default_dtype()).detach().clone()
         check_tensor("centers", c, shape=[None, 2])
         k = c.shape[0]
-        r = torch.as_tensor(radius, dtype=c.dtype).flatten().expand(k).clone()
-        v = torch.as_tensor(value, dtype=c.dtype).flatten().expand(k).clone()
+        r = torch.as_tensor(radius, dtype=c.dtype, device=c.device).flatten().expand(k).clone()
+        v = torch.as_tensor(value, dtype=c.dtype, device=c.device).flatten().expand(k).clone()
         if bool((r <= 0).any()):
             raise ValueError(f"radius must be > 0, got {r.tolist()}")
         if base < 0:
@@ -414,6 +319,5 @@ class ViscosityBrushes(nn.Module):
 
     def forward(self, grid: FluidGrid, image_size: tuple[int, int]) -> Tensor:
         x = cell_centres(FluidGrid.of(grid), check_size("image_size", image_size), self.centers)
-        d2 = ((x[None] - self.centers[:, None, None]) ** 2).sum(-1)
-        field = self.base + (self.value[:, None, None] * torch.exp(-d2 / (2 * self.radius[:, None, None] ** 2))).sum(0)
+        field = self.base + (self.value[:, None, None] * gaussian_bumps(x, self.centers, self.radius)).sum(0)
         return field.clamp(min=0)[None, None]

@@ -1,0 +1,110 @@
+"""Texture-coordinate maps (:mod:`torchfluidwarp.warp.maps`): their settings (:class:`MapConfig`), the one
+raster upsample, and the names that still resolve from :mod:`torchfluidwarp.warp.layer`."""
+
+import warnings
+
+import pytest
+import torch
+
+from torchfluidwarp.core.simulator import FluidSimulator
+from torchfluidwarp.warp import layer, maps
+from torchfluidwarp.warp.forces import Brushes
+from torchfluidwarp.warp.layer import FluidWarp
+from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps, identity_map, maps_to_end, upsample_raster
+
+
+def _velocities(gen, grid=(10, 12), steps=3, strength=0.4, dtype=torch.float64):
+    forces = torch.randn(1, steps, 2, *grid, generator=gen, dtype=dtype) * strength
+    return FluidSimulator(grid)(forces).velocities
+
+
+@pytest.mark.parametrize("name", maps.__all__)
+def test_the_maps_resolve_from_the_layer_module_as_the_same_objects(name):
+    assert getattr(layer, name) is getattr(maps, name)
+
+
+def test_the_default_config_is_the_module_constants(gen):
+    config = MapConfig()
+    assert (config.oversample, config.trace_oversample) == (maps.OVERSAMPLE, maps.TRACE_OVERSAMPLE)
+    v = _velocities(gen)
+    explicit = MapConfig(oversample=maps.OVERSAMPLE, trace_oversample=maps.TRACE_OVERSAMPLE, max_strain=0.25)
+    want = backward_maps(v, (90, 100))
+    torch.testing.assert_close(backward_maps(v, (90, 100), config=explicit), want, rtol=0, atol=0)
+
+
+def test_the_default_rasters_stay_close_to_full_resolution_maps():
+    size = (70, 84)  # 7 pixels per cell
+    brush = Brushes([[40.0, 30.0]], [[1.0, 0.3]], radius=12.0, amplitude=0.8).to(torch.float64)
+    with torch.no_grad():
+        v = FluidSimulator((10, 12))(brush((10, 12), 3, 1.0, size)).velocities
+        full = backward_maps(v, size, config=MapConfig(oversample=7, trace_oversample=7))  # the image itself
+        assert float((full[:, -1] - full[:, 0]).abs().max()) > 1.5  # pixels: the flow moved the maps
+        default = float((backward_maps(v, size) - full).abs().max())
+        coarse = float((backward_maps(v, size, config=MapConfig(oversample=1, trace_oversample=1)) - full).abs().max())
+    assert default < 0.1  # pixels
+    assert default < coarse
+    for f in (lambda c: maps_to_end(v, size, config=c), lambda c: forward_maps(v, size, config=c)):
+        torch.testing.assert_close(f(MapConfig()), f(MapConfig(max_strain=0.25)), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"oversample": 0}, "oversample"),
+        ({"trace_oversample": 1.5}, "trace_oversample"),
+        ({"max_strain": 0}, "max_strain"),
+    ],
+)
+def test_a_bad_config_is_refused_by_name(kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        MapConfig(**kwargs)
+
+
+def test_the_config_must_be_a_map_config(gen):
+    with pytest.raises(TypeError, match="config must be a MapConfig"):
+        backward_maps(_velocities(gen), (20, 24), config={"oversample": 2})  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="map_config must be a MapConfig"):
+        FluidWarp(8, 2, map_config=3)  # type: ignore[arg-type]
+
+
+def test_upsample_raster_is_exact_on_linear_fields_and_the_identity_at_the_same_size():
+    # a field linear in the pixel centres is reproduced wherever bilinear interpolation does not clamp
+    Hr, Wr, H, W = 4, 6, 12, 18
+    ys, xs = torch.meshgrid(torch.arange(Hr, dtype=torch.float64), torch.arange(Wr, dtype=torch.float64), indexing="ij")
+    field = torch.stack([0.5 * xs - 0.25 * ys + 1.0, 2.0 * ys])[None]  # (1, 2, Hr, Wr)
+    up = upsample_raster(field, (H, W))
+    assert up.shape == (1, 2, H, W)
+    pix = identity_map((H, W), dtype=torch.float64)[0]  # (H, W, 2)
+    rx = (pix[..., 0] + 0.5) * Wr / W - 0.5  # image pixel centre in raster pixels
+    ry = (pix[..., 1] + 0.5) * Hr / H - 0.5
+    want = torch.stack([0.5 * rx - 0.25 * ry + 1.0, 2.0 * ry])
+    inside = (rx >= 0) & (rx <= Wr - 1) & (ry >= 0) & (ry <= Hr - 1)
+    torch.testing.assert_close(up[0][:, inside], want[:, inside], rtol=0, atol=1e-12)
+    assert upsample_raster(field, (Hr, Wr)) is field
+
+
+def test_carry_points_is_the_renamed_advect_points(gen):
+    warp = FluidWarp(12, steps=3, image_size=(40, 48))
+    brushes = Brushes([[20.0, 20.0]], [[1.0, 0.5]], radius=8.0, amplitude=0.6)
+    pts = torch.tensor([[[10.0, 12.0], [30.0, 25.0]]])
+    paths = warp.carry_points(pts, brushes)
+    assert paths.shape == (1, 4, 2, 2)
+    torch.testing.assert_close(paths[:, 0], pts)
+    with pytest.warns(DeprecationWarning, match="FluidWarp.carry_points"):
+        old = warp.advect_points(pts, brushes)
+    torch.testing.assert_close(old, paths, rtol=0, atol=0)
+
+
+def test_the_layer_passes_its_map_config_on(gen):
+    config = MapConfig(oversample=2, trace_oversample=2, max_strain=0.1)
+    forces = torch.randn(1, 3, 2, 10, 12, generator=gen) * 0.4
+    warp = FluidWarp((10, 12), steps=3, map_config=config)
+    v = warp.rollout(forces, (60, 72)).velocities
+    torch.testing.assert_close(warp.maps(forces, (60, 72)), backward_maps(v, (60, 72), config=config), rtol=0, atol=0)
+    image = torch.rand(1, 1, 60, 72, generator=gen)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frames = warp(image, forces)
+        streamed = torch.stack(list(warp.iter_frames(image, forces)), dim=1)
+    torch.testing.assert_close(streamed, frames, rtol=0, atol=1e-4)  # two float32 paths
+    assert not torch.equal(frames, FluidWarp((10, 12), steps=3)(image, forces))  # the config mattered

@@ -1,0 +1,405 @@
+"""Texture-coordinate maps: the fluid carries the image's coordinates, and an image is read through them.
+
+Conventions (as everywhere in the library, see :mod:`torchfluidwarp.core.grid`): images are ``(B, C, H, W)``;
+points and coordinate maps are ``(x, y)`` in **pixels**, pixel centres at integers, so an image covers
+``[-0.5, W - 0.5] x [-0.5, H - 0.5]`` (``align_corners=False``). The fluid grid ``(h, w)`` covers the same
+rectangle whatever the image's resolution.
+
+* The **backward map** ``g_t`` ``(H, W, 2)`` says, for each output pixel of frame ``t``, where in the source
+  image to read: frame ``t`` is ``f(g_t(x))``. It is advected semi-Lagrangian,
+  ``g_{t+1}(x) = g_t(x - dt v_t(x))`` (midpoint back-trace), on a working raster of at most ``oversample``
+  points per fluid cell and axis, and resized from there (:func:`upsample_raster`); the image is sampled once
+  per frame from the original, so it never blurs from step to step.
+* The **forward map** says where each source pixel has gone: its pixel centre carried forward by RK2 through
+  the same velocities, like any passive point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_positive, check_real, check_size, check_tensor
+from torchfluidwarp.core.advection import (
+    MAX_STRAIN_PER_SUBSTEP,
+    _advect_points,
+    _backtrace,
+    _extend,
+    _geo,
+    _sample,
+    substeps,
+)
+from torchfluidwarp.core.grid import normalized_affine, rescale_points, scale_factor
+from torchfluidwarp.core.sampling import SampleMode, sample
+
+__all__ = [
+    "MapConfig",
+    "warp_image",
+    "identity_map",
+    "upsample_raster",
+    "backward_maps",
+    "iter_backward_maps",
+    "forward_maps",
+    "maps_to_end",
+    "jacobian_determinant",
+    "OVERSAMPLE",
+    "TRACE_OVERSAMPLE",
+]
+
+
+def identity_map(size: tuple[int, int], *, batch: int = 1, device=None, dtype=torch.float32) -> Tensor:
+    """The identity coordinate map ``(B, H, W, 2)``: each pixel's own ``(x, y)``, pixel centres at integers.
+
+    Example:
+        >>> identity_map((2, 3))[0, 1, 2].tolist()
+        [2.0, 1.0]
+    """
+    H, W = check_size("size", size)
+    ys, xs = torch.meshgrid(
+        torch.arange(H, device=device, dtype=dtype), torch.arange(W, device=device, dtype=dtype), indexing="ij"
+    )
+    return torch.stack([xs, ys], dim=-1).expand(batch, H, W, 2)
+
+
+def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> Tensor:
+    """Sample an image through a coordinate map.
+
+    Args:
+        image: ``(B, C, H, W)`` source image.
+        coords: ``(B, H', W', 2)`` source positions ``(x, y)`` in the source's pixels (pixel centres at
+            integers). Positions beyond the image read its edge pixels (border padding).
+        mode: ``"bilinear"``, ``"bicubic"`` or ``"nearest"`` (for label masks).
+
+    Returns:
+        ``(B, C, H', W')`` the warped image, ``out[b, :, i, j] = image[b, :, coords[b, i, j, 1], coords[b, i, j, 0]]``.
+
+    Raises:
+        ValueError: non-finite coordinates, or shapes that do not match.
+
+    Example:
+        >>> img = torch.arange(6.0).view(1, 1, 2, 3)
+        >>> torch.allclose(warp_image(img, identity_map((2, 3))), img, atol=1e-6)
+        True
+    """
+    check_tensor("image", image, ndim=4)
+    check_tensor("coords", coords, shape=[image.shape[0], None, None, 2])
+    if mode not in ("bilinear", "bicubic", "nearest"):
+        raise ValueError(f"mode must be 'bilinear', 'bicubic' or 'nearest', got {mode!r}")
+    return _warp_image(image, coords, mode, check=None)  # coords checked above
+
+
+def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode, check: str | None = "coords") -> Tensor:
+    """:func:`warp_image` without its argument checks, for internal callers.
+
+    The sampling grid is still refused if non-finite (one reduction per call, once per frame), with ``check``
+    naming where the coordinates came from; ``check=None`` where they were checked already.
+    """
+    scale, shift = normalized_affine((image.shape[-2], image.shape[-1]), device=image.device, dtype=image.dtype)
+    grid = torch.addcmul(shift.view(1, 1, 1, 2), coords.to(image.dtype), scale.view(1, 1, 1, 2))
+    return sample(image, grid, mode=mode, align_corners=False, check=check)
+
+
+def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
+    """Cells per pixel of an image of ``size``, ``(1, 2, 1)`` for channel-first points (see :func:`scale_factor`)."""
+    return scale_factor(size, (h, w), device=like.device, dtype=like.dtype).view(1, 2, 1)
+
+
+OVERSAMPLE = 4
+"""The default ``oversample`` of the maps: they are composed on a raster of up to this many points per fluid
+cell and axis, and resized bilinearly from there to larger images (the fluid makes no finer detail)."""
+
+TRACE_OVERSAMPLE = 3
+"""The default ``trace_oversample`` of the maps: each step's back-trace is evaluated exactly on a raster of up
+to this many points per fluid cell and axis and interpolated bilinearly from there: the displacement of one
+step is smooth within a cell. On a 600 x 600 image stirred 62 px in 30 steps, the maps stay within 0.2 px of
+those from a 4-per-cell back-trace, which costs about 1.8x as much."""
+
+Times = Sequence[float] | None
+"""Frame times in steps: non-decreasing, within ``[0, T]``; ``None`` for ``0, 1, ..., T``."""
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """How finely the texture-coordinate maps are composed, validated when built.
+
+    Attributes:
+        oversample: the maps are composed on a raster of at most this many points per fluid cell and axis
+            (the image itself when it is smaller) and resized from there (:func:`upsample_raster`); the fluid
+            makes no finer detail. Default :data:`OVERSAMPLE`.
+        trace_oversample: each step's back-trace is evaluated exactly on a raster of at most this many points
+            per fluid cell and axis and interpolated bilinearly from there. Default :data:`TRACE_OVERSAMPLE`.
+        max_strain: maps and points are carried in sub-steps of at most this strain ``dt_sub * max|grad v|``
+            (:func:`~torchfluidwarp.core.advection.substeps`). Default
+            :data:`~torchfluidwarp.core.advection.MAX_STRAIN_PER_SUBSTEP`.
+    """
+
+    oversample: int = OVERSAMPLE
+    trace_oversample: int = TRACE_OVERSAMPLE
+    max_strain: float = MAX_STRAIN_PER_SUBSTEP
+
+    def __post_init__(self) -> None:
+        check_int("oversample", self.oversample)
+        check_int("trace_oversample", self.trace_oversample)
+        check_positive("max_strain", self.max_strain)
+
+
+def upsample_raster(field: Tensor, size: tuple[int, int]) -> Tensor:
+    """Resize a field on a working raster to the image: the one raster-to-map upsample.
+
+    Args:
+        field: ``(B, C, H_r, W_r)`` values at the pixel centres of a raster covering the image's rectangle
+            (e.g. a displacement, channel 0 = x).
+        size: ``(H, W)`` of the image.
+
+    Returns:
+        ``(B, C, H, W)`` bilinearly resized, pixel centres aligned (``align_corners=False``); ``field`` itself
+        when it already has that size. Values keep their units: a displacement in raster pixels stays in raster
+        pixels.
+    """
+    if tuple(field.shape[-2:]) == tuple(size):
+        return field
+    return F.interpolate(field, size=size, mode="bilinear", align_corners=False)
+
+
+def _displacement(velocity: Tensor, size: tuple[int, int], dt: float, oversample: int = TRACE_OVERSAMPLE) -> Tensor:
+    """Back-trace displacement ``x - back(x)`` at every pixel, in pixels: ``(B, 2, H, W)``.
+
+    The midpoint back-trace through the staggered velocity is evaluated exactly at the pixel centres of a
+    raster of ``min(H, oversample * h) x min(W, oversample * w)`` (the image itself when it is small) covering
+    the same rectangle, then resized to ``(H, W)`` (:func:`upsample_raster`).
+    """
+    h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
+    raster = _raster(size, h, w, oversample)
+    geo = _geo(h, w, velocity)
+    c = _cell_scale(raster, h, w, velocity)
+    pix = identity_map(raster, device=velocity.device, dtype=velocity.dtype).reshape(1, -1, 2).transpose(1, 2)
+    cells = rescale_points(pix, c).expand(velocity.shape[0], -1, -1)  # (B, 2, N) raster centres in cells
+    back = _backtrace(_extend(velocity), cells, dt, geo)
+    disp = ((cells - back) / _cell_scale(size, h, w, velocity)).view(-1, 2, *raster)
+    return upsample_raster(disp, size)
+
+
+def _frame_times(T: int, times: Times) -> list[float]:
+    if times is None:
+        return [float(t) for t in range(T + 1)]
+    out = [float(t) for t in times]
+    if any(not (0 <= t <= T) for t in out) or any(b < a for a, b in zip(out, out[1:])):
+        raise ValueError(f"times must be non-decreasing and within [0, {T}] (steps), got {out}")
+    return out
+
+
+def _raster(size: tuple[int, int], h: int, w: int, oversample: int = OVERSAMPLE) -> tuple[int, int]:
+    """The working raster of the maps: the image, or ``oversample`` points per fluid cell if that is smaller."""
+    return (min(size[0], oversample * h), min(size[1], oversample * w))
+
+
+def _map_composer(
+    velocities: Tensor, size: tuple[int, int], dt: float, config: MapConfig = MapConfig()
+) -> tuple[Callable[[Tensor, int, float], Tensor], Callable[[Tensor], Tensor], tuple[int, int]]:
+    """Map composition on the working raster: ``(compose, to_map, raster)``.
+
+    ``compose(disp, t, duration)`` advances ``disp`` ``(B, 2, Hr, Wr)``, a map minus the identity in raster
+    pixels: the result is that map read at ``x - d(x)``, where ``d`` is the midpoint back-trace displacement of
+    step ``t``'s velocity over ``duration * dt`` (a negative duration traces forward), in
+    :func:`~torchfluidwarp.core.advection.substeps` sub-steps short enough never to fold. The backward maps
+    (``duration > 0``) and the maps to the end (``duration < 0``) share it.
+
+    ``to_map(disp)`` resizes a raster displacement bilinearly to the image and returns the map
+    ``(B, H, W, 2)`` in image pixels. The raster (:func:`_raster`, ``config.oversample`` points per cell)
+    holds every detail the fluid can make, so large images cost one resize per map, not a composition at full
+    resolution.
+    """
+    H, W = size
+    B = velocities.shape[0]
+    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
+    raster = _raster(size, h, w, config.oversample)
+    Hr, Wr = raster
+    like = velocities
+    pix = identity_map(raster, device=like.device, dtype=like.dtype).permute(0, 3, 1, 2).contiguous()  # (1, 2, Hr, Wr)
+    lo = torch.tensor([-0.5, -0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([Wr - 0.5, Hr - 0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
+    scale, shift = (a.view(1, 2, 1) for a in normalized_affine(raster, device=like.device, dtype=like.dtype))
+    ratio = scale_factor(raster, size, device=like.device, dtype=like.dtype).view(1, 1, 1, 2)  # raster px -> image px
+    ident = identity_map(size, device=like.device, dtype=like.dtype)  # (1, H, W, 2)
+
+    def compose(disp: Tensor, t: int, duration: float) -> Tensor:
+        n = substeps(velocities[:, t], dt * duration, config.max_strain)
+        for _ in range(n):
+            back = _displacement(velocities[:, t], raster, dt * duration / n, config.trace_oversample)
+            at = torch.clamp(pix - back, lo, hi)
+            disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, Hr, Wr)
+        return disp
+
+    def to_map(disp: Tensor) -> Tensor:
+        if raster == size:
+            return disp.permute(0, 2, 3, 1) + ident
+        up = upsample_raster(disp, size)
+        return torch.addcmul(ident, up.permute(0, 2, 3, 1), ratio)  # one pass, (B, H, W, 2) contiguous
+
+    return compose, to_map, raster
+
+
+class _Maps:
+    """The checked arguments of a map computation and its composer (see :func:`_map_composer`)."""
+
+    def __init__(self, velocities: Tensor, size: tuple[int, int], dt: float, times: Times, config: MapConfig) -> None:
+        check_tensor("velocities", velocities, ndim=5)
+        size = check_size("size", size)
+        dt = check_real("dt", dt)
+        if not isinstance(config, MapConfig):
+            raise TypeError(f"config must be a MapConfig, got {type(config).__name__}")
+        self.T = velocities.shape[1]
+        self.times = _frame_times(self.T, times)
+        self.compose, self.to_map, self.raster = _map_composer(velocities, size, dt, config)
+        self.zero = velocities.new_zeros(velocities.shape[0], 2, *self.raster)  # the identity's displacement
+
+
+def _iter_displacements(
+    velocities: Tensor, size: tuple[int, int], dt: float, times: Times, config: MapConfig = MapConfig()
+) -> tuple[Iterator[Tensor], Callable[[Tensor], Tensor], tuple[int, int]]:
+    """The backward maps as raster displacements (see :func:`iter_backward_maps`), and ``to_map`` and the raster."""
+    maps = _Maps(velocities, size, dt, times, config)
+    advance = maps.compose
+
+    def run() -> Iterator[Tensor]:
+        disp = maps.zero  # g_t(x) - x at integer step `done`, raster pixels
+        done = 0
+        for s in maps.times:
+            while done + 1 <= s:
+                disp = advance(disp, done, 1.0)
+                done += 1
+            yield disp if s == done else advance(disp, done, s - done)
+
+    return run(), maps.to_map, maps.raster
+
+
+def iter_backward_maps(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Times = None, *, config: MapConfig = MapConfig()
+) -> Iterator[Tensor]:
+    """Yield the backward maps ``(B, H, W, 2)`` (pixels) one at a time, at the given times.
+
+    ``g_{t+1}(x) = g_t(x - d_t(x))`` where ``d_t`` is the midpoint back-trace displacement of step ``t``
+    (see :func:`_displacement`), clamped to the image rectangle. The maps are carried as displacements
+    ``g_t(x) - x``, sampled bilinearly: small numbers keep float32 round-off small, and a flow at rest gives
+    exactly the identity. A time ``s`` between steps ``t`` and ``t + 1`` applies step ``t``'s velocity for
+    ``(s - t) dt``.
+
+    Args:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities (cells per time unit).
+        size: ``(H, W)`` of the image.
+        dt: the roll-out's time step.
+        times: non-decreasing times in steps, within ``[0, T]`` (default ``0, 1, ..., T``).
+        config: the rasters' resolutions and the sub-steps' strain (:class:`MapConfig`).
+    """
+    displacements, to_map, _ = _iter_displacements(velocities, size, dt, times, config)
+    for disp in displacements:
+        yield to_map(disp)
+
+
+def backward_maps(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Times = None, *, config: MapConfig = MapConfig()
+) -> Tensor:
+    """Backward coordinate maps of a roll-out, advected semi-Lagrangian on the maps' working raster.
+
+    The raster is the image itself, or ``config.oversample`` points per fluid cell and axis when the image is
+    larger; the maps are resized from there to ``size`` bilinearly.
+
+    Args:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities (fluid cells per time unit), as returned
+            by :class:`~torchfluidwarp.core.simulator.FluidSimulator`.
+        size: ``(H, W)`` of the image the maps are for.
+        dt: the roll-out's time step.
+        times: optional times in steps (default ``0..T``); see :func:`iter_backward_maps`.
+        config: the rasters' resolutions and the sub-steps' strain (:class:`MapConfig`).
+
+    Returns:
+        ``(B, len(times), H, W, 2)`` maps in pixels (``T + 1`` by default; map 0 is the identity). Frame ``t``
+        is ``warp_image(f, maps[:, t])``.
+    """
+    return torch.stack(list(iter_backward_maps(velocities, size, dt, times, config=config)), dim=1)
+
+
+def maps_to_end(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, times: Times = None, *, config: MapConfig = MapConfig()
+) -> Tensor:
+    """Where the fluid carries each pixel from time ``s`` to the end ``T``: ``(B, len(times), H, W, 2)`` pixels.
+
+    ``K_s = F_{s -> T}``, built backwards in time like the backward maps run forwards:
+    ``K_T(z) = z`` and ``K_s(z) = K_{t+1}(z + e(z))`` for ``s`` in ``[t, t + 1)``, where ``e`` is the forward
+    RK2 displacement of step ``t``'s velocity over ``(t + 1 - s) dt``. The morph uses it to pull the target
+    image back along the very flow that carries the source (``K_s`` inverts the backward map ``g_s`` composed
+    with ``K_0``).
+
+    Args:
+        velocities: ``(B, T, 2, h + 1, w + 1)`` staggered velocities.
+        size: ``(H, W)``. dt: time step. times: non-decreasing times in ``[0, T]`` (default ``0..T``).
+        config: the rasters' resolutions and the sub-steps' strain (:class:`MapConfig`).
+    """
+    maps = _Maps(velocities, size, dt, times, config)
+
+    def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
+        return maps.compose(disp, t, -fraction)  # read ahead: trace forward over the step's remaining time
+
+    disp = maps.zero  # K_t(z) - z at integer step `done`, raster pixels
+    done = maps.T
+    out: list[Tensor] = []
+    for s in reversed(maps.times):
+        while done - 1 >= s:
+            disp = pull(disp, done - 1, 1.0)
+            done -= 1
+        out.append(maps.to_map(disp if s == done else pull(disp, done - 1, done - s)))
+    return torch.stack(out[::-1], dim=1)
+
+
+def forward_maps(
+    velocities: Tensor, size: tuple[int, int], dt: float = 1.0, *, config: MapConfig = MapConfig()
+) -> Tensor:
+    """Where each source pixel has gone: ``(B, T + 1, H, W, 2)`` pixel positions, carried forward by RK2.
+
+    The forward and backward maps of one roll-out are inverse to each other up to discretisation error
+    (see the tests: within 0.1 px away from the walls for smooth flows). Of ``config`` only ``max_strain``
+    applies: every pixel is carried, with no raster.
+    """
+    check_tensor("velocities", velocities, ndim=5)
+    H, W = check_size("size", size)
+    dt = check_real("dt", dt)
+    B, T = velocities.shape[:2]
+    pix = identity_map((H, W), batch=B, device=velocities.device, dtype=velocities.dtype).reshape(B, -1, 2)
+    return _carry(velocities, pix, (H, W), dt, config.max_strain).view(B, T + 1, H, W, 2)
+
+
+def _carry(
+    velocities: Tensor, points: Tensor, size: tuple[int, int], dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP
+) -> Tensor:
+    """Carry ``(B, M, 2)`` pixel points through each step: ``(B, T + 1, M, 2)`` pixels."""
+    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
+    c = _cell_scale(size, h, w, points)
+    traj = [rescale_points(points.transpose(1, 2), c)]  # (B, 2, M) cells
+    for velocity in velocities.unbind(1):
+        traj.append(_advect_points(traj[-1], velocity, dt, max_strain=max_strain))
+    return rescale_points(torch.stack(traj, dim=1), c.unsqueeze(1), inverse=True).transpose(2, 3)
+
+
+def jacobian_determinant(coords: Tensor) -> Tensor:
+    """Jacobian determinant of a coordinate map, by central differences (one-sided at the edges).
+
+    Args:
+        coords: ``(B, H, W, 2)`` map in pixels (backward or forward).
+
+    Returns:
+        ``(B, H, W)`` ``det(d coords / d (x, y))``: 1 where area is preserved, ``<= 0`` where the map folds.
+
+    Example:
+        >>> jacobian_determinant(2 * identity_map((4, 5))).unique().tolist()
+        [4.0]
+    """
+    check_tensor("coords", coords, ndim=4)
+    if coords.shape[-1] != 2 or min(coords.shape[1:3]) < 2:
+        raise ValueError(f"coords must have shape (B, H, W, 2) with H, W >= 2, got {tuple(coords.shape)}")
+    dx_dy, dx_dx = torch.gradient(coords[..., 0], dim=(1, 2))
+    dy_dy, dy_dx = torch.gradient(coords[..., 1], dim=(1, 2))
+    return dx_dx * dy_dy - dx_dy * dy_dx
