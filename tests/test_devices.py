@@ -166,7 +166,8 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     ("apps/cli.py", "_cmd_animate", "empty"): "TODO lead: apps/cli.py:224",
     ("apps/studio/inputs.py", "points", "tensor"): "TODO lead: apps/studio/inputs.py:77",
     ("apps/studio/previews.py", "_to_size", "tensor"): "TODO lead: apps/studio/previews.py:78",
-    ("morph/render.py", "render", "linspace"): "TODO lead: morph/render.py:132",
+    ("morph/render.py", "render", "tensor"): "TODO lead: morph/render.py:177",
+    ("morph/result.py", "MorphResult.times", "linspace"): "TODO lead: morph/result.py:80",
 }
 
 
