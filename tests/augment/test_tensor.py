@@ -81,14 +81,14 @@ def test_keypoints_land_on_the_dots_they_marked():
             assert (centroid - p).norm() < 0.5, f"dot at {centroid.tolist()}, keypoint at {p.tolist()}"
 
 
-def test_keypoints_are_advect_points_through_the_same_flow():
+def test_keypoints_are_carry_points_through_the_same_flow():
     aug = _seeded(0, count=2, strength=0.4, radius=20.0, steps=5, grid=16)
     params = aug.make_params(2, (64, 80))
     pts = torch.tensor([[[10.0, 12.0], [40.0, 30.0], [70.0, 50.0]]]).expand(2, -1, -1)
     forces = brush_forces(
         params.centers, params.directions, params.amplitude, params.radius, grid=16, image_size=(64, 80), steps=5
     )
-    expected = FluidWarp(16, 5).advect_points(pts, forces, (64, 80))[:, -1]
+    expected = FluidWarp(16, 5).carry_points(pts, forces, (64, 80))[:, -1]
     assert torch.equal(params.force_scale, torch.ones(2))
     torch.testing.assert_close(carry_points(params, pts), expected)
 

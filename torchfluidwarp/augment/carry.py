@@ -2,10 +2,10 @@
 
 * images are resampled bilinearly through the **backward map** (where each output pixel reads from,
   :func:`fluid_warp_map`), through the library's one guarded sampler
-  (:func:`~torchfluidwarp.warp.layer.warp_image`, over :func:`~torchfluidwarp.core.sampling.sample`);
+  (:func:`~torchfluidwarp.warp.maps.warp_image`, over :func:`~torchfluidwarp.core.sampling.sample`);
 * masks are resampled by nearest sampling, so label values survive unchanged;
 * keypoints are carried by the **forward map**: RK2 particles through the very same velocities
-  (:meth:`~torchfluidwarp.warp.layer.FluidWarp.advect_points`), not an approximate inverse (:func:`carry_points`);
+  (:meth:`~torchfluidwarp.warp.layer.FluidWarp.carry_points`), not an approximate inverse (:func:`carry_points`);
 * boxes and polygons become points along their outlines, carried like keypoints (:func:`carry_boxes`,
   :func:`polygon_outline`).
 
@@ -18,12 +18,11 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp.augment.draw import FluidWarpParams, raster_map
 from torchfluidwarp.core.grid import rescale_points, scale_factor
-from torchfluidwarp.warp.layer import _carry, identity_map, warp_image
+from torchfluidwarp.warp.maps import _carry, identity_map, upsample_raster, warp_image
 
 __all__ = [
     "fluid_warp_map",
@@ -44,17 +43,18 @@ def _upsample(coords: Tensor, size: tuple[int, int]) -> Tensor:
     device, dtype = coords.device, coords.dtype
     scale = scale_factor((h_r, w_r), (H, W), device=device, dtype=dtype)  # raster pixels -> image pixels
     ident = rescale_points(identity_map((h_r, w_r), device=device, dtype=dtype), scale)  # raster centres, image px
-    disp = F.interpolate((coords - ident).permute(0, 3, 1, 2), size=(H, W), mode="bilinear", align_corners=False)
+    disp = upsample_raster((coords - ident).permute(0, 3, 1, 2), (H, W))  # image pixels
     return identity_map((H, W), device=device, dtype=dtype) + disp.permute(0, 2, 3, 1)
 
 
 def fluid_warp_map(params: FluidWarpParams, size: tuple[int, int] | None = None) -> Tensor:
     """The backward map of each sample's last step: ``(B, H, W, 2)`` source positions in pixels.
 
-    The map is composed on a raster of at most ``OVERSAMPLE`` points per fluid cell and axis
-    (:func:`~torchfluidwarp.augment.draw.raster_map`), then its displacement is resized bilinearly to
-    ``(H, W)`` once, as :func:`~torchfluidwarp.warp.layer.iter_backward_maps` does for a full-size map; the raster
-    map is kept in the draw (its folds are checked there), so this costs one resize.
+    The map is composed on a raster of at most :data:`~torchfluidwarp.warp.maps.OVERSAMPLE` points per fluid cell
+    and axis (:func:`~torchfluidwarp.augment.draw.raster_map`), then its displacement is resized bilinearly to
+    ``(H, W)`` once (:func:`~torchfluidwarp.warp.maps.upsample_raster`), as
+    :func:`~torchfluidwarp.warp.maps.iter_backward_maps` does for a full-size map; the raster map is kept in the
+    draw (its folds are checked there), so this costs one resize.
 
     Args:
         params: a draw.
@@ -76,7 +76,7 @@ def _clamp_to_image(points: Tensor, size: tuple[int, int]) -> Tensor:
 def carry_points(params: FluidWarpParams, points: Tensor, size: tuple[int, int] | None = None) -> Tensor:
     """Carry points ``(B, M, 2)`` (pixels) to each sample's last step with RK2 through the velocities.
 
-    This is :meth:`~torchfluidwarp.warp.layer.FluidWarp.advect_points` on the drawn velocities: the same particles
+    This is :meth:`~torchfluidwarp.warp.layer.FluidWarp.carry_points` on the drawn velocities: the same particles
     whose flow the images follow. Points outside the image move with the nearest point of its border (the
     fluid's wall), so a keypoint marked just off the canvas keeps its offset.
 

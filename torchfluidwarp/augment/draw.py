@@ -25,7 +25,9 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_size
 from torchfluidwarp.augment.settings import FluidWarpSettings
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale, rescale_points, scale_factor
-from torchfluidwarp.warp.layer import FluidWarp, _raster, iter_backward_maps
+from torchfluidwarp.warp.forces import gaussian_bumps
+from torchfluidwarp.warp.layer import FluidWarp
+from torchfluidwarp.warp.maps import _raster, iter_backward_maps
 
 __all__ = ["MIN_DET", "FluidWarpParams", "draw_fluid_warp", "brush_forces", "min_quad_determinant", "raster_map"]
 
@@ -108,8 +110,7 @@ def brush_forces(
     g = FluidGrid.of(grid)
     device, dtype = centers.device, centers.dtype
     x = cell_centres(g, image_size, device=device, dtype=dtype)  # (h, w, 2) pixels
-    d2 = ((x[None, None] - centers[:, :, None, None]) ** 2).sum(-1)  # (B, K, h, w)
-    bump = torch.exp(-d2 / (2 * radius[:, :, None, None] ** 2))
+    bump = gaussian_bumps(x, centers, radius)  # (B, K, h, w)
     # pixels -> cells: accelerations scale like lengths
     push = amplitude[..., None] * directions * cell_scale(image_size, g, device=device, dtype=dtype)  # (B, K, 2)
     field = torch.einsum("bkc,bkhw->bchw", push, bump)
@@ -145,8 +146,9 @@ def min_quad_determinant(coords: Tensor, size: tuple[int, int]) -> Tensor:
 def raster_map(velocities: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     """The backward map of the last step on the composition raster: ``(B, h_r, w_r, 2)`` in pixels of ``size``.
 
-    The raster has at most ``OVERSAMPLE`` points per fluid cell and axis (the image itself when smaller), and
-    the map is composed on it step by step (:func:`~torchfluidwarp.warp.layer.iter_backward_maps`).
+    The raster has at most :data:`~torchfluidwarp.warp.maps.OVERSAMPLE` points per fluid cell and axis (the image
+    itself when smaller), and the map is composed on it step by step
+    (:func:`~torchfluidwarp.warp.maps.iter_backward_maps`).
     """
     raster = _raster(size, velocities.shape[-2] - 1, velocities.shape[-1] - 1)
     back = next(iter_backward_maps(velocities, raster, dt, times=[velocities.shape[1]]))  # raster pixels

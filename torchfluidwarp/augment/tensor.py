@@ -7,7 +7,7 @@ of the call through that same flow (:mod:`~torchfluidwarp.augment.carry`):
 * images are resampled bilinearly through the **backward map** (where each output pixel reads from);
 * masks are resampled by nearest sampling, so label values survive unchanged;
 * keypoints are carried by the **forward map**: RK2 particles through the very same velocities
-  (:meth:`~torchfluidwarp.warp.layer.FluidWarp.advect_points`), not an approximate inverse;
+  (:meth:`~torchfluidwarp.warp.layer.FluidWarp.carry_points`), not an approximate inverse;
 * boxes become the axis-aligned box around their carried corners *and* points along their edges.
 
 Conventions (as everywhere in the library, see :mod:`torchfluidwarp.core.grid`): images are ``(B, C, H, W)``;
