@@ -1,9 +1,7 @@
 """Texture-coordinate maps: the fluid carries the image's coordinates, and an image is read through them.
 
-Conventions (as everywhere in the library, see :mod:`torchfluidwarp.core.grid`): images are ``(B, C, H, W)``;
-points and coordinate maps are ``(x, y)`` in **pixels**, pixel centres at integers, so an image covers
-``[-0.5, W - 0.5] x [-0.5, H - 0.5]`` (``align_corners=False``). The fluid grid ``(h, w)`` covers the same
-rectangle whatever the image's resolution.
+Conventions (see :mod:`torchfluidwarp.core.grid`): maps are ``(x, y)`` in **pixels**, pixel centres at integers,
+so an image covers ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``; the fluid grid covers the same rectangle.
 
 * The **backward map** ``g_t`` ``(H, W, 2)`` says, for each output pixel of frame ``t``, where in the source
   image to read: frame ``t`` is ``f(g_t(x))``. It is advected semi-Lagrangian,
@@ -234,11 +232,8 @@ def _map_composer(
             disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, Hr, Wr)
         return disp
 
-    def to_map(disp: Tensor) -> Tensor:
-        if raster == size:
-            return disp.permute(0, 2, 3, 1) + ident
-        up = upsample_raster(disp, size)
-        return torch.addcmul(ident, up.permute(0, 2, 3, 1), ratio)  # one pass, (B, H, W, 2) contiguous
+    def to_map(disp: Tensor) -> Tensor:  # one pass, (B, H, W, 2) contiguous (ratio is 1 when raster == size)
+        return torch.addcmul(ident, upsample_raster(disp, size).permute(0, 2, 3, 1), ratio)
 
     return compose, to_map, raster
 
