@@ -254,6 +254,7 @@ def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         r = morph(a, b, POINTS_A, POINTS_B, frames=3, progress=False)
+        r.frames  # noqa: B018  (frames render on demand: the fold count comes with them)
     folds = [w for w in caught if "fold" in str(w.message)]
     assert len(folds) == 1
     assert "fold on 3 of" in str(folds[0].message)
@@ -267,3 +268,21 @@ def test_feather_is_an_argument_checked_by_name(pair):
     # no band at all: where both images are read inside their edges the dissolve is the plain lerp
     r0 = morph(a, b, POINTS_A, POINTS_B, frames=3, feather=0.0, **KW)
     assert torch.isfinite(r0.frames).all()
+
+
+def test_frames_render_on_demand_and_agree_every_way(pair):
+    a, b = pair
+    r = morph(a, b, POINTS_A, POINTS_B, frames=5, **KW)
+    streamed = torch.stack(list(r.iter_frames(chunk=2)))  # chunks that do not divide the count
+    assert r._all is None  # streaming kept nothing
+    torch.testing.assert_close(streamed, r.frames, atol=1e-6, rtol=0)
+    for k in range(5):  # any t renders the frame at that time; the frames' times are k / (N - 1)
+        torch.testing.assert_close(r.frame(k / 4), r.frames[k], atol=1e-6, rtol=0)
+    torch.testing.assert_close(r.frame(0.0), a)
+    torch.testing.assert_close(r.frame(1.0), b)
+    middle = r.frame(0.5)
+    torch.testing.assert_close(middle, r.frames[2], atol=1e-6, rtol=0)
+    between = r.frame(0.6)  # a time between two frames differs from both
+    assert float((between - r.frames[2]).abs().max()) > 1e-4 and float((between - r.frames[3]).abs().max()) > 1e-4
+    with pytest.raises(ValueError, match=r"t must be in \[0, 1\], got 1.5"):
+        r.frame(1.5)

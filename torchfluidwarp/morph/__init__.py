@@ -1,8 +1,11 @@
 """Morphing two images: straight landmark paths, the forward warp of A, the inverse warp of B, the dissolve.
 
-:func:`morph` returns a :class:`MorphResult`; :mod:`~torchfluidwarp.morph.morphing` holds the steps.
+:func:`morph` (:mod:`~torchfluidwarp.morph.morphing`) fits the flow (:mod:`~torchfluidwarp.morph.fit`) and
+returns a :class:`MorphResult` (:mod:`~torchfluidwarp.morph.result`) that renders frames on demand
+(:mod:`~torchfluidwarp.morph.render`): one at any time ``t``, all ``N`` streamed, or all at once.
 """
 
-from torchfluidwarp.morph.morphing import MorphResult, morph, region_of_interest, resize_pair
+from torchfluidwarp.morph.morphing import morph, region_of_interest, resize_pair
+from torchfluidwarp.morph.result import MorphResult
 
 __all__ = ["MorphResult", "morph", "region_of_interest", "resize_pair"]

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
-from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import torch
@@ -37,45 +35,13 @@ from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyf
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural
-from torchfluidwarp.morph.render import FEATHER, Blend, InverseMethod, render
+from torchfluidwarp.morph.render import FEATHER, Blend, InverseMethod, Scene, paper_flows
+from torchfluidwarp.morph.result import MorphResult
 
 __all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest", "DEFAULTS", "PAD", "MIN_AREA", "FEATHER"]
 
 
 Method = Literal["natural", "paper"]
-
-
-@dataclass
-class MorphResult:
-    """What :func:`morph` returns.
-
-    Attributes:
-        frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B.
-        forward_frames: ``(N, C, H, W)`` image A warped forward (pre-alignment included).
-        backward_frames: ``(N, C, H, W)`` image B pulled back along the flow.
-        maps: ``(N, H, W, 2)`` backward coordinate maps of image A's whole warp (pre-alignment included), in
-            A's pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
-            :func:`~torchfluidwarp.warp.layer.jacobian_determinant`.
-        maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's pixels, after resizing to A's size).
-        fit: the keyframe fit; its ``points``, ``trajectories`` and ``error`` are in the frames' pixel
-            coordinates (A's points carried to the last frame, and their distance to B's points).
-        alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
-        times: ``(N,)`` the fluid time of each frame, in steps.
-        seconds: wall time per phase: ``"fit"``, ``"inverse"``, ``"render"``, ``"total"``.
-        folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
-            ``<= 0`` (0 for a fold-free morph; :func:`morph` warns with their number when it is not).
-    """
-
-    frames: Tensor
-    forward_frames: Tensor
-    backward_frames: Tensor
-    maps: Tensor
-    maps_b: Tensor
-    fit: KeyframeFit
-    alignment: Tensor
-    times: Tensor
-    seconds: dict[str, float] = field(default_factory=dict)
-    folded: float = 0.0
 
 
 def _as_image(name: str, image: Tensor) -> Tensor:
@@ -102,7 +68,7 @@ MAX_MARGIN = 10.0
 
 
 def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid: object, itemsize: int) -> float:
-    """Bytes a morph sets out to hold: its frames, maps and images ``(N, ...)`` and the fit's fluid states."""
+    """Bytes a morph sets out to hold: a few rendered ``frames`` with their maps, and the fit's fluid states."""
     H, W = size
     per_frame = H * W * (3 * channels + 2 * 2 + 2 * 2 * 2)  # frames, A and B warped; maps; maps on the fluid box
     g = FluidGrid.of(grid)  # type: ignore[arg-type]
@@ -237,15 +203,17 @@ def morph(
     the frames come back in the promoted dtype of A and B.
 
     Returns:
-        a :class:`MorphResult`.
+        a :class:`~torchfluidwarp.morph.result.MorphResult`: the fit, rendered on demand. ``result.frame(t)``
+        renders any ``t`` in ``[0, 1]``; ``result.iter_frames()`` streams the ``frames`` in bounded memory;
+        ``result.frames`` (and ``maps`` ...) renders all of them at once.
 
     Raises:
         ValueError: different point counts, points outside their image, repeated points, non-finite values,
             ``frames < 2``, fewer than 3 points or points on one line for ``"natural"``.
 
     Warns:
-        RuntimeWarning: marks that cross (swap sides or tear apart between A and B), naming them; maps that
-            fold, with the number of folded pixels.
+        RuntimeWarning: marks that cross (swap sides or tear apart between A and B), naming them; when the
+            frames are rendered, maps that fold, with the number of folded pixels.
     """
     t0 = time.perf_counter()
     a = _as_image("image_a", image_a)
@@ -274,7 +242,7 @@ def morph(
         if margin > MAX_MARGIN:
             raise ValueError(f"margin must be <= {MAX_MARGIN} (a fraction of the points' extent), got {margin!r}")
     check_instance("warm_start", warm_start, KeyframeFit, optional=True)
-    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], n, steps, grid, a.element_size())
+    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], min(n, 8), steps, grid, a.element_size())
     check_memory(f"morph(frames={n}, steps={steps}, grid={grid})", estimate, max_memory, "morph(max_memory=...)")
     smoothness = defaults["smoothness"] if smoothness is None else smoothness
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)
@@ -320,9 +288,10 @@ def morph(
     t_fit = time.perf_counter()
 
     with torch.no_grad():  # the fit is done: rendering needs no graph
-        result = render(a, b, fit, M, center, box, size, roi, steps, n, inverse, blend, fit_kwargs, feather)
-    frames_t, fwd, bwd, maps_a, maps_b, times, t_inv, n_folded = result
-    t_render = time.perf_counter()
+        velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
+        flows = None if inverse == "flow" else paper_flows(fit, roi, {**fit_kwargs, "progress": False})
+    scene = Scene(a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, blend, feather, flows)
+    t_inv = time.perf_counter()
 
     traj = torch.stack(
         [
@@ -337,25 +306,5 @@ def morph(
         f"max {float(err.max()):.4f} px"
     )
     fit = dataclasses.replace(fit, trajectories=traj, points=traj[:, -1], error=err, message=message)
-    n_pixels = maps_a.shape[:3].numel() + maps_b.shape[:3].numel()
-    folded = n_folded / n_pixels
-    if n_folded:
-        warnings.warn(
-            f"the morph's maps fold on {n_folded} of {n_pixels} pixels over all frames of "
-            "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
-            "(result.fit.error names the points not reached), or raise smoothness",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-    return MorphResult(
-        frames=frames_t.to(out_dtype),
-        forward_frames=fwd.to(out_dtype),
-        backward_frames=bwd.to(out_dtype),
-        maps=maps_a,
-        maps_b=maps_b,
-        fit=fit,
-        alignment=M,
-        times=times,
-        seconds={"fit": t_fit - t0, "inverse": t_inv - t_fit, "render": t_render - t_inv, "total": t_render - t0},
-        folded=folded,
-    )
+    seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
+    return MorphResult(scene, fit, M, n, out_dtype, seconds, max_memory)

@@ -9,8 +9,8 @@ centres at integers.
 
 from __future__ import annotations
 
-import time
-from typing import Any, Literal
+from dataclasses import dataclass
+from typing import Literal
 
 import torch
 from torch import Tensor
@@ -86,25 +86,32 @@ def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     return at + _warp_image(disp.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
 
 
-def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], kwargs: dict) -> list[Tensor]:
-    """The paper's stepwise inverse warping: maps ``P_s(z)`` into the fluid frame of time ``T``.
-
-    For ``l = T-1 .. 0`` a one-step fit carries the points from their step-``l+1`` positions to their step-``l``
-    positions; ``P_l = P_{l+1} o g^(l)`` with ``g^(l)`` that small flow's backward map.
-    """
+def paper_flows(fit: KeyframeFit, size: tuple[int, int], kwargs: dict) -> list[tuple[Tensor, float]]:
+    """The paper's stepwise inverse warping, fitted: one small flow per step, ``(velocities, dt)`` for
+    ``l = 0 .. T-1``, each carrying the points from their step-``l+1`` positions back to their step-``l`` ones."""
     traj = fit.trajectories  # (1, T + 1, M, 2) in the fluid frame
-    T = traj.shape[1] - 1
-    current = identity_map(size, device=traj.device, dtype=traj.dtype)  # P_T
-    # the step whose one-step flow each frame's time falls in, and how far back from its end it lies
-    step_of = [min(int(s), T - 1) for s in times]
-    out: list[Tensor | None] = [current if s >= T else None for s in times]
-    for step in range(T - 1, -1, -1):
+    flows = []
+    for step in range(traj.shape[1] - 1):
         small = fit_keyframes(traj[:, step + 1], traj[:, step], steps=1, **kwargs)
-        vel = small.warp.rollout(small.forces, size).velocities
+        flows.append((small.warp.rollout(small.forces, size).velocities, small.warp.dt))
+    return flows
+
+
+def _paper_inverse(flows: list[tuple[Tensor, float]], times: list[float], size: tuple[int, int]) -> list[Tensor]:
+    """Maps ``P_s(z)`` into the fluid frame of time ``T`` from the small flows of :func:`paper_flows`:
+    ``P_T`` is the identity and ``P_l = P_{l+1} o g^(l)`` with ``g^(l)`` step ``l``'s small backward map."""
+    T = len(flows)
+    vel0 = flows[0][0]
+    current = identity_map(size, device=vel0.device, dtype=vel0.dtype)  # P_T
+    step_of = [min(int(s), T - 1) for s in times]  # the step whose small flow each frame's time falls in
+    out: list[Tensor | None] = [current if s >= T else None for s in times]
+    lowest = min(step_of)
+    for step in range(T - 1, lowest - 1, -1):
+        vel, dt = flows[step]
         mine = [k for k, s in enumerate(times) if out[k] is None and step_of[k] == step]
         back = [step + 1 - times[k] for k in mine]  # how far back from the step's end each frame lies
         wanted = sorted(set(back) | {1.0})  # the whole step too: it carries on to P_step
-        maps = backward_maps(vel, size, small.warp.dt, times=wanted).unbind(1)
+        maps = backward_maps(vel, size, dt, times=wanted).unbind(1)
         composed = {frac: _sample_map(current, m) for frac, m in zip(wanted, maps)}
         for k, frac in zip(mine, back):
             out[k] = composed[frac]
@@ -112,56 +119,81 @@ def _paper_inverse(fit: KeyframeFit, times: list[float], size: tuple[int, int], 
     return [m for m in out if m is not None]
 
 
-def render(
-    a: Tensor,
-    b: Tensor,
-    fit: KeyframeFit,
-    M: Tensor,
-    center: Tensor,
-    box: tuple[int, int, int, int],
-    size: tuple[int, int],
-    roi: tuple[int, int],
-    steps: int,
-    n: int,
-    inverse: InverseMethod,
-    blend: Blend,
-    fit_kwargs: dict[str, Any],
-    feather: float = FEATHER,
-) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor, float, int]:
-    """Render the frames of a fitted morph (see :func:`morph`); the last value counts the folded map pixels."""
-    times = torch.linspace(0, steps, n, dtype=torch.float64)  # fluid time of each frame, on the CPU: scalars
-    time_list = [float(s) for s in times]
-    time_list[-1] = float(steps)
-    velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
-    # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
-    g = backward_maps(velocities, roi, fit.warp.dt, time_list)[0].unsqueeze(1)  # (N, 1, h_r, w_r, 2)
-    if inverse == "flow":
-        k_maps = maps_to_end(velocities, roi, fit.warp.dt, time_list)[0].unsqueeze(1)
-    else:
-        small_kwargs = {**fit_kwargs, "progress": False}
-        k_maps = torch.cat(_paper_inverse(fit, time_list, roi, small_kwargs)).to(a.dtype).unsqueeze(1)
-    t_inv = time.perf_counter()
-    offset = torch.tensor([box[0], box[1]], dtype=a.dtype, device=a.device)
+@dataclass
+class Scene:
+    """Everything a fitted morph needs to render any frame: the two images ``(1, C, H, W)`` (computed dtype),
+    the fitted velocities ``(1, T, 2, h + 1, w + 1)`` on the fluid's box ``roi`` (pixels, top-left at ``box``),
+    the pre-alignment ``M`` ``(3, 3)`` about ``center`` and the rendering settings of :func:`morph`."""
 
-    weights = _blend_weights(times, steps, blend)
+    a: Tensor
+    b: Tensor
+    velocities: Tensor
+    dt: float
+    steps: int
+    M: Tensor
+    center: Tensor
+    box: tuple[int, int, int, int]
+    roi: tuple[int, int]
+    inverse: InverseMethod
+    blend: Blend
+    feather: float
+    flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of paper_flows
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.a.shape[-2], self.a.shape[-1])
+
+
+@dataclass
+class Rendered:
+    """Frames at some times: ``frames``, ``forward`` (A warped), ``backward`` (B pulled back), each
+    ``(n, C, H, W)``; ``maps_a``, ``maps_b`` ``(n, H, W, 2)`` in A's and B's pixels; ``folded`` map pixels."""
+
+    frames: Tensor
+    forward: Tensor
+    backward: Tensor
+    maps_a: Tensor
+    maps_b: Tensor
+    folded: int
+
+
+def render(scene: Scene, times: list[float]) -> Rendered:
+    """Render the frames of a fitted morph at fluid ``times`` (steps, non-decreasing, in ``[0, T]``).
+
+    Cost: one pass of the fluid's maps through time (``T`` raster steps) for the whole list, and per frame two
+    resamplings of the images and two of the maps; memory grows with ``len(times)`` only, so callers render long
+    morphs a few frames at a time.
+    """
+    a, b, steps = scene.a, scene.b, scene.steps
+    roi, size, dt = scene.roi, scene.size, scene.dt
+    # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
+    g = backward_maps(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, h_r, w_r, 2)
+    if scene.inverse == "flow":
+        k_maps = maps_to_end(scene.velocities, roi, dt, times)[0].unsqueeze(1)
+    else:
+        assert scene.flows is not None
+        k_maps = torch.cat(_paper_inverse(scene.flows, times, roi)).to(a.dtype).unsqueeze(1)
+    offset = torch.tensor([scene.box[0], scene.box[1]], dtype=a.dtype, device=a.device)
+    weights = _blend_weights(torch.tensor(times, dtype=torch.float64), steps, scene.blend)
     ident = identity_map(size, device=a.device, dtype=torch.float64)
     out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
     folded = 0
-    for k, s in enumerate(time_list):
-        Mk = interpolate_alignment(M, s / steps, center)
+    for k, s in enumerate(times):
+        Mk = interpolate_alignment(scene.M, s / steps, scene.center)
         z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, H, W, 2) in the box
         map_a = _sample_map(g[k], z) + offset
         k_at = _sample_map(k_maps[k], z) + offset
-        map_b = apply_alignment(M, k_at.double()).to(a.dtype)
+        map_b = apply_alignment(scene.M, k_at.double()).to(a.dtype)
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
         det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, H, W) each
         folded += int((det_a <= 0).sum()) + int((det_b <= 0).sum())
-        out.append(_dissolve(fa, fb, map_a, map_b, det_a, det_b, float(weights[k]), size, feather))
+        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, float(weights[k]), size, scene.feather)
+        # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
+        frame = a if s == 0 else b if s == steps else frame
+        out.append(frame)
         fwd.append(fa)
         bwd.append(fb)
         maps_a.append(map_a)
         maps_b.append(map_b)
-    frames_t = torch.cat(out)
-    # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-    frames_t[0], frames_t[-1] = a[0], b[0]
-    return frames_t, torch.cat(fwd), torch.cat(bwd), torch.cat(maps_a), torch.cat(maps_b), times, t_inv, folded
+    cat = torch.cat
+    return Rendered(cat(out), cat(fwd), cat(bwd), cat(maps_a), cat(maps_b), folded)

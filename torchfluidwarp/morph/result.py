@@ -1,0 +1,185 @@
+"""What :func:`~torchfluidwarp.morph.morph` returns: a fitted morph that renders its frames on demand.
+
+Nothing is rendered until asked for, so a morph of any length holds only its fit and its two images:
+
+* ``result.frame(t)`` renders the frame at any ``t`` in ``[0, 1]`` (``frame(0.5)`` is the middle image);
+* ``result.iter_frames()`` yields the ``N`` frames in order, a few at a time, in bounded memory (what the CLI
+  streams to its writers);
+* ``result.frames``, ``forward_frames``, ``backward_frames``, ``maps``, ``maps_b`` and ``folded`` render all ``N``
+  frames once, on first access (refused beforehand when they would not fit in ``max_memory``).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Iterator
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_memory, check_real
+from torchfluidwarp.control.keyframes import KeyframeFit
+from torchfluidwarp.morph.render import Rendered, Scene, render
+
+__all__ = ["MorphResult"]
+
+
+class MorphResult:
+    """A fitted morph of ``N`` frames (``len(result)``), rendered on demand.
+
+    Attributes:
+        fit: the keyframe fit; its ``points``, ``trajectories`` and ``error`` are in the frames' pixel
+            coordinates (A's points carried to the last frame, and their distance to B's points).
+        alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
+        seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
+            inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
+
+    All frames at once (rendered on first access of any of them, then kept):
+        frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B.
+        forward_frames: ``(N, C, H, W)`` image A warped forward (pre-alignment included).
+        backward_frames: ``(N, C, H, W)`` image B pulled back along the flow.
+        maps: ``(N, H, W, 2)`` backward coordinate maps of image A's whole warp (pre-alignment included), in
+            A's pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
+            :func:`~torchfluidwarp.warp.jacobian_determinant`.
+        maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's pixels, after resizing to A's size).
+        folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
+            ``<= 0`` (0 for a fold-free morph; a ``RuntimeWarning`` gives their number when it is not).
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        fit: KeyframeFit,
+        alignment: Tensor,
+        count: int,
+        dtype: torch.dtype,
+        seconds: dict[str, float],
+        max_memory: float | None = None,
+    ) -> None:
+        self._scene = scene
+        self.fit = fit
+        self.alignment = alignment
+        self._count = count
+        self._dtype = dtype
+        self.seconds = seconds
+        self._max_memory = max_memory
+        self._all: Rendered | None = None
+        self._folded: float | None = None
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __repr__(self) -> str:
+        C, H, W = self._scene.a.shape[1:]
+        return f"MorphResult({self._count} frames of ({C}, {H}, {W}), {self._dtype}, rendered={self._all is not None})"
+
+    @property
+    def times(self) -> Tensor:
+        """``(N,)`` the fluid time of each frame, in steps ``0..T``."""
+        t = torch.linspace(0, self._scene.steps, self._count, dtype=torch.float64)
+        t[-1] = self._scene.steps
+        return t
+
+    def _time(self, k: int) -> float:
+        return self._scene.steps if k == self._count - 1 else self._scene.steps * k / (self._count - 1)
+
+    def _render(self, times: list[float]) -> Rendered:
+        with torch.no_grad():
+            return render(self._scene, times)
+
+    def frame(self, t: float) -> Tensor:
+        """The morph at ``t`` in ``[0, 1]`` (0 is image A, 1 image B): ``(C, H, W)`` in A's and B's dtype.
+
+        Any ``t``, not only the ``N`` frames' times: ``frame(0.5)`` is the middle image of the morph.
+        """
+        u = check_real("t", t)
+        if not 0 <= u <= 1:
+            raise ValueError(f"t must be in [0, 1], got {t!r}")
+        return self._render([u * self._scene.steps]).frames[0].to(self._dtype)
+
+    def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]:
+        """Yield the ``N`` frames in order, ``(C, H, W)`` each, rendering ``chunk`` at a time.
+
+        Memory stays that of ``chunk`` frames whatever ``N``. Once the last frame is out, a ``RuntimeWarning``
+        gives the number of folded map pixels if there were any, and :attr:`folded` is known.
+        """
+        chunk = check_int("chunk", chunk)
+        if self._all is not None:
+            yield from self._all.frames.to(self._dtype).unbind(0)
+            return
+        folded = 0
+        for start in range(0, self._count, chunk):
+            part = self._render([self._time(k) for k in range(start, min(start + chunk, self._count))])
+            folded += part.folded
+            yield from part.frames.to(self._dtype).unbind(0)
+        self._set_folded(folded)
+
+    def _set_folded(self, count: int) -> None:
+        H, W = self._scene.size
+        n_pixels = 2 * self._count * H * W
+        self._folded = count / n_pixels
+        if count:
+            warnings.warn(
+                f"the morph's maps fold on {count} of {n_pixels} pixels over all frames of "
+                "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
+                "(result.fit.error names the points not reached), or raise smoothness",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+
+    def bytes_per_frame(self) -> int:
+        """Bytes one rendered frame holds with its warped images and maps."""
+        C, H, W = self._scene.a.shape[1:]
+        return H * W * (3 * C + 2 * 2) * self._scene.a.element_size()
+
+    def materialize(self) -> MorphResult:
+        """Render all ``N`` frames (and their maps) now and keep them; returns ``self``.
+
+        Raises:
+            ValueError: they would not fit in the morph's ``max_memory``.
+        """
+        if self._all is None:
+            check_memory(
+                f"all {self._count} frames of this morph (result.frames, .maps, ...)",
+                self._count * self.bytes_per_frame(),
+                self._max_memory,
+                "morph(max_memory=...), or stream them with result.iter_frames()",
+            )
+            t0 = time.perf_counter()
+            self._all = self._render([self._time(k) for k in range(self._count)])
+            self.seconds["render"] = time.perf_counter() - t0
+            self._set_folded(self._all.folded)
+        return self
+
+    def _get_all(self) -> Rendered:
+        self.materialize()
+        assert self._all is not None
+        return self._all
+
+    @property
+    def frames(self) -> Tensor:
+        return self._get_all().frames.to(self._dtype)
+
+    @property
+    def forward_frames(self) -> Tensor:
+        return self._get_all().forward.to(self._dtype)
+
+    @property
+    def backward_frames(self) -> Tensor:
+        return self._get_all().backward.to(self._dtype)
+
+    @property
+    def maps(self) -> Tensor:
+        return self._get_all().maps_a
+
+    @property
+    def maps_b(self) -> Tensor:
+        return self._get_all().maps_b
+
+    @property
+    def folded(self) -> float:
+        if self._folded is None:
+            self.materialize()
+        assert self._folded is not None
+        return self._folded
