@@ -229,7 +229,7 @@ def bench_registration(max_iter: tuple[int, ...]) -> dict[str, Any]:
         src, tgt, loss="ncc", grid=32, levels=(8, 16, 32), steps=8, control=(5, 5), max_iter=max_iter, progress=False
     )
     with torch.no_grad():
-        carried = fit.warp.advect_points(marks[None], fit.forces, tuple(src.shape[-2:]))[0, -1]
+        carried = fit.warp.carry_points(marks[None], fit.forces, tuple(src.shape[-2:]))[0, -1]
     row = {
         "initial_loss": fit.initial_loss,
         "final_loss": fit.final_loss,

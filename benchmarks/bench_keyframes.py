@@ -153,7 +153,7 @@ def flow_instance(seed: int, m: int, grid: tuple[int, int], steps: int, max_atte
         def carry(scale: float) -> Tensor:
             with torch.no_grad():
                 brushes.amplitude.copy_(base * scale)
-                return warp.advect_points(cand[None], brushes)[0, -1]  # (N, 2) pixels
+                return warp.carry_points(cand[None], brushes)[0, -1]  # (N, 2) pixels
 
         s_lo, s_hi = 0.0, 4.0
         for _ in range(16):  # the displacement grows about linearly with the strength
@@ -342,12 +342,12 @@ def time_gradient(
 
         def forward(warp=warp, forces=forces, src=src) -> None:
             with torch.no_grad():
-                warp.advect_points(src, forces)
+                warp.carry_points(src, forces)
 
         def gradient(warp=warp, forces=forces, src=src, tgt=tgt, params=params) -> None:
             for p in params:
                 p.grad = None
-            keyframe_loss(warp.advect_points(src, forces), [(steps, tgt)]).backward()
+            keyframe_loss(warp.carry_points(src, forces), [(steps, tgt)]).backward()
 
         forward()
         gradient()  # warm-up

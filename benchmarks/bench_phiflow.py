@@ -200,7 +200,7 @@ class TorchfluidwarpSim:
         self.warp = FluidWarp(grid, steps, DT, image_size=FRAME).to(source.dtype)
 
     def endpoints(self, control: Tensor) -> Tensor:
-        return self.warp.advect_points(self.source[None], upsample(control, self.grid)[None])[0, -1]
+        return self.warp.carry_points(self.source[None], upsample(control, self.grid)[None])[0, -1]
 
     def pressure_iterations(self, control: Tensor) -> list[int]:
         with torch.no_grad():

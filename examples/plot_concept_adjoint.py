@@ -34,7 +34,7 @@ target = source + 6 * torch.randn(1, 8, 2, generator=gen, dtype=torch.float64)
 
 def objective(forces: ControlGrid) -> torch.Tensor:
     """The paper's keyframe objective (pixels^2): points carried through the warp against their targets."""
-    paths = warp.advect_points(source, forces)  # (B, T + 1, M, 2) pixels
+    paths = warp.carry_points(source, forces)  # (B, T + 1, M, 2) pixels
     return keyframe_loss(paths, [(steps, target)])
 
 

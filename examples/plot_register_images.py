@@ -85,7 +85,7 @@ for level in fit.levels:
         f"{level.seconds:.1f} s"
     )
 with torch.no_grad():
-    carried = fit.warp.advect_points(landmarks[None], fit.forces, (N, N))[0, -1]
+    carried = fit.warp.carry_points(landmarks[None], fit.forces, (N, N))[0, -1]
 before = (landmarks - landmarks_target).norm(dim=-1)
 after = (carried - landmarks_target).norm(dim=-1)
 print(

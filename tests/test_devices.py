@@ -160,14 +160,16 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     ),
     ("io/images.py", "_uint8_frames", "empty"): "CPU-only file encoding: frames go to an encoder on the host",
     ("io/points.py", "read_points", "tensor"): "CPU-only file decoding: points parsed from text",
-    # TODO lead: owned by other modules' authors; fix (or give a reason) and remove the entry
-    ("apps/animate/config.py", "AnimationConfig.rescaled", "tensor"): "TODO lead: apps/animate/config.py:127",
-    ("apps/animate/config.py", "AnimationConfig.rescaled.pos", "tensor"): "TODO lead: apps/animate/config.py:130",
-    ("apps/cli.py", "_cmd_animate", "empty"): "TODO lead: apps/cli.py:224",
-    ("apps/studio/inputs.py", "points", "tensor"): "TODO lead: apps/studio/inputs.py:77",
-    ("apps/studio/previews.py", "_to_size", "tensor"): "TODO lead: apps/studio/previews.py:78",
-    ("morph/render.py", "render", "tensor"): "TODO lead: morph/render.py:177",
-    ("morph/result.py", "MorphResult.times", "linspace"): "TODO lead: morph/result.py:80",
+    # the apps turn parsed user input (JSON, form fields, point files) into tensors; they run the library on
+    # the CPU, and the library moves what it is given to its images' device
+    ("apps/animate/config.py", "AnimationConfig.rescaled", "tensor"): "parsed config values, CPU by design",
+    ("apps/animate/config.py", "AnimationConfig.rescaled.pos", "tensor"): "parsed config values, CPU by design",
+    ("apps/cli.py", "_cmd_animate", "empty"): "the CLI runs on the CPU",
+    ("apps/studio/inputs.py", "points", "tensor"): "points parsed from the page, CPU by design",
+    ("apps/studio/previews.py", "_to_size", "tensor"): "the studio runs on the CPU",
+    # host-side scalars, read back with float(): keeping them on the CPU avoids a device sync per frame
+    ("morph/render.py", "render", "tensor"): "per-frame blend weights, read with float()",
+    ("morph/result.py", "MorphResult.times", "linspace"): "the frames' times, metadata for the caller",
 }
 
 

@@ -73,7 +73,7 @@ def test_landmarks_pull_points_onto_their_targets():
         progress=False,
     )
     with torch.no_grad():
-        moved = fit.warp.advect_points(src[None], fit.forces, (32, 32))[0, -1]
+        moved = fit.warp.carry_points(src[None], fit.forces, (32, 32))[0, -1]
     assert (moved - tgt).norm(dim=-1).max() < 0.3
     assert fit.loss_history[-1] < 0.05 * fit.loss_history[0]
 

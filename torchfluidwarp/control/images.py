@@ -320,7 +320,7 @@ def _fit_level(
         value = objective(_warp_last(warp, module, source), target)
         if points is not None and point_weight > 0:
             p, q = points
-            carried = warp.advect_points(p, module, full_size)[:, -1]
+            carried = warp.carry_points(p, module, full_size)[:, -1]
             value = value + point_weight * ((carried - q) ** 2).sum(-1).mean(-1).sum()
         if regularization > 0:
             value = value + regularization * (module.weight**2).sum()

@@ -1,0 +1,124 @@
+"""The layout change costs no speed: the main paths timed side by side on the old flat layout and on this checkout.
+
+Checks out ``--base`` (default ``2e9f7a8``, the last commit of the flat layout) into a temporary git worktree and
+times the same workloads through the public top-level API, which both layouts share, in fresh subprocesses that
+alternate between the two trees (old, new, old, new, ...), so that a busy machine slows both alike. Prints the
+median seconds of each workload per tree and their ratio (new / old); within noise means a ratio near 1.
+
+Run from the repository root (one torch benchmark at a time on a small machine)::
+
+    python benchmarks/bench_layout.py --repeats 5
+
+Workloads (2 torch threads, float32 unless said): ``FluidSimulator`` 60 steps at 64^2; ``FluidWarp`` forward of a
+256x256 RGB image over 20 steps; ``fit_keyframes`` of the paper's set-up (64^2, 10 steps, 14 points);
+``fit_images`` on 64x64 images (2 levels); ``morph`` of the bundled pair at 128x128, 10 frames; the tensor-level
+augmentation on 8 images of 64x64.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import statistics
+import subprocess
+import sys
+import tempfile
+
+from _common import describe_load, machine, machine_load, table
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+WORKLOADS = r"""
+import json, sys, time, warnings
+import torch
+warnings.simplefilter("ignore")
+torch.set_num_threads(2)
+import torchfluidwarp as tfw
+from torchfluidwarp.data import load_sample, load_sample_points
+
+def timed(fn, repeats=3):
+    fn()  # warm-up
+    best = []
+    for _ in range(repeats):
+        t = time.perf_counter(); fn(); best.append(time.perf_counter() - t)
+    return min(best)
+
+g = torch.Generator().manual_seed(0)
+out = {}
+sim = tfw.FluidSimulator(64)
+forces = 0.05 * torch.randn(1, 60, 2, 64, 64, generator=g)
+out["simulate 60 steps 64^2"] = timed(lambda: sim(forces))
+warp = tfw.FluidWarp(64, 20)
+image = torch.rand(1, 3, 256, 256, generator=g)
+wf = 0.05 * torch.randn(1, 20, 2, 64, 64, generator=g)
+out["FluidWarp 256^2 x 20 steps"] = timed(lambda: warp(image, wf))
+src = torch.rand(14, 2, generator=g) * 40 + 12
+tgt = src + torch.randn(14, 2, generator=g) * 3
+out["fit_keyframes paper set-up"] = timed(
+    lambda: tfw.fit_keyframes(src, tgt, steps=10, grid=64, image_size=(64, 64), progress=False), repeats=2
+)
+yy, xx = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
+blob = lambda cx, cy: torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 60.0)[None, None]
+out["fit_images 64^2"] = timed(
+    lambda: tfw.fit_images(blob(28, 30), blob(34, 32), grid=16, levels=(8, 16), steps=4, max_iter=15, progress=False), repeats=2
+)
+a, b = load_sample("astronaut"), load_sample("cat")
+pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
+def small(im, p):
+    im = im.reshape(1, -1, *im.shape[-2:])
+    scale = torch.tensor([128 / im.shape[-1], 128 / im.shape[-2]])
+    out = torch.nn.functional.interpolate(im, size=(128, 128), mode="bilinear", antialias=True)[0]
+    return out, ((p + 0.5) * scale - 0.5).clamp(0, 127)
+a128, pa128 = small(a, pa)
+b128, pb128 = small(b, pb)
+out["morph 128^2 x 10 frames"] = timed(
+    lambda: tfw.morph(a128, b128, pa128, pb128, frames=10, progress=False), repeats=2
+)
+from torchfluidwarp.augment import FluidWarpAugment
+aug = FluidWarpAugment(generator=torch.Generator().manual_seed(1))
+batch = torch.rand(8, 3, 64, 64, generator=g)
+out["augment 8 x 64^2"] = timed(lambda: aug(batch))
+print(json.dumps(out))
+"""
+
+
+def run(tree: pathlib.Path) -> dict[str, float]:
+    env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "2", "MPLBACKEND": "Agg"}
+    done = subprocess.run(
+        [sys.executable, "-c", WORKLOADS], cwd=tree, env=env, capture_output=True, text=True, check=False
+    )
+    if done.returncode:
+        raise SystemExit(f"workloads failed in {tree}:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--base", default="2e9f7a8", help="the commit to compare against (default: the flat layout)")
+    parser.add_argument("--repeats", type=int, default=5, help="subprocess pairs (old, new) to alternate")
+    args = parser.parse_args()
+    print(machine())
+    with tempfile.TemporaryDirectory() as tmp:
+        old = pathlib.Path(tmp) / "old"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(old), args.base], check=True)
+        try:
+            runs: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
+            for i in range(args.repeats):
+                for name, tree in (("old", old), ("new", ROOT)):
+                    runs[name].append(run(tree))
+                    print(f"pair {i + 1}/{args.repeats} {name} done", flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)], check=False)
+    rows = []
+    for key in runs["old"][0]:
+        o = statistics.median(r[key] for r in runs["old"])
+        n = statistics.median(r[key] for r in runs["new"])
+        rows.append([key, f"{1000 * o:.1f}", f"{1000 * n:.1f}", f"{n / o:.2f}"])
+    print(f"base {args.base} vs this checkout, median of {args.repeats} subprocesses each (ms)")
+    print(table(["workload", f"old ({args.base})", "new", "new / old"], rows))
+    print(describe_load(machine_load()))
+
+
+if __name__ == "__main__":
+    main()
