@@ -286,3 +286,26 @@ def test_frames_render_on_demand_and_agree_every_way(pair):
     assert float((between - r.frames[2]).abs().max()) > 1e-4 and float((between - r.frames[3]).abs().max()) > 1e-4
     with pytest.raises(ValueError, match=r"t must be in \[0, 1\], got 1.5"):
         r.frame(1.5)
+
+
+def test_the_shape_can_lead_the_colour(pair):
+    a, b = pair
+    led = morph(a, b, POINTS_A, POINTS_B, frames=5, motion="ease-out", blend="ease-in", feather=0.0, **KW)
+    plain = morph(a, b, POINTS_A, POINTS_B, frames=5, **KW)
+    # at t = 1/4 the shape is 1 - (3/4)^2 = 7/16 of the way, the colour (1/4)^2 = 1/16
+    steps = KW["steps"]
+    torch.testing.assert_close(led.times, torch.tensor([0, 7 / 16, 3 / 4, 15 / 16, 1], dtype=torch.float64) * steps)
+    k = 1
+    weight = 1 / 16  # where both images are read inside (no feather band), the frame is the lerp with this weight
+    want = torch.lerp(led.forward_frames[k], led.backward_frames[k], weight)
+    centre = (slice(None), slice(16, 48), slice(16, 48))
+    torch.testing.assert_close(led.frames[k][centre], want[centre], atol=1e-5, rtol=0)
+    # the same t with the linear schedules: the shape is less far along, the colour further
+    assert float(led.times[k]) > float(plain.times[k])
+    # control points work as schedules too, and bad ones are refused by name
+    points = morph(a, b, POINTS_A, POINTS_B, frames=3, motion=[(0, 0), (0.5, 0.9), (1, 1)], **KW)
+    torch.testing.assert_close(points.times, torch.tensor([0, 0.9, 1], dtype=torch.float64) * steps)
+    with pytest.raises(ValueError, match="motion's control points must run from"):
+        morph(a, b, POINTS_A, POINTS_B, frames=3, motion=[(0, 0), (0.5, 0.9)], **KW)
+    with pytest.raises(ValueError, match="blend must be one of"):
+        morph(a, b, POINTS_A, POINTS_B, frames=3, blend="bouncy", **KW)

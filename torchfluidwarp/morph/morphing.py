@@ -35,8 +35,9 @@ from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyf
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural
-from torchfluidwarp.morph.render import FEATHER, Blend, InverseMethod, Scene, paper_flows
+from torchfluidwarp.morph.render import FEATHER, InverseMethod, Scene, paper_flows
 from torchfluidwarp.morph.result import MorphResult
+from torchfluidwarp.morph.timing import Timing, schedule
 
 __all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest", "DEFAULTS", "PAD", "MIN_AREA", "FEATHER"]
 
@@ -134,7 +135,8 @@ def morph(
     viscosity: Viscosity | nn.Module = 0.0,
     align: AlignKind | None = "similarity",
     inverse: InverseMethod = "flow",
-    blend: Blend = "linear",
+    blend: Timing = "linear",
+    motion: Timing = "linear",
     feather: float = FEATHER,
     compressible: bool | float | None = None,
     smoothness: float | None = None,
@@ -173,9 +175,13 @@ def morph(
         align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
             or ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
-        blend: cross-dissolve schedule, ``"linear"`` (the paper's) or ``"smooth"`` (ease in and out). Where a
+        blend: the colour's schedule, how the cross-dissolve's weight of B grows over the morph's time ``t``:
+            a name (``"linear"``, the paper's; ``"smooth"``, ``"ease-in"``, ``"ease-out"``) or control points
+            ``[(t, weight), ...]`` from ``(0, 0)`` to ``(1, 1)`` (:mod:`~torchfluidwarp.morph.timing`). Where a
             frame reads one image beyond its edge, the other image is shown instead, rather than the first
             image's edge pixels smeared into streaks.
+        motion: the shape's schedule, the same kinds of values: how far along the flow (and the pre-alignment)
+            each frame is. ``motion="ease-out", blend="ease-in"`` lets the shape lead the colour.
         feather: output pixels over which that hand-over happens inside an image's edge (default
             :data:`FEATHER`, 64); 0 hands over at the edge itself.
         compressible: ``True`` to let regions change area (skips the projection) or a weight in ``[0, 1]``;
@@ -242,6 +248,7 @@ def morph(
         if margin > MAX_MARGIN:
             raise ValueError(f"margin must be <= {MAX_MARGIN} (a fraction of the points' extent), got {margin!r}")
     check_instance("warm_start", warm_start, KeyframeFit, optional=True)
+    shape, colour = schedule("motion", motion), schedule("blend", blend)
     estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], min(n, 8), steps, grid, a.element_size())
     check_memory(f"morph(frames={n}, steps={steps}, grid={grid})", estimate, max_memory, "morph(max_memory=...)")
     smoothness = defaults["smoothness"] if smoothness is None else smoothness
@@ -290,7 +297,7 @@ def morph(
     with torch.no_grad():  # the fit is done: rendering needs no graph
         velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
         flows = None if inverse == "flow" else paper_flows(fit, roi, {**fit_kwargs, "progress": False})
-    scene = Scene(a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, blend, feather, flows)
+    scene = Scene(a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, shape, colour, feather, flows)
     t_inv = time.perf_counter()
 
     traj = torch.stack(

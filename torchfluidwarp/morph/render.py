@@ -9,6 +9,7 @@ centres at integers.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -20,16 +21,6 @@ from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
 from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
 InverseMethod = Literal["flow", "paper"]
-Blend = Literal["linear", "smooth"]
-
-
-def _blend_weights(times: Tensor, T: int, blend: Blend) -> Tensor:
-    u = times / T
-    if blend == "linear":
-        return u
-    if blend == "smooth":
-        return u * u * (3 - 2 * u)  # smoothstep: ease in and out
-    raise ValueError(f"blend must be 'linear' or 'smooth', got {blend!r}")
 
 
 FEATHER = 64.0
@@ -135,7 +126,8 @@ class Scene:
     box: tuple[int, int, int, int]
     roi: tuple[int, int]
     inverse: InverseMethod
-    blend: Blend
+    motion: Callable[[float], float]  # the shape's schedule: t -> progress (see morph.timing)
+    blend: Callable[[float], float]  # the colour's schedule: t -> the weight of image B
     feather: float
     flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of paper_flows
 
@@ -157,8 +149,10 @@ class Rendered:
     folded: int
 
 
-def render(scene: Scene, times: list[float]) -> Rendered:
-    """Render the frames of a fitted morph at fluid ``times`` (steps, non-decreasing, in ``[0, T]``).
+def render(scene: Scene, ts: list[float]) -> Rendered:
+    """Render the frames of a fitted morph at the morph's times ``ts`` (increasing, in ``[0, 1]``).
+
+    Frame ``t`` shows the fluid at time ``motion(t) T`` (steps) and image B with weight ``blend(t)``.
 
     Cost: one pass of the fluid's maps through time (``T`` raster steps) for the whole list, and per frame two
     resamplings of the images and two of the maps; memory grows with ``len(times)`` only, so callers render long
@@ -166,6 +160,7 @@ def render(scene: Scene, times: list[float]) -> Rendered:
     """
     a, b, steps = scene.a, scene.b, scene.steps
     roi, size, dt = scene.roi, scene.size, scene.dt
+    times = [steps * scene.motion(t) for t in ts]  # fluid times, steps
     # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
     g = backward_maps(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, h_r, w_r, 2)
     if scene.inverse == "flow":
@@ -174,7 +169,6 @@ def render(scene: Scene, times: list[float]) -> Rendered:
         assert scene.flows is not None
         k_maps = torch.cat(_paper_inverse(scene.flows, times, roi)).to(a.dtype).unsqueeze(1)
     offset = torch.tensor([scene.box[0], scene.box[1]], dtype=a.dtype, device=a.device)
-    weights = _blend_weights(torch.tensor(times, dtype=torch.float64), steps, scene.blend)
     ident = identity_map(size, device=a.device, dtype=torch.float64)
     out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
     folded = 0
@@ -187,9 +181,9 @@ def render(scene: Scene, times: list[float]) -> Rendered:
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
         det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, H, W) each
         folded += int((det_a <= 0).sum()) + int((det_b <= 0).sum())
-        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, float(weights[k]), size, scene.feather)
+        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, scene.blend(ts[k]), size, scene.feather)
         # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-        frame = a if s == 0 else b if s == steps else frame
+        frame = a if ts[k] == 0 else b if ts[k] == 1 else frame
         out.append(frame)
         fwd.append(fa)
         bwd.append(fb)

@@ -76,13 +76,13 @@ class MorphResult:
 
     @property
     def times(self) -> Tensor:
-        """``(N,)`` the fluid time of each frame, in steps ``0..T``."""
-        t = torch.linspace(0, self._scene.steps, self._count, dtype=torch.float64)
-        t[-1] = self._scene.steps
-        return t
+        """``(N,)`` the fluid time of each frame, in steps ``0..T`` (the shape's schedule of its ``t``)."""
+        steps, motion = self._scene.steps, self._scene.motion
+        return torch.tensor([steps * motion(self._time(k)) for k in range(self._count)], dtype=torch.float64)
 
     def _time(self, k: int) -> float:
-        return self._scene.steps if k == self._count - 1 else self._scene.steps * k / (self._count - 1)
+        """Frame ``k``'s time ``t`` in ``[0, 1]``: the frames are evenly spaced, ending exactly at 1."""
+        return 1.0 if k == self._count - 1 else k / (self._count - 1)
 
     def _render(self, times: list[float]) -> Rendered:
         with torch.no_grad():
@@ -96,7 +96,7 @@ class MorphResult:
         u = check_real("t", t)
         if not 0 <= u <= 1:
             raise ValueError(f"t must be in [0, 1], got {t!r}")
-        return self._render([u * self._scene.steps]).frames[0].to(self._dtype)
+        return self._render([u]).frames[0].to(self._dtype)
 
     def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]:
         """Yield the ``N`` frames in order, ``(C, H, W)`` each, rendering ``chunk`` at a time.
