@@ -10,7 +10,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
-from PIL import Image
+from PIL import GifImagePlugin, Image
 
 from torchfluidwarp.io import (
     animation,
@@ -296,11 +296,10 @@ def test_failing_gif_write_leaves_old_file_and_no_temp(tmp_path, gen, monkeypatc
     path = write_animation(tmp_path / "anim.gif", frames)
     before = path.read_bytes()
 
-    def broken_save(self, fp, *args, **kwargs):
-        fp.write(b"GIF89a half")
+    def broken_frame(*args, **kwargs):  # the GIF writer encodes each frame with GifImagePlugin.getdata
         raise OSError("disk full")
 
-    monkeypatch.setattr(Image.Image, "save", broken_save)
+    monkeypatch.setattr(GifImagePlugin, "getdata", broken_frame)
     with pytest.raises(OSError, match="disk full"):
         write_animation(path, frames[:3], overwrite=True)
     with pytest.raises(OSError, match="disk full"):

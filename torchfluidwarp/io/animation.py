@@ -1,4 +1,5 @@
-"""Animations: ``(T, C, H, W)`` frames streamed to an animated GIF, an MP4 or a folder of PNGs, or encoded to bytes.
+"""Animations: ``(T, C, H, W)`` frames, or an iterable of ``(C, H, W)`` frames, streamed to an animated GIF,
+an MP4 or a folder of PNGs, or encoded to bytes, one frame at a time.
 
 Frames are float tensors ``(T, C, H, W)``: ``T`` frames, values in ``[0, 1]``, ``C`` in 1, 3, 4. Every output
 is written to a temporary sibling and moved into place only on success.
@@ -7,17 +8,20 @@ is written to a temporary sibling and moved into place only on success.
 from __future__ import annotations
 
 import io
+import itertools
 import os
+import struct
 import tempfile
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO, Literal
 
 import imageio.v3 as iio
 import numpy as np
-from PIL import Image
+from PIL import GifImagePlugin, Image
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_real, describe
+from torchfluidwarp._checks import check_int, check_real, check_tensor, describe
 from torchfluidwarp.io._files import PathLike, atomic_output, check_output_path, check_overwrite, make_parents
 from torchfluidwarp.io.images import _uint8_frames
 
@@ -48,24 +52,29 @@ MAX_LOOP = 65535
 
 
 def write_animation(
-    path: PathLike, frames: Tensor, *, fps: float = 10.0, overwrite: bool = False, loop: int = 0
+    path: PathLike, frames: Tensor | Iterable[Tensor], *, fps: float = 10.0, overwrite: bool = False, loop: int = 0
 ) -> Path:
-    """Write frames as a GIF, an MP4 or a folder of PNGs, atomically.
+    """Write frames as a GIF, an MP4 or a folder of PNGs, atomically, one frame at a time.
 
     The output kind follows the path:
 
-    * ``*.gif``: an animated GIF (Pillow). Each frame is shown for ``1 / fps`` seconds, rounded to
-      the GIF's 10 ms steps; every frame is kept, repeated ones included.
-    * ``*.mp4``: H.264 through imageio's ffmpeg plugin (needs the ``[video]`` extra). Odd sizes are
+    * ``*.gif``: an animated GIF (Pillow's encoder). Each frame is shown for ``1 / fps`` seconds, rounded to
+      the GIF's 10 ms steps; every frame is kept, repeated ones included, each with its own palette.
+    * ``*.mp4``: H.264 through imageio-ffmpeg (needs the ``[video]`` extra). Odd sizes are
       padded by one edge row/column, as yuv420p needs even sizes.
     * a path ending in ``/``, an existing directory or a path without suffix: a folder of
       ``frame_0000.png``, ``frame_0001.png``, ... (all channels kept).
 
     GIF and MP4 are RGB: gray frames are repeated to RGB and an alpha channel is dropped.
 
+    Frames are encoded as they come, so an iterable (e.g. ``result.iter_frames()`` of a morph) is written in
+    the memory of one frame whatever its length. The output goes to a temporary sibling that is moved into
+    place only once the last frame is written; an error on the way (a bad frame, a full disk) removes it.
+
     Args:
         path: the output file or folder. Missing parent folders are created.
-        frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4.
+        frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4; or an iterable of
+            ``(C, H, W)`` frames of one size (at least one).
         fps: frames per second, from :data:`MIN_FPS` (0.01) to :data:`MAX_FPS` (1000).
         overwrite: replace an existing output (a bool). Without it an existing file, or a non-empty folder,
             raises ``FileExistsError``. A folder is only replaced if it holds nothing but frames.
@@ -76,7 +85,8 @@ def write_animation(
 
     Raises:
         TypeError, ValueError: bad ``path``, ``frames``, ``fps``, ``loop`` or ``overwrite``, or an unknown
-            suffix. They are checked before anything is written.
+            suffix. They are checked before anything is written (a tensor's frames all, an iterable's first
+            one; a later bad frame of an iterable raises as it comes, and leaves nothing behind).
         FileExistsError: the output exists and ``overwrite`` is false.
         RuntimeError: MP4 output without imageio-ffmpeg installed.
     """
@@ -87,16 +97,14 @@ def write_animation(
     _check_loop(loop)
     if not isinstance(overwrite, bool):
         raise TypeError(f"overwrite must be a bool, got {describe(overwrite)}")
-    data = _uint8_frames(frames, "frames")
+    data = _uint8_stream(frames)
     if kind == "mp4":
         _require_ffmpeg()
     check_overwrite(target, overwrite)
     make_parents("path", target)
     with atomic_output(target, folder=kind == "frames") as tmp:
         if kind == "frames":
-            digits = max(4, len(str(len(data) - 1)))
-            for t, frame in enumerate(data):
-                iio.imwrite(tmp / f"frame_{t:0{digits}d}.png", frame[..., 0] if frame.shape[-1] == 1 else frame)
+            _write_pngs(tmp, data)
         elif kind == "gif":
             with open(tmp, "wb") as fp:
                 _write_gif(fp, data, fps, loop)
@@ -105,11 +113,14 @@ def write_animation(
     return target
 
 
-def encode_animation(frames: Tensor, fmt: AnimationFormat = "gif", *, fps: float = 10.0, loop: int = 0) -> bytes:
+def encode_animation(
+    frames: Tensor | Iterable[Tensor], fmt: AnimationFormat = "gif", *, fps: float = 10.0, loop: int = 0
+) -> bytes:
     """Encode frames as GIF or MP4 bytes, e.g. to send from a web server without touching disk.
 
     Args:
-        frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4.
+        frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4, or an iterable of
+            ``(C, H, W)`` frames (encoded as they come).
         fmt: ``"gif"`` or ``"mp4"`` (MP4 needs imageio-ffmpeg and passes through a temporary file).
         fps: frames per second, from :data:`MIN_FPS` (0.01) to :data:`MAX_FPS` (1000).
         loop: GIF repeat count, 0 to :data:`MAX_LOOP`; 0 loops forever.
@@ -130,7 +141,7 @@ def encode_animation(frames: Tensor, fmt: AnimationFormat = "gif", *, fps: float
         raise ValueError(f"fmt must be 'gif' or 'mp4', got {fmt!r}")
     fps = check_fps(fps)
     _check_loop(loop)
-    data = _uint8_frames(frames, "frames")
+    data = _uint8_stream(frames)
     if fmt == "gif":
         buffer = io.BytesIO()
         _write_gif(buffer, data, fps, loop)
@@ -180,58 +191,100 @@ def _require_ffmpeg() -> None:
         raise RuntimeError(FFMPEG_HINT) from None
 
 
-def _write_gif(fp: BinaryIO, frames: np.ndarray, fps: float, loop: int) -> None:
-    """Encode ``(T, H, W, C)`` uint8 frames as an animated GIF into a binary file object."""
-    images = _gif_palette_frames(_rgb(frames))
-    duration_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
-    images[0].save(
-        fp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms, loop=loop, optimize=False
-    )
+def _uint8_stream(frames: Tensor | Iterable[Tensor]) -> Iterator[np.ndarray]:
+    """Frames as ``(H, W, C)`` uint8 arrays of one size, one at a time; the first is checked before this returns.
 
-
-def _gif_palette_frames(frames: np.ndarray) -> list[Image.Image]:
-    """Quantize ``(T, H, W, 3)`` uint8 frames to palette images that Pillow keeps one for one.
-
-    Pillow's GIF writer silently drops a frame that looks the same as the one before it (adding its
-    delay to that one), whatever ``optimize`` says, so repeated frames (a pause) would change the
-    frame count. Pillow compares palette indices when two frames share a palette, so each palette
-    keeps its last entry (255) as a copy of the colour of pixel ``(0, 0)``: a repeated frame reuses
-    the previous frame's palette and indices with pixel ``(0, 0)`` switched between the two
-    same-coloured entries. The data differ, the picture does not.
+    A tensor ``(T, C, H, W)`` is validated (and converted) whole; an iterable's ``(C, H, W)`` frames are
+    validated one by one as ``frames[k]``.
     """
-    images = []
-    previous: tuple[np.ndarray, np.ndarray, int] | None = None  # (indices (H, W), palette (256, 3), twin)
-    for rgb in frames:
-        quantized = Image.fromarray(rgb).quantize(colors=255)  # median cut, no dithering
-        indices = np.array(quantized, dtype=np.uint8)
-        used = np.asarray((quantized.getpalette() or [])[: 3 * 255], dtype=np.uint8).reshape(-1, 3)
-        palette = np.zeros((256, 3), dtype=np.uint8)
-        palette[: len(used)] = used
-        twin = int(indices[0, 0])
-        palette[255] = palette[twin]
-        if previous is not None and np.array_equal(palette[indices], previous[1][previous[0]]):
-            indices, palette, twin = previous[0].copy(), previous[1], previous[2]
-            indices[0, 0] = twin if indices[0, 0] == 255 else 255
-        previous = (indices, palette, twin)
-        image = Image.frombytes("P", (indices.shape[1], indices.shape[0]), indices.tobytes())
-        image.putpalette(palette.tobytes())
-        images.append(image)
-    return images
+    if isinstance(frames, Tensor):
+        data = _uint8_frames(frames, "frames")
+        return iter(data)
+    if isinstance(frames, (str, bytes)) or not isinstance(frames, Iterable):
+        raise TypeError(
+            f"frames must be a (T, C, H, W) tensor or an iterable of (C, H, W) tensors, got {describe(frames)}"
+        )
+    source = iter(frames)
+    first = next(source, None)
+    if first is None:
+        raise ValueError("frames is empty: an animation needs at least one frame")
+    head = _uint8_frame(first, 0, None)
+    return itertools.chain([head], (_uint8_frame(f, k, head.shape) for k, f in enumerate(source, 1)))
 
 
-def _write_mp4(file: Path, frames: np.ndarray, fps: float) -> None:
-    """Encode ``(T, H, W, C)`` uint8 frames as H.264 (yuv420p) into ``file``."""
-    rgb = _rgb(frames)
-    _, h, w, _ = rgb.shape
-    rgb = np.pad(rgb, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")  # yuv420p needs even sizes
-    # macro_block_size=1: the size is already even, so imageio must not rescale the frames.
-    iio.imwrite(file, rgb, extension=".mp4", plugin="FFMPEG", fps=fps, codec="libx264", macro_block_size=1)
-    if not file.is_file() or file.stat().st_size == 0:  # imageio does not always pass ffmpeg's failure on
-        raise RuntimeError(f"ffmpeg wrote no video for {len(rgb)} frames of {w} x {h} at {fps:g} fps")
+def _uint8_frame(frame: object, k: int, shape: tuple[int, ...] | None) -> np.ndarray:
+    if not isinstance(frame, Tensor):
+        raise TypeError(f"frames[{k}] must be a (C, H, W) tensor, got {describe(frame)}")
+    check_tensor(f"frames[{k}]", frame, ndim=3)
+    out = _uint8_frames(frame[None], f"frames[{k}]")[0]
+    if shape is not None and out.shape != shape:
+        raise ValueError(
+            f"frames[{k}] has shape {tuple(frame.shape)}, but frames[0] is {(shape[2], shape[0], shape[1])}; "
+            "all frames of an animation have one size"
+        )
+    return out
 
 
-def _rgb(frames: np.ndarray) -> np.ndarray:
-    """``(T, H, W, C)`` uint8 with ``C`` in 1, 3, 4 -> ``(T, H, W, 3)``."""
-    if frames.shape[-1] == 1:
-        return np.repeat(frames, 3, axis=-1)
-    return np.ascontiguousarray(frames[..., :3])
+def _write_pngs(folder: Path, frames: Iterator[np.ndarray]) -> None:
+    """``frame_0000.png``, ... into ``folder``; past 10000 frames the names are widened at the end so they sort."""
+    count = 0
+    for frame in frames:
+        iio.imwrite(folder / f"frame_{count:04d}.png", frame[..., 0] if frame.shape[-1] == 1 else frame)
+        count += 1
+    digits = len(str(count - 1))
+    if digits > 4:
+        for t in range(count):
+            os.replace(folder / f"frame_{t:04d}.png", folder / f"frame_{t:0{digits}d}.png")
+
+
+def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int) -> None:
+    """Encode ``(H, W, C)`` uint8 frames as an animated GIF into a binary file object, one frame at a time.
+
+    Each frame is quantized on its own (median cut, 256 colours, no dithering) and written whole with its
+    own colour table, so nothing is held but the frame at hand and no frame is merged with the one before it
+    (Pillow's multi-frame writer keeps every frame until the end, and drops repeated ones).
+    """
+    delay_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
+    for k, frame in enumerate(frames):
+        rgb = _rgb(frame)
+        if k == 0:
+            h, w = rgb.shape[:2]
+            fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
+            fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
+        quantized = Image.fromarray(rgb).quantize(colors=256)
+        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, include_color_table=True):
+            fp.write(part)
+    fp.write(b";")
+
+
+def _write_mp4(file: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+    """Encode ``(H, W, C)`` uint8 frames as H.264 (yuv420p) into ``file``, one frame at a time."""
+    import imageio_ffmpeg
+
+    writer = None
+    count, w, h = 0, 0, 0
+    try:
+        for frame in frames:
+            rgb = _rgb(frame)
+            h, w = rgb.shape[:2]
+            rgb = np.pad(rgb, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")  # yuv420p needs even sizes
+            if writer is None:
+                # macro_block_size=1: the size is already even, so ffmpeg must not rescale the frames.
+                writer = imageio_ffmpeg.write_frames(
+                    str(file), (rgb.shape[1], rgb.shape[0]), fps=fps, codec="libx264", macro_block_size=1, quality=5
+                )
+                writer.send(None)
+            writer.send(np.ascontiguousarray(rgb))
+            count += 1
+    finally:
+        if writer is not None:
+            writer.close()
+    if not file.is_file() or file.stat().st_size == 0:  # ffmpeg does not always pass its failure on
+        raise RuntimeError(f"ffmpeg wrote no video for {count} frames of {w} x {h} at {fps:g} fps")
+
+
+def _rgb(frame: np.ndarray) -> np.ndarray:
+    """``(H, W, C)`` uint8 with ``C`` in 1, 3, 4 -> ``(H, W, 3)``."""
+    if frame.shape[-1] == 1:
+        return np.repeat(frame, 3, axis=-1)
+    return np.ascontiguousarray(frame[..., :3])
