@@ -1,0 +1,168 @@
+"""The measures over a whole :class:`~torchfluidwarp.morph.MorphResult`, streamed: per-frame folds, the path, and
+:func:`morph_report`, every figure in one JSON-ready dict (what ``torchfluidwarp morph --report`` writes)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from typing import Any, Protocol
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_tensor
+from torchfluidwarp.control.keyframes import KeyframeFit
+from torchfluidwarp.core.grid import rescale_points, scale_factor
+from torchfluidwarp.metrics.maps import folded_pixels, seam_figure
+from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
+from torchfluidwarp.metrics.points import end_error, ghosting, landmark_error
+
+
+class Morph(Protocol):
+    """What the measures read from a morph (a :class:`~torchfluidwarp.morph.MorphResult`)."""
+
+    fit: KeyframeFit
+
+    def __len__(self) -> int: ...
+
+    def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]: ...
+
+
+def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
+    """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2))`` for each of the ``N`` frames, in order, rendered
+    ``chunk`` frames at a time (or read from the result when it already holds all of them)."""
+    r: Any = result  # MorphResult; its per-chunk render is private until it gets a public iterator
+    if r._all is not None:
+        yield from zip(r.frames.unbind(0), r.maps.unbind(0), r.maps_b.unbind(0))
+        return
+    n = len(result)
+    for start in range(0, n, chunk):
+        part = r._render([r._time(k) for k in range(start, min(start + chunk, n))])
+        yield from zip(part.frames.to(r._dtype).unbind(0), part.maps_a.unbind(0), part.maps_b.unbind(0))
+
+
+def morph_folds(result: Morph, chunk: int = 8) -> tuple[Tensor, Tensor]:
+    """Folded pixels per frame of a morph's maps into A and into B (:func:`folded_pixels`), rendered ``chunk``
+    frames at a time: ``(N,)`` int64 each."""
+    chunk = check_int("chunk", chunk)
+    counts = [(folded_pixels(ma)[0], folded_pixels(mb)[0]) for _, ma, mb in _stream(result, chunk)]
+    return torch.stack([a for a, _ in counts]), torch.stack([b for _, b in counts])
+
+
+def morph_path(result: Morph, kind: PathKind = "pixel", chunk: int = 8) -> Tensor:
+    """:func:`path_distances` of a morph's ``N`` frames, rendered ``chunk`` at a time: ``(N - 1,)``."""
+    return path_distances(result.iter_frames(check_int("chunk", chunk)), kind)
+
+
+def _number(x: float) -> float | None:
+    return None if math.isnan(x) or math.isinf(x) else x
+
+
+def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
+    """JSON-ready figures of distances ``(K,)`` over the points located (``None`` where none was)."""
+    v = d[ok]
+    some = v.numel() > 0
+    return {
+        "mean": float(v.mean()) if some else None,
+        "median": float(v.median()) if some else None,
+        "max": float(v.max()) if some else None,
+        "located": int(ok.sum()),
+        "of": int(ok.numel()),
+        "per_point": [float(x) if bool(o) else None for x, o in zip(d, ok)],
+    }
+
+
+def _to_frame(points: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
+    """Points ``(K, 2)`` in the pixels of ``image`` ``(..., H_b, W_b)`` brought to a frame of ``size`` (pixel
+    centres stay at integers), as the morph resizes B to A's size."""
+    own = (image.shape[-2], image.shape[-1])
+    if own == size:
+        return points.double()
+    return rescale_points(points.double(), scale_factor(own, size, device=points.device, dtype=torch.float64))
+
+
+def morph_report(
+    result: Morph,
+    image_a: Tensor,
+    image_b: Tensor,
+    points_a: Tensor,
+    points_b: Tensor,
+    held_out: tuple[Tensor, Tensor] | None = None,
+    *,
+    path: PathKind = "pixel",
+    chunk: int = 8,
+) -> dict[str, Any]:
+    """Every measure of a morph in one pass over its frames (``chunk`` rendered at a time), as a JSON-ready dict.
+
+    Args:
+        result: the morph of ``image_a`` into ``image_b`` (:func:`~torchfluidwarp.morph.morph`).
+        image_a: ``(C, H, W)`` or ``(1, C, H, W)``, as given to the morph.
+        image_b: ``(C, H_b, W_b)`` or ``(1, C, H_b, W_b)``, as given to the morph (any size).
+        points_a: ``(M, 2)`` the marked points, A's pixels.
+        points_b: ``(M, 2)`` the marked points, B's pixels.
+        held_out: ``(points_a, points_b)`` ``(K, 2)`` each: corresponding points that were not given to the morph.
+        path: the neighbour distance of :func:`path_distances`.
+        chunk: frames rendered at a time.
+
+    Returns:
+        ``{"frames", "size": [H, W], "mid_frame", "mid_t", "folds": {"a", "b": per-frame counts, "total",
+        "fraction"}, "landmark_error_px": {"mean", "max", "per_point"}, "marked": {"end", "ghost"}, "held_out":
+        {"end", "ghost"} or None, "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean",
+        "max", "variance"}}``; each ``"end"``/``"ghost"`` holds ``mean``, ``median``, ``max`` (pixels of the
+        frame; ``None`` when no point was located), ``located``, ``of`` and ``per_point``. The middle frame is
+        ``N // 2``; "end" is measured in the last frame, "ghost" in the middle one.
+    """
+    check_tensor("image_a", image_a)
+    check_tensor("image_b", image_b)
+    check_tensor("points_a", points_a, shape=[None, 2])
+    check_tensor("points_b", points_b, shape=[points_a.shape[0], 2])
+    chunk = check_int("chunk", chunk)
+    size = (image_a.shape[-2], image_a.shape[-1])
+    n = len(result)
+    mid = n // 2
+    folds_a: list[int] = []
+    folds_b: list[int] = []
+    kept: dict[int, tuple[Tensor, Tensor]] = {}
+
+    def frames() -> Iterator[Tensor]:
+        for k, (frame, ma, mb) in enumerate(_stream(result, chunk)):
+            folds_a.append(int(folded_pixels(ma)[0]))
+            folds_b.append(int(folded_pixels(mb)[0]))
+            if k in (mid, n - 1):
+                kept[k] = (ma.detach().cpu(), mb.detach().cpu())
+            yield frame
+
+    distances = path_distances(frames(), path)
+    if tuple(kept[mid][0].shape[:2]) != size:
+        raise ValueError(f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}")
+    pairs = {"marked": (points_a, points_b)}
+    if held_out is not None:
+        check_tensor("held_out[0]", held_out[0], shape=[None, 2])
+        check_tensor("held_out[1]", held_out[1], shape=[held_out[0].shape[0], 2])
+        pairs["held_out"] = held_out
+    figures: dict[str, Any] = {}
+    for name, (pa, pb) in pairs.items():
+        pa, pb = pa.detach().cpu().double(), _to_frame(pb.detach().cpu(), image_b, size)
+        figures[name] = {
+            "end": _stats(*end_error(kept[n - 1][0], pa, pb)),
+            "ghost": _stats(*ghosting(*kept[mid], pa, pb)),
+        }
+    err = landmark_error(result.fit).cpu()
+    seam_a, seam_b = seam_figure(kept[mid][0]), seam_figure(kept[mid][1])
+    folded = sum(folds_a) + sum(folds_b)
+    return {
+        "frames": n,
+        "size": list(size),
+        "mid_frame": mid,
+        "mid_t": mid / (n - 1),
+        "folds": {"a": folds_a, "b": folds_b, "total": folded, "fraction": folded / (2 * n * size[0] * size[1])},
+        "landmark_error_px": {
+            "mean": _number(float(err.mean())),
+            "max": _number(float(err.max())),
+            "per_point": [_number(float(e)) for e in err],
+        },
+        "marked": figures["marked"],
+        "held_out": figures.get("held_out"),
+        "seam": {"a": seam_a, "b": seam_b, "max": max(seam_a, seam_b)},
+        "path": {"kind": path, "distances": distances.tolist(), **path_smoothness(distances)},
+    }
