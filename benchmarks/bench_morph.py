@@ -16,8 +16,9 @@ float32 on CPU, in one process, so every figure below comes from the same run:
      backward map (``jacobian_determinant(result.maps)``) is ``<= 0``; then the same counted only over pixels
      whose map source lies inside A's image; and the same for B's maps (``result.maps_b``);
    * **middle-frame misalignment**: at frame ``N // 2``, where A's landmark ``i`` appears in the frame (the
-     point ``y_i`` with ``maps[mid](y_i) = a_i``, found by Newton's method on the bilinearly read map, started
-     from ``fit.trajectories`` interpolated linearly between fluid steps to the frame's fluid time), and where
+     point ``y_i`` with ``maps[mid](y_i) = a_i``, found by Newton's method on the bilinearly read map
+     (:func:`torchfluidwarp.metrics.invert_map_at`, the library's), started from ``fit.trajectories``
+     interpolated linearly between fluid steps to the frame's fluid time), and where
      that frame reads image B there: ``|maps_b[mid](y_i) - b_i|``, in B's pixels. "ghost px" is the same gap
      in the frame's own pixels: the distance between ``y_i`` and the point ``z_i`` with
      ``maps_b[mid](z_i) = b_i`` (where B's landmark appears). "traj gap" checks the maps against the point
@@ -76,6 +77,7 @@ from torch import Tensor
 import torchfluidwarp
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import write_image
+from torchfluidwarp.metrics import LOCATE_TOLERANCE, invert_map_at, read_map
 from torchfluidwarp.morph import MorphResult, morph
 from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 
@@ -121,34 +123,6 @@ def load_pair(size: int | None, pair: str = "bundled") -> tuple[Tensor, Tensor, 
 # ----------------------------------------------------------------------------------------------- maps
 
 
-def read_map(maps: Tensor, points: Tensor) -> Tensor:
-    """A coordinate map ``(1, H, W, 2)`` read bilinearly at ``points`` ``(M, 2)`` (pixels): ``(M, 2)`` float64."""
-    img = maps.permute(0, 3, 1, 2)  # (1, 2, H, W): the map as a 2-channel image
-    out = warp_image(img, points.to(img.dtype).view(1, 1, -1, 2))  # (1, 2, 1, M)
-    return out[0, :, 0].T.double()
-
-
-def invert_map_at(maps: Tensor, targets: Tensor, init: Tensor, iters: int = 30) -> tuple[Tensor, Tensor]:
-    """Points ``y`` ``(M, 2)`` with ``maps(y) = targets`` by Newton's method from ``init``; and ``|maps(y) - targets|``.
-
-    The Jacobian is a central difference of the bilinearly read map over half a pixel; a step is capped at 16 px.
-    """
-    y = init.double().clone()
-    h = 0.5
-    ex, ey = torch.tensor([h, 0.0], dtype=torch.float64), torch.tensor([0.0, h], dtype=torch.float64)
-    for _ in range(iters):
-        r = read_map(maps, y) - targets  # (M, 2)
-        jx = (read_map(maps, y + ex) - read_map(maps, y - ex)) / (2 * h)
-        jy = (read_map(maps, y + ey) - read_map(maps, y - ey)) / (2 * h)
-        jac = torch.stack([jx, jy], dim=-1)  # (M, 2, 2): columns d/dx, d/dy
-        ok = torch.linalg.det(jac).abs() > 1e-9
-        step = torch.zeros_like(y)
-        step[ok] = torch.linalg.solve(jac[ok], r[ok].unsqueeze(-1)).squeeze(-1)
-        norm = step.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-        y = y - step * (16.0 / norm).clamp(max=1.0)
-    return y, (read_map(maps, y) - targets).norm(dim=-1)
-
-
 @dataclass
 class FoldStats:
     """Jacobian determinants ``<= 0`` of a stack of backward maps ``(N, H, W, 2)``."""
@@ -178,7 +152,7 @@ def fold_stats(maps: Tensor) -> FoldStats:
     )
 
 
-INVERT_OK_PX = 0.1  # a landmark is located in a frame when the map at the found point is this close to it
+INVERT_OK_PX = LOCATE_TOLERANCE  # a landmark is located when the map at the found point is this close to it
 
 
 @dataclass

@@ -24,23 +24,27 @@ The methods, on the same crops and the same marked points, ``N`` frames (``--fra
   (corners and edge midpoints of the image's outer edges, mapped to themselves), each triangle mapped affinely
   onto A's and B's; the same cross-dissolve.
 
-The metrics (:func:`evaluate`, the same for every method). A point's position in a frame is where that frame
-shows it: the ``y`` with ``maps[k](y) = p``, by Newton's method on the bilinearly read map
-(``bench_morph.invert_map_at``) from the pixel whose map value is nearest ``p``; a point that does not converge to
-within 0.1 px is "not located" and left out (the JSON counts them).
+The metrics (:func:`evaluate`, the same for every method) are the library's, :mod:`torchfluidwarp.metrics`, so
+that what users see and what this benchmark measures cannot drift apart. A point's position in a frame is where
+that frame shows it: the ``y`` with ``maps[k](y) = p``, by Newton's method on the bilinearly read map
+(:func:`~torchfluidwarp.metrics.locate`) from the pixel whose map value is nearest ``p``; a point that does not
+converge to within 0.1 px is "not located" and left out (the JSON counts them).
 
 * **held-out end error**: mean over the held-out points of ``|y - b|``, ``y`` where A's point shows in the last
-  frame (inverse of ``maps[-1]`` at ``a``), ``b`` B's point (the last frame is B); px.
+  frame (inverse of ``maps[-1]`` at ``a``), ``b`` B's point (the last frame is B); px
+  (:func:`~torchfluidwarp.metrics.end_error`).
 * **held-out ghosting** at the middle frame ``N // 2``: median over the held-out points of the distance between
   where A's point and where B's point show in it (inverses of ``maps[mid]`` at ``a`` and ``maps_b[mid]`` at
-  ``b``); px. **marked ghosting**: the same for the marked points. **marked end error**: the held-out end error's
-  figure for the marked points.
+  ``b``; :func:`~torchfluidwarp.metrics.ghosting`); px. **marked ghosting**: the same for the marked points.
+  **marked end error**: the held-out end error's figure for the marked points.
 * **folds**: pixels whose Jacobian determinant (:func:`torchfluidwarp.warp.layer.jacobian_determinant`) is ``<= 0``,
-  over all frames of ``maps`` and ``maps_b``: a count and its fraction of ``2 N H W``.
+  over all frames of ``maps`` and ``maps_b`` (:func:`~torchfluidwarp.metrics.folded_pixels`): a count and its
+  fraction of ``2 N H W``.
 * **seam figure**: the 99.9th percentile over the interior pixels of the middle frame's backward map's second
   derivative, ``sqrt(sum_c (d_xx m_c)^2 + 2 (d_xy m_c)^2 + (d_yy m_c)^2)`` by central second differences, for
   ``maps[mid]`` and ``maps_b[mid]``, the larger of the two; px/px^2. Zero for an affine map; a seam where the
-  warp's stretch jumps (a triangle's edge, a fluid box's wall) raises it.
+  warp's stretch jumps (a triangle's edge, a fluid box's wall) raises it
+  (:func:`~torchfluidwarp.metrics.seam_figure`).
 * **time**: wall seconds of the method's call (for the fluid, the :func:`morph` call).
 
 The script prints the machine, torch's threads and its command line, a per-pair table and the medians over each
@@ -74,7 +78,6 @@ from typing import Any, Literal
 import numpy as np
 import torch
 from _common import describe_load, machine, machine_load, source_fingerprint, write_json
-from bench_morph import invert_map_at
 from matplotlib.tri import Triangulation
 from morph_quality_data import FACES, SPLIT_FACES, load_faces
 from scipy.spatial import Delaunay
@@ -82,13 +85,12 @@ from torch import Tensor
 
 import torchfluidwarp
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.warp import jacobian_determinant, warp_image
+from torchfluidwarp.metrics import end_error, folded_pixels, ghosting, seam_figure
+from torchfluidwarp.warp import warp_image
 
 Split = Literal["tune", "report", "all"]
 SPLITS: tuple[str, ...] = ("tune", "report")
 BASELINES: tuple[str, ...] = ("tps", "delaunay")
-INVERT_OK_PX = 0.1  # a point is located in a frame when the map at the found position is this close to it
-SEAM_QUANTILE = 0.999
 SHEET_AT = (0.0, 0.25, 0.5, 0.75, 1.0)
 SHEET_PX = 256
 
@@ -298,38 +300,6 @@ def run_method(name: str, pair: Pair, frames: int = 21, **kwargs: Any) -> Method
 # ----------------------------------------------------------------------------------------------- metrics
 
 
-def locate(map1: Tensor, targets: Tensor) -> tuple[Tensor, Tensor]:
-    """Where a frame shows ``targets`` ``(K, 2)``: ``y`` ``(K, 2)`` float64 with ``map1(y) = targets``, and an
-    ``(K,)`` mask of the points located (map residual ``<= INVERT_OK_PX``). ``map1``: ``(1, H, W, 2)``.
-
-    Newton's method starts from the pixel whose map value is nearest each target.
-    """
-    W = map1.shape[2]
-    flat = map1.reshape(-1, 2).double()
-    targets = targets.double()
-    idx = torch.cat([torch.cdist(t, flat).argmin(1) for t in targets.split(16)])
-    init = torch.stack([idx % W, idx // W], dim=-1).double()
-    y, residual = invert_map_at(map1, targets, init)
-    return y, residual <= INVERT_OK_PX
-
-
-def fold_count(maps: Tensor) -> int:
-    """Pixels of ``maps`` ``(N, H, W, 2)`` whose Jacobian determinant is ``<= 0``, over all frames."""
-    return int((jacobian_determinant(maps) <= 0).sum())
-
-
-def seam_figure(map1: Tensor, q: float = SEAM_QUANTILE) -> float:
-    """The ``q`` quantile over interior pixels of the second derivative's Frobenius norm of a map ``(H, W, 2)``,
-    px/px^2 (central second differences, float64)."""
-    m = map1.double()
-    c = m[1:-1, 1:-1]
-    dxx = m[1:-1, 2:] - 2 * c + m[1:-1, :-2]
-    dyy = m[2:, 1:-1] - 2 * c + m[:-2, 1:-1]
-    dxy = (m[2:, 2:] - m[2:, :-2] - m[:-2, 2:] + m[:-2, :-2]) / 4
-    norm = (dxx.square() + 2 * dxy.square() + dyy.square()).sum(-1).sqrt()  # (H - 2, W - 2)
-    return float(torch.quantile(norm.flatten(), q))
-
-
 def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
     v = d[ok]
     nan = float("nan")
@@ -357,12 +327,9 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     last_a, mid_a, mid_b = maps[n - 1 :], maps[mid : mid + 1], maps_b[mid : mid + 1]
     points: dict[str, dict[str, Any]] = {}
     for kind, pa, pb in (("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)):
-        y_end, ok_end = locate(last_a, pa)
-        points[f"{kind}_end"] = _stats((y_end - pb.double()).norm(dim=-1), ok_end)
-        y, ok_y = locate(mid_a, pa)
-        z, ok_z = locate(mid_b, pb)
-        points[f"{kind}_ghost"] = _stats((y - z).norm(dim=-1), ok_y & ok_z)
-    folded_a, folded_b = fold_count(maps), fold_count(maps_b)
+        points[f"{kind}_end"] = _stats(*end_error(last_a, pa, pb))
+        points[f"{kind}_ghost"] = _stats(*ghosting(mid_a, mid_b, pa, pb))
+    folded_a, folded_b = int(folded_pixels(maps).sum()), int(folded_pixels(maps_b).sum())
     seconds = getattr(result, "seconds", None)
     if isinstance(seconds, dict):
         seconds = seconds.get("total")
