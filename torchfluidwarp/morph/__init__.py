@@ -6,6 +6,8 @@ returns a :class:`MorphResult` (:mod:`~torchfluidwarp.morph.result`) that render
 """
 
 from torchfluidwarp.morph.morphing import morph, region_of_interest, resize_pair
+from torchfluidwarp.morph.regions import hull_mask, paste_back
+from torchfluidwarp.morph.render import MorphFrames
 from torchfluidwarp.morph.result import MorphResult
 
-__all__ = ["MorphResult", "morph", "region_of_interest", "resize_pair"]
+__all__ = ["MorphFrames", "MorphResult", "morph", "region_of_interest", "resize_pair", "hull_mask", "paste_back"]

@@ -29,12 +29,15 @@ from torchfluidwarp._checks import (
     check_positive,
     check_tensor,
     compute_dtype,
+    describe,
 )
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
+from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural
+from torchfluidwarp.morph.regions import Background, hull_mask
 from torchfluidwarp.morph.render import FEATHER, InverseMethod, Scene, paper_flows
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.timing import Timing, schedule
@@ -61,6 +64,26 @@ def _as_points(name: str, points: object, image: Tensor) -> Tensor:
     if p.shape[0] != 1:
         raise ValueError(f"{name} must be one set of points (M, 2) for a morph, got shape {tuple(p.shape)}")
     return p[0].detach().to(image.device)
+
+
+def _region_masks(
+    region: object, margin: float, pa: Tensor, pb: Tensor, a: Tensor, size_b: tuple[int, int]
+) -> tuple[Tensor, Tensor] | None:
+    """The region's soft masks ``(1, 1, H, W)`` over A and over B (resized to A's size), or ``None``."""
+    if region is None:
+        return None
+    size = (a.shape[-2], a.shape[-1])
+    if isinstance(region, str):
+        if region != "points":
+            raise ValueError(f"region must be 'points', a pair of masks (mask_a, mask_b) or None, got {region!r}")
+        masks = hull_mask(pa, size, margin), hull_mask(pb, size, margin)  # pb is already in A's size
+    elif isinstance(region, (tuple, list)) and len(region) == 2:
+        ma = check_tensor("region[0] (mask_a)", region[0], shape=[*size])
+        mb = check_tensor("region[1] (mask_b)", region[1], shape=[*size_b])
+        masks = ma, resize_image(mb[None, None].to(a.dtype), size)[0, 0]
+    else:
+        raise TypeError(f"region must be 'points', a pair of masks (mask_a, mask_b) or None, got {describe(region)}")
+    return tuple(m.to(a)[None, None].clamp(0, 1) for m in masks)  # type: ignore[return-value]
 
 
 MAX_MARGIN = 10.0
@@ -138,6 +161,9 @@ def morph(
     blend: Timing = "linear",
     motion: Timing = "linear",
     feather: float = FEATHER,
+    region: Literal["points"] | tuple[Tensor, Tensor] | None = None,
+    background: Background = "blend",
+    region_margin: float = 0.25,
     compressible: bool | float | None = None,
     smoothness: float | None = None,
     max_iter: int | None = None,
@@ -182,6 +208,14 @@ def morph(
             image's edge pixels smeared into streaks.
         motion: the shape's schedule, the same kinds of values: how far along the flow (and the pre-alignment)
             each frame is. ``motion="ease-out", blend="ease-in"`` lets the shape lead the colour.
+        region: limit the morph to a region: ``"points"`` (each image's points' convex hull, grown by
+            ``region_margin`` of its extent, with a soft edge; :func:`~torchfluidwarp.morph.regions.hull_mask`)
+            or soft masks ``(mask_a, mask_b)``, ``(H_a, W_a)`` and ``(H_b, W_b)`` in ``[0, 1]``. Each frame carries
+            A's mask along A's map and B's along B's; the morph shows inside, ``background`` outside, blended
+            over the masks' soft edges. ``None`` (default): the whole frame.
+        background: what a region morph shows outside the region: ``"a"`` (A's picture throughout), ``"b"``, or
+            ``"blend"`` (A and B cross-dissolved in place, with the colour schedule).
+        region_margin: how far ``region="points"`` reaches beyond the points' hull (a fraction of their extent).
         feather: output pixels over which that hand-over happens inside an image's edge (default
             :data:`FEATHER`, 64); 0 hands over at the edge itself.
         compressible: ``True`` to let regions change area (skips the projection) or a weight in ``[0, 1]``;
@@ -256,6 +290,9 @@ def morph(
     feather = check_positive("feather", feather, allow_zero=True)
     max_iter = check_int("max_iter", defaults["max_iter"] if max_iter is None else max_iter)
     check_marks(pa, pb)
+    image_b_size = (b.shape[-2], b.shape[-1])
+    if background not in ("a", "b", "blend"):
+        raise ValueError(f"background must be 'a', 'b' or 'blend', got {background!r}")
     b, pb = resize_pair(a, b, pb)
     H, W = a.shape[-2:]
     size = (H, W)
@@ -298,6 +335,7 @@ def morph(
         velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
         flows = None if inverse == "flow" else paper_flows(fit, roi, {**fit_kwargs, "progress": False})
     scene = Scene(a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, shape, colour, feather, flows)
+    scene.masks, scene.background = _region_masks(region, region_margin, pa, pb, a, image_b_size), background
     t_inv = time.perf_counter()
 
     traj = torch.stack(

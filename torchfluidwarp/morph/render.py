@@ -18,6 +18,7 @@ from torch import Tensor
 
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
+from torchfluidwarp.morph.regions import composite
 from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
 
 InverseMethod = Literal["flow", "paper"]
@@ -130,6 +131,8 @@ class Scene:
     blend: Callable[[float], float]  # the colour's schedule: t -> the weight of image B
     feather: float
     flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of paper_flows
+    masks: tuple[Tensor, Tensor] | None = None  # a region: soft masks (1, 1, H, W) over A and over (resized) B
+    background: str = "blend"  # outside the region: "a", "b" or "blend" (see morph.regions)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -137,9 +140,17 @@ class Scene:
 
 
 @dataclass
-class Rendered:
-    """Frames at some times: ``frames``, ``forward`` (A warped), ``backward`` (B pulled back), each
-    ``(n, C, H, W)``; ``maps_a``, ``maps_b`` ``(n, H, W, 2)`` in A's and B's pixels; ``folded`` map pixels."""
+class MorphFrames:
+    """A morph's frames at some times ``ts`` (``(n,)`` in ``[0, 1]``), from :meth:`MorphResult.render`.
+
+    Attributes:
+        frames: ``(n, C, H, W)`` the morph.
+        forward: ``(n, C, H, W)`` image A warped forward (pre-alignment included).
+        backward: ``(n, C, H, W)`` image B pulled back along the flow.
+        maps_a: ``(n, H, W, 2)`` where each output pixel reads image A (A's pixels).
+        maps_b: ``(n, H, W, 2)`` where each output pixel reads image B (B's pixels, after resizing to A's size).
+        folded: the number of pixels of ``maps_a`` and ``maps_b`` whose Jacobian determinant is ``<= 0``.
+    """
 
     frames: Tensor
     forward: Tensor
@@ -149,7 +160,7 @@ class Rendered:
     folded: int
 
 
-def render(scene: Scene, ts: list[float]) -> Rendered:
+def render(scene: Scene, ts: list[float]) -> MorphFrames:
     """Render the frames of a fitted morph at the morph's times ``ts`` (increasing, in ``[0, 1]``).
 
     Frame ``t`` shows the fluid at time ``motion(t) T`` (steps) and image B with weight ``blend(t)``.
@@ -181,13 +192,19 @@ def render(scene: Scene, ts: list[float]) -> Rendered:
         fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
         det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, H, W) each
         folded += int((det_a <= 0).sum()) + int((det_b <= 0).sum())
-        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, scene.blend(ts[k]), size, scene.feather)
-        # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-        frame = a if ts[k] == 0 else b if ts[k] == 1 else frame
+        w = scene.blend(ts[k])
+        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, size, scene.feather)
+        if scene.masks is None:
+            # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
+            frame = a if ts[k] == 0 else b if ts[k] == 1 else frame
+        else:  # the region, carried by each image's map, shows the morph; the rest shows the background
+            ma, mb = _warp_image(scene.masks[0], map_a, "bilinear"), _warp_image(scene.masks[1], map_b, "bilinear")
+            background = {"a": a, "b": b}.get(scene.background)
+            frame = composite(frame, torch.lerp(a, b, w) if background is None else background, torch.lerp(ma, mb, w))
         out.append(frame)
         fwd.append(fa)
         bwd.append(fb)
         maps_a.append(map_a)
         maps_b.append(map_b)
     cat = torch.cat
-    return Rendered(cat(out), cat(fwd), cat(bwd), cat(maps_a), cat(maps_b), folded)
+    return MorphFrames(cat(out), cat(fwd), cat(bwd), cat(maps_a), cat(maps_b), folded)

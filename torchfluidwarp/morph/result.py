@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_memory, check_real
 from torchfluidwarp.control.keyframes import KeyframeFit
-from torchfluidwarp.morph.render import Rendered, Scene, render
+from torchfluidwarp.morph.render import MorphFrames, Scene, render
 
 __all__ = ["MorphResult"]
 
@@ -64,7 +64,7 @@ class MorphResult:
         self._dtype = dtype
         self.seconds = seconds
         self._max_memory = max_memory
-        self._all: Rendered | None = None
+        self._all: MorphFrames | None = None
         self._folded: float | None = None
 
     def __len__(self) -> int:
@@ -84,9 +84,19 @@ class MorphResult:
         """Frame ``k``'s time ``t`` in ``[0, 1]``: the frames are evenly spaced, ending exactly at 1."""
         return 1.0 if k == self._count - 1 else k / (self._count - 1)
 
-    def _render(self, times: list[float]) -> Rendered:
+    def _render(self, ts: list[float]) -> MorphFrames:
         with torch.no_grad():
-            return render(self._scene, times)
+            return render(self._scene, ts)
+
+    def render(self, ts: Sequence[float]) -> MorphFrames:
+        """Render the morph at the times ``ts`` (increasing, each in ``[0, 1]``) with its warped images and maps.
+
+        Memory grows with ``len(ts)``; the frames come in the computation's dtype (float32 for half inputs).
+        """
+        values = [check_real("ts", t) for t in ts]
+        if not values or any(not 0 <= t <= 1 for t in values) or any(b < a for a, b in zip(values, values[1:])):
+            raise ValueError(f"ts must be a non-empty, non-decreasing sequence of times in [0, 1], got {list(ts)}")
+        return self._render(values)
 
     def frame(self, t: float) -> Tensor:
         """The morph at ``t`` in ``[0, 1]`` (0 is image A, 1 image B): ``(C, H, W)`` in A's and B's dtype.
@@ -152,7 +162,7 @@ class MorphResult:
             self._set_folded(self._all.folded)
         return self
 
-    def _get_all(self) -> Rendered:
+    def _get_all(self) -> MorphFrames:
         self.materialize()
         assert self._all is not None
         return self._all

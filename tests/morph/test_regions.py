@@ -1,0 +1,80 @@
+"""Regions, backgrounds and pasting back (:mod:`torchfluidwarp.morph.regions`, issue #23)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchfluidwarp import morph
+from torchfluidwarp.morph import hull_mask, paste_back
+
+G = torch.Generator().manual_seed(3)
+A = torch.rand(3, 64, 64, generator=G)
+B = torch.rand(3, 64, 64, generator=G)
+PA = torch.tensor([[24.0, 24.0], [40.0, 24.0], [32.0, 40.0], [26.0, 36.0]])
+PB = PA + torch.tensor([[1.0, 1.5], [-1.0, 1.0], [0.5, -1.0], [1.0, 0.0]])
+KW = dict(grid=24, steps=4, progress=False, max_iter=10, frames=4)
+
+
+def test_hull_mask_is_one_inside_zero_outside_and_grows_with_the_margin():
+    tri = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
+    m = hull_mask(tri, (32, 32), margin=0.0, band=2.0)
+    assert float(m[12, 16]) == 1.0 and float(m[30, 2]) == 0.0
+    assert float(m.min()) >= 0 and float(m.max()) <= 1
+    grown = hull_mask(tri, (32, 32), margin=0.25, band=2.0)
+    assert bool((grown >= m).all()) and float(grown.sum()) > float(m.sum()) + 50
+    # the ramp is as wide as the band: the mask is in (0, 1) only near the edge
+    soft = hull_mask(tri, (32, 32), margin=0.0, band=6.0)
+    assert int(((soft > 0) & (soft < 1)).sum()) > int(((m > 0) & (m < 1)).sum())
+    with pytest.raises(ValueError, match="3 points not on one line"):
+        hull_mask(torch.tensor([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]), (8, 8))
+
+
+@pytest.mark.parametrize("background", ["a", "b"])
+def test_outside_the_region_every_frame_shows_the_background(background):
+    r = morph(A, B, PA, PB, region="points", background=background, **KW)
+    want = A if background == "a" else B
+    far = (slice(None), slice(0, 6), slice(0, 6))  # a corner far from both hulls
+    for k in range(len(r)):
+        torch.testing.assert_close(r.frames[k][far], want[far], atol=1e-6, rtol=0)
+
+
+def test_inside_the_region_the_frame_is_the_whole_frame_morph():
+    plain = morph(A, B, PA, PB, **KW)
+    region = morph(A, B, PA, PB, region="points", region_margin=0.5, background="a", **KW)
+    centre = (slice(None), slice(30, 34), slice(30, 34))
+    for k in (1, 2):
+        torch.testing.assert_close(region.frames[k][centre], plain.frames[k][centre], atol=1e-5, rtol=0)
+
+
+def test_masks_given_per_image_and_bad_regions():
+    ma = torch.zeros(64, 64)
+    ma[16:48, 16:48] = 1
+    small_b = torch.nn.functional.interpolate(B[None], size=(32, 32), mode="bilinear", antialias=True)[0]
+    mb = torch.zeros(32, 32)  # B at another size: its mask has B's size, and is resized with B
+    mb[8:24, 8:24] = 1
+    r = morph(A, small_b, PA, (PB + 0.5) / 2 - 0.5, region=(ma, mb), background="a", **KW)
+    torch.testing.assert_close(r.frames[2][:, :4, :4], A[:, :4, :4], atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match=r"region\[1\] \(mask_b\) must have shape \(64, 64\)"):
+        morph(A, B, PA, PB, region=(ma, torch.zeros(10, 10)), **KW)
+    with pytest.raises(ValueError, match="region must be 'points'"):
+        morph(A, B, PA, PB, region="hull", **KW)
+    with pytest.raises(ValueError, match="background must be 'a', 'b' or 'blend'"):
+        morph(A, B, PA, PB, region="points", background="c", **KW)
+
+
+def test_paste_back_round_trip_and_only_the_box_changes():
+    photo = torch.rand(3, 80, 100, generator=G)
+    box = (20, 10, 60, 50)
+    crop = photo[:, 10:50, 20:60]
+    torch.testing.assert_close(paste_back(crop, photo, box), photo, atol=1e-6, rtol=0)
+    frame = torch.zeros(3, 20, 20)  # a smaller frame is resized to the box
+    out = paste_back(frame, photo, box, band=4.0)
+    outside = torch.ones(80, 100, dtype=torch.bool)
+    outside[10:50, 20:60] = False
+    torch.testing.assert_close(out[:, outside], photo[:, outside], atol=0, rtol=0)
+    assert float(out[:, 20:40, 30:50].abs().max()) < 1e-6  # deep inside: the frame
+    assert not torch.equal(out, photo) and torch.equal(photo, photo.clone())
+    # a box reaching beyond the photo is clipped
+    edge = paste_back(frame, photo, (90, 70, 110, 90))
+    assert edge.shape == photo.shape
