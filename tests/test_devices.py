@@ -169,7 +169,7 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     ("apps/studio/previews.py", "_to_size", "tensor"): "the studio runs on the CPU",
     # host-side scalars, read back with float(): keeping them on the CPU avoids a device sync per frame
     ("morph/render.py", "render", "tensor"): "per-frame blend weights, read with float()",
-    ("morph/result.py", "MorphResult.times", "linspace"): "the frames' times, metadata for the caller",
+    ("morph/result.py", "MorphResult.times", "tensor"): "the frames' times, metadata for the caller",
 }
 
 
