@@ -164,11 +164,9 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     # the CPU, and the library moves what it is given to its images' device
     ("apps/animate/config.py", "AnimationConfig.rescaled", "tensor"): "parsed config values, CPU by design",
     ("apps/animate/config.py", "AnimationConfig.rescaled.pos", "tensor"): "parsed config values, CPU by design",
-    ("apps/cli.py", "_cmd_animate", "empty"): "the CLI runs on the CPU",
     ("apps/studio/inputs.py", "points", "tensor"): "points parsed from the page, CPU by design",
     ("apps/studio/previews.py", "_to_size", "tensor"): "the studio runs on the CPU",
-    # host-side scalars, read back with float(): keeping them on the CPU avoids a device sync per frame
-    ("morph/render.py", "render", "tensor"): "per-frame blend weights, read with float()",
+    # metadata for the caller, on the CPU like the other host-side scalars
     ("morph/result.py", "MorphResult.times", "tensor"): "the frames' times, metadata for the caller",
 }
 
