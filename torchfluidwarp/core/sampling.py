@@ -17,6 +17,7 @@ The policy (see ``docs/design.rst``, "Sampling"):
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import torch.nn.functional as F
@@ -59,6 +60,8 @@ def sample(
         ...
         ValueError: non-finite sampling positions (NaN or inf) from coords; grid of shape (1, 1, 1, 2)
     """
-    if check is not None and grid.numel() and not all_finite(grid):
+    # one sum in the grid's own dtype (a NaN or inf makes it non-finite); only then the exact test, which also
+    # clears a sum that merely overflowed
+    if check is not None and grid.numel() and not (math.isfinite(float(grid.detach().sum())) or all_finite(grid)):
         raise ValueError(f"non-finite sampling positions (NaN or inf) from {check}; grid of shape {tuple(grid.shape)}")
     return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)

@@ -9,9 +9,9 @@ integers (see :mod:`torchfluidwarp.core.grid`).
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
+from contextlib import closing, nullcontext
 
 import torch
 from torch import Tensor, nn
@@ -138,16 +138,26 @@ class FluidWarp(nn.Module):
         return vel.expand(batch, *vel.shape[1:])
 
     def forward(self, image: Tensor, forces: ForceSource) -> Tensor:
-        """Warp ``image`` ``(B, C, H, W)``: returns the frames ``(B, T + 1, C, H, W)``; frame 0 is the input."""
+        """Warp ``image`` ``(B, C, H, W)``: returns the frames ``(B, T + 1, C, H, W)``; frame 0 is the input.
+
+        The frames come from the same machinery as :meth:`iter_frames` (one resampling of ``image`` per frame,
+        the next sampling grid built in a worker thread meanwhile); without grad they are written straight into
+        the output, so the only large allocation is the output itself.
+        """
         check_tensor("image", image, ndim=4)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
-        maps = self._backward_maps(vel, size)[:, 1:]  # (B, T, H, W, 2); map 0 is the identity
-        B, T = maps.shape[:2]
-        rep = image.unsqueeze(1).expand(B, T, *image.shape[1:]).reshape(B * T, *image.shape[1:])
-        flat = maps.reshape(B * T, *maps.shape[2:])
-        frames = _warp_image(rep, flat, self.mode, check="the backward maps of forces").view(B, T, *image.shape[1:])
-        return torch.cat([image.unsqueeze(1), frames], dim=1)
+        if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
+            return torch.stack([image, *self._resampled(image, vel, True)], dim=1)  # autograd keeps each frame
+        out = image.new_empty(image.shape[0], self.steps + 1, *image.shape[1:])
+        out[:, 0] = image
+
+        def touch(t: int) -> None:  # the worker maps frame t's pages in (one write per 4 KiB) while it waits
+            out[:, t].flatten(1)[:, :: 4096 // out.element_size()].zero_()
+
+        for t, frame in enumerate(self._resampled(image, vel, True, touch), start=1):
+            out[:, t] = frame
+        return out
 
     def iter_frames(self, image: Tensor, forces: ForceSource, *, prefetch: bool = True) -> Iterator[Tensor]:
         """Yield the frames ``(B, C, H, W)`` one at a time (``T + 1`` of them): long animations in little memory.
@@ -166,21 +176,43 @@ class FluidWarp(nn.Module):
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         yield image
+        with closing(self._resampled(image, vel, prefetch)) as frames:  # a caller that stops early stops the worker
+            for frame in frames:
+                yield frame.contiguous()
+
+    def _resampled(
+        self, image: Tensor, vel: Tensor, prefetch: bool, touch: Callable[[int], None] | None = None
+    ) -> Generator[Tensor, None, None]:
+        """Frames 1 to ``T`` of ``image`` through the backward maps of ``vel``, one ``grid_sample`` each.
+
+        The sampling grids are built straight from the maps' raster (identity + upsampled displacement, in
+        normalised coordinates, one pass), by a worker thread one frame ahead when ``prefetch``, which then
+        calls ``touch(t)`` (if given) for the frame ``t`` of that grid. A frame may come back channels-last.
+        """
+        size = (image.shape[-2], image.shape[-1])
         displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None, self.map_config)
-        # sampling grids straight from the raster: grid = identity + disp * 2 / raster size, normalised
+        # built channels-first, (B, 2, H, W), and handed to grid_sample as a permuted view: a contiguous pass
+        # instead of a strided one (grid_sample reads either; the grid's values are the same)
         ident = pixel_to_normalized(identity_map(size, device=vel.device, dtype=vel.dtype), size)
-        ratio = normalized_affine((Hr, Wr), device=vel.device, dtype=vel.dtype)[0]  # raster px -> normalised
+        ident = ident.permute(0, 3, 1, 2).contiguous()
+        ratio = normalized_affine((Hr, Wr), device=vel.device, dtype=vel.dtype)[0].view(1, 2, 1, 1)  # raster px
         grad = torch.is_grad_enabled()  # grad mode is per thread: the worker follows the caller's
+        frame = 0
 
         def next_grid() -> Tensor | None:
+            nonlocal frame
             with torch.set_grad_enabled(grad):
                 disp = next(displacements, None)
                 if disp is None:
                     return None
-                return torch.addcmul(ident, upsample_raster(disp, size).permute(0, 2, 3, 1), ratio)
+                grid = torch.addcmul(ident, upsample_raster(disp, size), ratio).permute(0, 2, 3, 1)
+            frame += 1
+            if touch is not None:
+                touch(frame)
+            return grid
 
-        # grid_sample reads a channels-last image about 1.5x faster on CPUs, which repays the one copy over
-        # a whole animation (not over one call); the frames come back contiguous
+        # grid_sample reads a channels-last image about 1.5x faster on some CPUs, which repays the one copy
+        # over a whole animation (not over one call)
         src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
         next(displacements)  # map 0 is the identity: frame 0 is the input
         with ThreadPoolExecutor(max_workers=1) if prefetch else nullcontext() as pool:
@@ -191,8 +223,7 @@ class FluidWarp(nn.Module):
                     return
                 if pool is not None:
                     pending = pool.submit(next_grid)
-                frame = sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
-                yield frame.contiguous()
+                yield sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
