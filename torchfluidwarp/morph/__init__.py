@@ -9,5 +9,7 @@ from torchfluidwarp.morph.morphing import morph, region_of_interest, resize_pair
 from torchfluidwarp.morph.regions import hull_mask, paste_back
 from torchfluidwarp.morph.render import MorphFrames
 from torchfluidwarp.morph.result import MorphResult
+from torchfluidwarp.morph.sequence import AverageResult, MorphSequence, average, morph_sequence
 
 __all__ = ["MorphFrames", "MorphResult", "morph", "region_of_interest", "resize_pair", "hull_mask", "paste_back"]
+__all__ += ["MorphSequence", "morph_sequence", "AverageResult", "average"]

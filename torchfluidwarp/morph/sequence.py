@@ -1,0 +1,185 @@
+"""Morphing more than two images: a sequence through each of them, and the average of several.
+
+* :func:`morph_sequence` chains the two-image morphs ``0 -> 1 -> 2 -> ...`` into one animation. The frames are
+  shared out in proportion to how far the marked points travel in each segment, so with the default linear
+  timing the points keep one speed through every middle image instead of jumping at the joint.
+* :func:`average` warps each image to the mean shape of all the point sets with its own fitted flow and averages
+  the results: the mean face (or object) of a set, fold-free like every morph.
+
+Images are ``(C, H, W)`` (or ``(1, C, H, W)``) in ``[0, 1]``; points ``(M, 2)`` in each image's pixels, the same
+``M`` features in the same order in every image.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_real
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.morph.morphing import _as_image, _as_points, morph, resize_pair
+from torchfluidwarp.morph.result import MorphResult
+
+__all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
+
+
+def _prepared(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[Tensor, Tensor]]:
+    """Each image ``(1, C, H, W)`` at the first one's size, with its points scaled to match."""
+    if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple)):
+        raise TypeError("images and points must be lists (or tuples) of tensors")
+    if len(images) < 2:
+        raise ValueError(f"images must hold at least 2 images, got {len(images)}")
+    if len(points) != len(images):
+        raise ValueError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
+    first = _as_image("images[0]", images[0])
+    out = []
+    for i, (image, p) in enumerate(zip(images, points)):
+        im = _as_image(f"images[{i}]", image)
+        out.append(resize_pair(first, im, _as_points(f"points[{i}]", p, im)))
+    return out
+
+
+class MorphSequence:
+    """A morph through several images: its segments (:class:`MorphResult`), played one after the other.
+
+    Segment ``i`` morphs image ``i`` into image ``i + 1``; its last frame is the next one's first, shown once.
+    ``len(sequence)`` frames in all; ``frame(t)`` for any ``t`` in ``[0, 1]``; ``iter_frames()`` streams them.
+    """
+
+    def __init__(self, segments: list[MorphResult], counts: list[int]) -> None:
+        self.segments = segments
+        self.counts = counts  # frames of each segment, joints included in both
+        self._starts = [0.0]
+        total = sum(c - 1 for c in counts)
+        for c in counts:
+            self._starts.append(self._starts[-1] + (c - 1) / total)
+        self._starts[-1] = 1.0
+
+    def __len__(self) -> int:
+        return sum(c - 1 for c in self.counts) + 1
+
+    def frame(self, t: float) -> Tensor:
+        """The frame at ``t`` in ``[0, 1]`` of the whole sequence, ``(C, H, W)``."""
+        u = check_real("t", t)
+        if not 0 <= u <= 1:
+            raise ValueError(f"t must be in [0, 1], got {t!r}")
+        i = max(k for k in range(len(self.segments)) if self._starts[k] <= u)
+        lo, hi = self._starts[i], self._starts[i + 1]
+        return self.segments[i].frame(min(1.0, (u - lo) / (hi - lo)))
+
+    def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]:
+        """Yield the ``len(self)`` frames in order, ``(C, H, W)`` each, in bounded memory."""
+        for i, segment in enumerate(self.segments):
+            frames = segment.iter_frames(chunk)
+            if i:
+                next(frames)  # the joint: already shown as the previous segment's last frame
+            yield from frames
+
+    @property
+    def frames(self) -> Tensor:
+        """``(N, C, H, W)`` all frames at once."""
+        return torch.stack(list(self.iter_frames()))
+
+
+def _travel(pa: Tensor, pb: Tensor) -> float:
+    """Mean distance the marked points travel, in pixels (A's size)."""
+    return float((pb.double() - pa.double()).norm(dim=-1).mean())
+
+
+def morph_sequence(
+    images: Sequence[Tensor], points: Sequence[Tensor], *, frames: int = 60, **options: Any
+) -> MorphSequence:
+    """Morph through ``images`` in order, so that their ``points`` travel from set to set.
+
+    Args:
+        images: two or more images ``(C, H, W)``; each is resized to the first one's size.
+        points: one ``(M, 2)`` set per image, in that image's pixels.
+        frames: frames of the whole sequence (at least one more than the number of segments).
+        options: any :func:`~torchfluidwarp.morph.morph` setting (``method``, ``steps``, ``motion``,
+            ``blend``, ``region`` ...), used for every segment. With ``motion="linear"`` (the default) the frames
+            are shared out in proportion to each segment's travel, so the points' speed is the same on both sides
+            of every middle image; ``motion="smooth"`` eases to rest at each image instead.
+
+    Returns:
+        a :class:`MorphSequence`.
+    """
+    if "frames" in options:
+        raise TypeError("frames is the whole sequence's count; it cannot be set per segment")
+    scaled = [p for _, p in _prepared(images, points)]
+    n = check_int("frames", frames, minimum=len(images))
+    travel = [max(_travel(a, b), 1e-6) for a, b in zip(scaled, scaled[1:])]
+    segments = len(travel)
+    # frames per segment (joints shared): at least 1 step each, then in proportion to the travel
+    steps_total = n - 1
+    shares = [max(1, round(steps_total * d / sum(travel))) for d in travel]
+    shares[-1] = max(1, steps_total - sum(shares[:-1]))
+    while sum(shares) > steps_total:  # rounding overshot: take from the largest
+        shares[shares.index(max(shares))] -= 1
+    results = [
+        morph(images[i], images[i + 1], points[i], points[i + 1], frames=shares[i] + 1, **options)
+        for i in range(segments)
+    ]
+    return MorphSequence(results, [s + 1 for s in shares])
+
+
+@dataclass
+class AverageResult:
+    """What :func:`average` returns.
+
+    Attributes:
+        image: ``(C, H, W)`` the mean of the images, each warped to the mean shape.
+        points: ``(M, 2)`` the mean shape, in the first image's pixels.
+        warped: ``(N, C, H, W)`` each image warped to the mean shape.
+        folded: the fraction of the warps' map pixels that fold (0 for a fold-free average).
+        errors: ``(N,)`` each image's mean distance, in pixels, between its warped points and the mean shape.
+    """
+
+    image: Tensor
+    points: Tensor
+    warped: Tensor
+    folded: float
+    errors: Tensor
+
+
+def average(images: Sequence[Tensor], points: Sequence[Tensor], **options: Any) -> AverageResult:
+    """The average of ``images``: each warped to the mean shape of ``points`` by its own flow, then averaged.
+
+    The mean shape: every point set brought onto the first by a similarity (least squares), averaged, and
+    placed where the sets' own centroids and scales are on average in the first image's frame.
+
+    Args:
+        images: two or more images ``(C, H, W)``; each is resized to the first one's size.
+        points: one ``(M, 2)`` set per image, the same features in the same order.
+        options: any :func:`~torchfluidwarp.morph.morph` setting (``method``, ``grid``, ``steps`` ...).
+
+    Returns:
+        an :class:`AverageResult`.
+    """
+    if "frames" in options or "region" in options:
+        raise TypeError("average takes no frames or region: it renders each warp at its end only")
+    pairs = _prepared(images, points)
+    first = pairs[0][0]
+    sets = [p.double() for _, p in pairs]
+    onto_first = [apply_alignment(estimate_alignment(p, sets[0], "similarity"), p) for p in sets]
+    mean = torch.stack(onto_first).mean(0)
+    # place the mean shape at the sets' mean position and size (rather than the first set's)
+    back = torch.stack([apply_alignment(estimate_alignment(mean, p, "similarity"), mean) for p in sets]).mean(0)
+    H, W = first.shape[-2:]
+    back[:, 0].clamp_(-0.5, W - 0.5)
+    back[:, 1].clamp_(-0.5, H - 0.5)
+    warped, folded, errors = [], 0.0, []
+    for image, p in pairs:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
+            result = morph(image, image, p, back.to(p), frames=2, **{"progress": False, **options})
+            end = result.render([1.0])  # its forward warp at the end: A in the mean shape
+        warped.append(end.forward[0])
+        folded += end.folded / (2 * H * W)
+        errors.append(float(result.fit.error.mean()))
+    stack = torch.stack(warped)
+    return AverageResult(stack.mean(0), back.to(first.dtype), stack, folded / len(pairs), torch.tensor(errors))
