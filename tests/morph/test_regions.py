@@ -78,3 +78,19 @@ def test_paste_back_round_trip_and_only_the_box_changes():
     # a box reaching beyond the photo is clipped
     edge = paste_back(frame, photo, (90, 70, 110, 90))
     assert edge.shape == photo.shape
+
+
+def test_alpha_is_warped_like_colour():
+    from torchfluidwarp.warp import warp_image
+
+    alpha = hull_mask(PA, (64, 64), margin=0.2, band=4.0)
+    rgba_a = torch.cat([A, alpha[None]])
+    rgba_b = torch.cat([B, hull_mask(PB, (64, 64), margin=0.2, band=4.0)[None]])
+    r = morph(rgba_a, rgba_b, PA, PB, **KW)
+    assert r.frames.shape == (4, 4, 64, 64)
+    assert float(r.frames[:, 3].min()) >= 0 and float(r.frames[:, 3].max()) <= 1
+    k = 2
+    torch.testing.assert_close(r.forward_frames[k], warp_image(rgba_a[None], r.maps[k : k + 1])[0], atol=1e-5, rtol=0)
+    # an RGB B with an RGBA A gets an opaque alpha
+    mixed = morph(rgba_a, B, PA, PB, **KW)
+    torch.testing.assert_close(mixed.frames[-1][3], torch.ones(64, 64))
