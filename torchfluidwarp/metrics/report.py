@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any, Protocol
 
 import torch
@@ -27,18 +27,17 @@ class Morph(Protocol):
 
     def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]: ...
 
+    def render(self, ts: Sequence[float]) -> Any: ...  # MorphFrames: frames, maps_a, maps_b (n, ...)
+
 
 def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
     """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2))`` for each of the ``N`` frames, in order, rendered
-    ``chunk`` frames at a time (or read from the result when it already holds all of them)."""
-    r: Any = result  # MorphResult; its per-chunk render is private until it gets a public iterator
-    if r._all is not None:
-        yield from zip(r.frames.unbind(0), r.maps.unbind(0), r.maps_b.unbind(0))
-        return
+    ``chunk`` frames at a time through the result's public :meth:`render`."""
     n = len(result)
+    times = [1.0 if k == n - 1 else k / (n - 1) for k in range(n)]
     for start in range(0, n, chunk):
-        part = r._render([r._time(k) for k in range(start, min(start + chunk, n))])
-        yield from zip(part.frames.to(r._dtype).unbind(0), part.maps_a.unbind(0), part.maps_b.unbind(0))
+        part = result.render(times[start : start + chunk])
+        yield from zip(part.frames.unbind(0), part.maps_a.unbind(0), part.maps_b.unbind(0))
 
 
 def morph_folds(result: Morph, chunk: int = 8) -> tuple[Tensor, Tensor]:
