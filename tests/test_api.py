@@ -103,7 +103,7 @@ def test_random_fluid_warp_is_the_module_in_one_call():
 # The layers, bottom up. A module may import its own subpackage and any lower layer, never a higher one.
 # ``_checks`` (the one validation layer), ``io`` (files) and ``data`` (samples) sit below the pipeline.
 LAYERS = {"_checks": 0, "_version": 0, "_compat": 0, "io": 1, "data": 2, "core": 3, "warp": 4, "control": 5}
-LAYERS |= {"morph": 6, "augment": 6, "metrics": 6, "apps": 7}
+LAYERS |= {"correspond": 6, "morph": 7, "augment": 7, "metrics": 7, "apps": 8}
 
 
 def _layer_of(module: str) -> str:

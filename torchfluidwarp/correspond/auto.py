@@ -1,0 +1,133 @@
+"""Landmarks for a morph from the two pictures alone: faces when both show one, matched features otherwise."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from torchfluidwarp._checks import check_int, check_size
+from torchfluidwarp.correspond._image import single_image
+from torchfluidwarp.correspond.faces import detect_face_points, load_mediapipe
+from torchfluidwarp.correspond.features import match_features
+
+__all__ = ["MatchMode", "auto_points", "border_points"]
+
+MatchMode = Literal["auto", "faces", "features"]
+
+
+def border_points(
+    size: tuple[int, int], *, per_side: int = 3, device: torch.device | None = None, dtype: torch.dtype = torch.float32
+) -> Tensor:
+    """Anchors on the image's border: the corners and evenly spaced points along each edge.
+
+    Paired with the same anchors in the other image, they keep the picture's frame on the frame while the
+    inside moves, as a morph tool's border points do.
+
+    Args:
+        size: the image's ``(H, W)`` in pixels.
+        per_side: points per edge, corners included (2: the corners only; 3: corners and edge midpoints).
+        device, dtype: of the result.
+
+    Returns:
+        ``(4 * (per_side - 1), 2)`` points ``(x, y)`` in pixels, pixel centres at integers (the corners are
+        ``(0, 0)`` and ``(W - 1, H - 1)``), clockwise from the top-left corner.
+
+    Example:
+        >>> border_points((3, 5)).tolist()
+        [[0.0, 0.0], [2.0, 0.0], [4.0, 0.0], [4.0, 1.0], [4.0, 2.0], [2.0, 2.0], [0.0, 2.0], [0.0, 1.0]]
+    """
+    H, W = check_size("size", size)
+    per_side = check_int("per_side", per_side, minimum=2)
+    t = torch.linspace(0, 1, per_side, device=device, dtype=torch.float64)[:-1]
+    x1, y1 = float(W - 1), float(H - 1)
+    top = torch.stack([t * x1, torch.zeros_like(t)], -1)
+    right = torch.stack([torch.full_like(t, x1), t * y1], -1)
+    bottom = torch.stack([(1 - t) * x1, torch.full_like(t, y1)], -1)
+    left = torch.stack([torch.zeros_like(t), (1 - t) * y1], -1)
+    return torch.cat([top, right, bottom, left]).to(dtype)
+
+
+def _faces_or_none(a: Tensor, b: Tensor, face_index: tuple[int | None, int | None], names: tuple[str, str]):
+    """Both images' face points, or None when mediapipe is missing or either image shows no face."""
+    try:
+        load_mediapipe()
+        return (
+            detect_face_points(a, face_index=face_index[0], name=names[0]),
+            detect_face_points(b, face_index=face_index[1], name=names[1]),
+        )
+    except ImportError:
+        return None
+    except ValueError as exc:
+        if not str(exc).startswith("no face found"):
+            raise
+        return None
+
+
+def auto_points(
+    image_a: Tensor,
+    image_b: Tensor,
+    *,
+    match: MatchMode = "auto",
+    face_index: tuple[int | None, int | None] = (None, None),
+    names: tuple[str, str] = ("image_a", "image_b"),
+    border: int | None = 3,
+    max_points: int = 64,
+) -> tuple[Tensor, Tensor]:
+    """Corresponding points of two images, for a morph with no point files.
+
+    Args:
+        image_a: ``(C, H, W)`` or ``(1, C, H, W)`` float image in ``[0, 1]``.
+        image_b: the other image (its size may differ).
+        match: ``"faces"``: the face landmarks of both (:func:`~torchfluidwarp.correspond.faces.detect_face_points`;
+            needs the ``faces`` extra); ``"features"``: matched SIFT features
+            (:func:`~torchfluidwarp.correspond.features.match_features`); ``"auto"``: faces when mediapipe is
+            installed and both images show a face, features otherwise.
+        face_index: which face in A and in B (0 = largest; ``None``: the largest, with a warning when there
+            are several).
+        names: the images' names in messages (their file names, say).
+        border: points per image edge for :func:`border_points` (3: corners and edge midpoints), appended to
+            both lists; ``None`` for none.
+        max_points: the most feature matches (not counting the border).
+
+    Returns:
+        ``(points_a, points_b)``: ``(M, 2)`` each, pixels ``(x, y)``, pixel centres at integers, in each
+        image's own pixels, with image A's dtype and device; ``points_a[i]`` corresponds to ``points_b[i]``.
+
+    Raises:
+        ImportError: ``match="faces"`` without mediapipe (the message says how to install it).
+        ValueError: ``match="faces"`` and no face in an image (the message names it); a bad argument;
+            ``match="features"`` (or ``"auto"`` with no faces) and fewer than 3 matches.
+
+    Example:
+        >>> from torchfluidwarp.data import load_sample
+        >>> a = load_sample("cat")
+        >>> pa, pb = auto_points(a, a[..., 8:, 4:], match="features")  # B: A cropped, so b = a - (4, 8)
+        >>> bool((pa - pb)[:-8].sub(torch.tensor([4.0, 8.0])).norm(dim=-1).median() < 0.5)  # the last 8: border
+        True
+    """
+    a, b = single_image("image_a", image_a), single_image("image_b", image_b)
+    if match not in ("auto", "faces", "features"):
+        raise ValueError(f"match must be 'auto', 'faces' or 'features', got {match!r}")
+    found = None
+    if match == "faces":
+        found = (
+            detect_face_points(a, face_index=face_index[0], name=names[0]),
+            detect_face_points(b, face_index=face_index[1], name=names[1]),
+        )
+    elif match == "auto":
+        found = _faces_or_none(a, b, face_index, names)
+    if found is None:
+        found = match_features(a, b, max_points=max_points)
+        if len(found[0]) < 3:
+            raise ValueError(
+                f"found {len(found[0])} matching features between {names[0]} and {names[1]} (need 3 or more); "
+                "give the points by hand"
+            )
+    points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
+    if border is not None:
+        size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
+        points_a = torch.cat([points_a, border_points(size_a, per_side=border, device=a.device, dtype=a.dtype)])
+        points_b = torch.cat([points_b, border_points(size_b, per_side=border, device=a.device, dtype=a.dtype)])
+    return points_a, points_b
