@@ -6,12 +6,12 @@ says, at each call site, whether that grid is guarded here or is finite by const
 
 The policy (see ``docs/design.rst``, "Sampling"):
 
-* **Once per frame** (an image read through a map: :func:`~torchfluidwarp.warp.layer.warp_image`, the frames of
+* **Once per frame** (an image read through a map: :func:`~torchfluidwarp.warp.maps.warp_image`, the frames of
   :class:`~torchfluidwarp.warp.layer.FluidWarp`, the morph): the grid is checked here, one reduction per call.
 * **Per sub-step** (velocity sampling in advection, carrying points, composing maps): unchecked. These run
   dozens of times per fluid step; their inputs are validated once at the public boundary (forces, velocities,
   points, viscosity, ``dt``), the positions they sample are clamped into the box, and each step's velocity is
-  checked by the simulator and by :func:`~torchfluidwarp.core.fluid.substeps`. A check here would add a reduction
+  checked by the simulator and by :func:`~torchfluidwarp.core.advection.substeps`. A check here would add a reduction
   and, on an accelerator, a host synchronisation to every call.
 """
 

@@ -85,7 +85,7 @@ def load_sample(name: str, channels: int = 3, dtype: torch.dtype = torch.float32
 
     Args:
         name: one of :data:`SAMPLES`.
-        channels: 1 (gray), 3 (RGB) or 4 (RGBA), as in :func:`torchfluidwarp.io.read_image`.
+        channels: 1 (gray), 3 (RGB) or 4 (RGBA), as in :func:`~torchfluidwarp.io.images.read_image`.
         dtype: a floating-point dtype.
 
     Returns:

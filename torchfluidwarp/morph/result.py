@@ -1,4 +1,4 @@
-"""What :func:`~torchfluidwarp.morph.morph` returns: a fitted morph that renders its frames on demand.
+"""What :func:`~torchfluidwarp.morph.morphing.morph` returns: a fitted morph that renders its frames on demand.
 
 Nothing is rendered until asked for, so a morph of any length holds only its fit and its two images:
 

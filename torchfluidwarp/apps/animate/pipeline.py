@@ -4,7 +4,7 @@
 builds the library's modules (:class:`~torchfluidwarp.warp.forces.Brushes`, a viscosity from
 :class:`~torchfluidwarp.warp.forces.ViscosityBrushes` and :func:`~torchfluidwarp.warp.forces.viscosity_from_mask`,
 :class:`~torchfluidwarp.warp.layer.FluidWarp`) and streams :meth:`~torchfluidwarp.warp.layer.FluidWarp.iter_frames`.
-Resizing goes through :func:`~torchfluidwarp.io.shrink_image`, and moving the configuration's positions to
+Resizing goes through :func:`~torchfluidwarp.io.images.shrink_image`, and moving the configuration's positions to
 the resized image through :func:`~torchfluidwarp.core.grid.scale_factor`.
 
 Example:
