@@ -27,9 +27,6 @@ import itertools
 import sys
 from typing import NoReturn
 
-import torch
-from tqdm import tqdm
-
 from torchfluidwarp._version import __version__
 from torchfluidwarp.apps.animate import (
     AnimationConfig,
@@ -42,13 +39,16 @@ from torchfluidwarp.apps.cli_args import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    FPS,
     NON_NEGATIVE,
     POSITIVE,
     PROG,
+    check_disk_space,
     check_output,
     count,
     fail,
     numbers,
+    progress_bar,
 )
 from torchfluidwarp.apps.cli_morph import add_demo, add_morph
 from torchfluidwarp.io import read_image, write_animation
@@ -176,7 +176,7 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--steps", type=count(1), help="fluid steps; frames = steps + 1 (default 60)")
     p.add_argument("--dt", type=POSITIVE, help="time step in time units (default 1.0)")
-    p.add_argument("--fps", type=POSITIVE, help="output frames per second (default 20)")
+    p.add_argument("--fps", type=FPS, help="output frames per second, 0.01 to 1000 (default 20)")
     p.add_argument(
         "--max-size",
         metavar="PX",
@@ -220,16 +220,10 @@ def _cmd_animate(args: argparse.Namespace) -> int:
             raise ValueError('nothing to animate: give at least one --brush (or "brushes" in --config)')
         check_output(args.output, args.overwrite)
         frames = animate_frames(config, read_image(args.image), max_size=args.max_size)
-        first = next(frames)
-        video = torch.empty(config.steps + 1, *first.shape, dtype=first.dtype)  # (T + 1, C, H, W)
-        bar = tqdm(
-            total=len(video), unit="frame", desc="animate", leave=False, disable=args.quiet or not sys.stderr.isatty()
-        )
-        with bar:
-            for t, frame in enumerate(itertools.chain([first], frames)):
-                video[t] = frame
-                bar.update()
-        path = write_animation(args.output, video, fps=config.fps, overwrite=args.overwrite)
+        first = next(frames)  # the (resized) photo: its size is known before the fluid runs
+        check_disk_space(args.output, config.steps + 1, first.shape[-2], first.shape[-1], first.shape[0])
+        stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
+        path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
     except (ValueError, TypeError, OSError) as exc:  # FileExistsError and unwritable outputs are OSErrors
         return fail("animate", exc)
     print(path)  # even with --quiet: it is the command's result, for scripts

@@ -12,13 +12,16 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import shutil
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from torchfluidwarp._checks import check_int, check_positive
-from torchfluidwarp.io import FFMPEG_HINT
+from tqdm import tqdm
+
+from torchfluidwarp._checks import check_int, check_positive, format_bytes
+from torchfluidwarp.io import FFMPEG_HINT, check_fps
 
 __all__ = [
     "PROG",
@@ -31,7 +34,11 @@ __all__ = [
     "numbers",
     "POSITIVE",
     "NON_NEGATIVE",
+    "FPS",
     "check_output",
+    "check_disk_space",
+    "output_bytes",
+    "progress_bar",
 ]
 
 PROG = "torchfluidwarp"
@@ -74,6 +81,8 @@ POSITIVE: Callable[[str], float] = checked(float, check_positive)
 """An argparse ``type``: a finite number ``> 0``."""
 NON_NEGATIVE: Callable[[str], float] = checked(float, check_positive, allow_zero=True)
 """An argparse ``type``: a finite number ``>= 0``."""
+FPS: Callable[[str], float] = checked(float, lambda name, value: check_fps(value))
+"""An argparse ``type``: a frame rate :func:`~torchfluidwarp.io.check_fps` accepts (0.01 to 1000)."""
 
 
 def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[[str], T]:
@@ -100,7 +109,7 @@ def check_output(path: str, overwrite: bool) -> None:
         ValueError: an unknown suffix, MP4 without imageio-ffmpeg, or an existing output without ``overwrite``.
     """
     target = Path(path)
-    folder = path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
+    folder = _is_folder(path)
     if not folder and target.suffix.lower() not in (".gif", ".mp4"):
         raise ValueError(f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4 or a folder ending in '/'")
     if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
@@ -108,3 +117,48 @@ def check_output(path: str, overwrite: bool) -> None:
     exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
     if exists and not overwrite:
         raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
+
+
+def _is_folder(path: str) -> bool:
+    target = Path(path)
+    return path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
+
+
+def output_bytes(path: str, frames: int, height: int, width: int, channels: int) -> float:
+    """About how many bytes an animation of ``frames`` frames ``(channels, height, width)`` takes at ``path``.
+
+    A GIF holds about a byte a pixel (8-bit palette indices, which LZW rarely shrinks for photos), a folder of
+    PNGs at most ``channels`` bytes a pixel, an H.264 MP4 about 0.3 (generous for its default quality).
+    """
+    suffix = "" if _is_folder(path) else Path(path).suffix.lower()
+    per_pixel = {".gif": 1.0, ".mp4": 0.3}.get(suffix, float(channels))
+    return frames * (height * width * per_pixel + 1024)
+
+
+def check_disk_space(path: str, frames: int, height: int, width: int, channels: int) -> None:
+    """Refuse, before any work, an animation that would not fit in the free space of ``path``'s folder.
+
+    Raises:
+        ValueError: the estimate (:func:`output_bytes`) is above the free space, with both in the message.
+    """
+    need = output_bytes(path, frames, height, width, channels)
+    folder = Path(path).absolute()
+    while not folder.exists():
+        folder = folder.parent
+    if folder.is_file():
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if need > free:
+        raise ValueError(
+            f"output {path!r} would need about {format_bytes(need)} ({frames} frames of {width}x{height}), "
+            f"above the {format_bytes(free)} free in {str(folder)!r}; ask for fewer or smaller frames, "
+            "or write elsewhere"
+        )
+
+
+def progress_bar(frames: Iterable[T], total: int, desc: str, quiet: bool) -> Iterator[T]:
+    """``frames`` with a tqdm bar on stderr (none with ``quiet`` or when stderr is not a terminal)."""
+    with tqdm(total=total, unit="frame", desc=desc, leave=False, disable=quiet or not sys.stderr.isatty()) as bar:
+        for frame in frames:
+            yield frame
+            bar.update()

@@ -1,0 +1,178 @@
+"""Batch morphing (``morph --pairs``): resumable, one failure does not stop the others, a summary per pair."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+
+from torchfluidwarp.apps import batch
+from torchfluidwarp.apps.batch import morph_pairs, read_pairs
+from torchfluidwarp.apps.cli import main
+from torchfluidwarp.io import write_image, write_points
+
+FAST = ["--grid", "12", "--steps", "2", "--max-iter", "5", "--frames", "4", "--quiet"]
+OPTIONS = dict(grid=12, steps=2, max_iter=5, frames=4)
+POINTS_A = torch.tensor([[8.0, 8.0], [24.0, 9.0], [15.0, 22.0]])
+
+
+def make_pairs(folder: Path, gen: torch.Generator, n: int = 3, bad: bool = True) -> Path:
+    """``n`` tiny pairs in ``folder/data`` and ``folder/pairs.csv`` (relative paths); with ``bad``, one more row
+    whose image B is missing, as row 3."""
+    data = folder / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    rows = ["image_a,image_b,points_a,points_b,name"]
+    for k in range(n):
+        write_image(data / f"a{k}.png", torch.rand(3, 32, 36, generator=gen))
+        write_image(data / f"b{k}.png", torch.rand(3, 32, 36, generator=gen))
+        write_points(data / f"a{k}.pts", POINTS_A)
+        write_points(data / f"b{k}.json", POINTS_A + torch.tensor([1.0 + k, -1.0]))
+        rows.append(f"data/a{k}.png,data/b{k}.png,data/a{k}.pts,data/b{k}.json,pair{k}")
+        if bad and k == 0:
+            rows.append("data/a0.png,data/missing.png,data/a0.pts,data/b0.json,broken")
+    (folder / "pairs.csv").write_text("\n".join(rows) + "\n")
+    return folder / "pairs.csv"
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fp:
+        return list(csv.DictReader(fp))
+
+
+def listing(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_cli_batch_end_to_end_and_resume(tmp_path, gen, capsys):
+    pairs = make_pairs(tmp_path / "in", gen)
+    out = tmp_path / "out"
+    assert main(["morph", "--pairs", str(pairs), "--out", f"{out}/", *FAST]) == 1  # one row failed
+    assert listing(out) == ["failures.csv", "pair0.gif", "pair1.gif", "pair2.gif", "summary.csv"]
+    failures = read_csv(out / "failures.csv")
+    assert [(f["row"], f["name"]) for f in failures] == [("3", "broken")]
+    assert "missing.png" in failures[0]["reason"]
+    summary = read_csv(out / "summary.csv")
+    assert [s["name"] for s in summary] == ["pair0", "pair1", "pair2"]
+    for s in summary:
+        assert s["status"] == "morphed" and 0 <= float(s["error_mean_px"]) <= float(s["error_max_px"]) < 5
+        assert 0 <= float(s["folded"]) <= 1 and float(s["seconds"]) > 0
+    for k in range(3):
+        assert iio.imread(out / f"pair{k}.gif", index=None).shape == (4, 32, 36, 3)
+    err = capsys.readouterr().err
+    assert "row 3 (broken) failed" in err
+
+    # a rerun skips the finished pairs (their files are not touched) and keeps their summary
+    stamps = {k: (out / f"pair{k}.gif").stat().st_mtime_ns for k in range(3)}
+    (out / "pair1.gif").unlink()  # as if the run had been killed before pair1
+    assert main(["morph", "--pairs", str(pairs), "--out", str(out), *FAST]) == 1
+    assert (out / "pair0.gif").stat().st_mtime_ns == stamps[0] and (out / "pair2.gif").stat().st_mtime_ns == stamps[2]
+    assert (out / "pair1.gif").is_file()
+    assert "1 morphed, 2 skipped" in capsys.readouterr().err
+    assert [s["status"] for s in read_csv(out / "summary.csv")] == ["morphed"] * 3
+    assert listing(out) == ["failures.csv", "pair0.gif", "pair1.gif", "pair2.gif", "summary.csv"]  # no temporaries
+
+
+def test_all_good_exits_0(tmp_path, gen):
+    pairs = make_pairs(tmp_path, gen, n=1, bad=False)
+    out = tmp_path / "out"
+    assert main(["morph", "--pairs", str(pairs), "--out", str(out), "--format", "png", *FAST]) == 0
+    assert listing(out / "pair0") == [f"frame_{k:04d}.png" for k in range(4)]
+    assert read_csv(out / "failures.csv") == []
+
+
+def test_batch_output_matches_a_single_morph(tmp_path, gen):
+    pairs = make_pairs(tmp_path, gen, n=1, bad=False)
+    morph_pairs(pairs, tmp_path / "out", progress=False, **OPTIONS)
+    data = tmp_path / "data"
+    single = tmp_path / "single.gif"
+    argv = ["morph", str(data / "a0.png"), str(data / "b0.png"), "--points-a", str(data / "a0.pts")]
+    assert main([*argv, "--points-b", str(data / "b0.json"), "-o", str(single), *FAST]) == 0
+    np.testing.assert_array_equal(iio.imread(single, index=None), iio.imread(tmp_path / "out/pair0.gif", index=None))
+
+
+def test_read_pairs_reports_bad_rows(tmp_path):
+    (tmp_path / "p.csv").write_text(
+        "# a comment\n\na.png,b.png,a.pts,b.pts\na.png,b.png,a.pts\nc.png,d.png,c.pts,d.pts,a-b\nx,y,z,w,sub/dir\n"
+    )
+    rows, bad = read_pairs(tmp_path / "p.csv")
+    assert [(r.row, r.name) for r in rows] == [(3, "a-b")]
+    assert rows[0].image_a == tmp_path / "a.png"  # relative to the CSV's folder
+    assert [b[0] for b in bad] == [4, 5, 6]
+    assert "got 3 fields" in bad[0][2] and "already used by row 3" in bad[1][2] and "plain file name" in bad[2][2]
+
+
+def test_ranks_without_a_process_group_write_their_own_summaries(tmp_path, gen, monkeypatch):
+    monkeypatch.delenv("MASTER_ADDR", raising=False)
+    pairs = make_pairs(tmp_path, gen, n=3, bad=False)
+    one = morph_pairs(pairs, tmp_path / "rank1", rank=1, world_size=2, progress=False, **OPTIONS)
+    assert one.morphed == ["pair1"]
+    assert listing(tmp_path / "rank1") == ["failures.rank1.csv", "pair1.gif", "summary.rank1.csv"]
+    assert [s["name"] for s in read_csv(tmp_path / "rank1/summary.rank1.csv")] == ["pair1"]
+    zero = morph_pairs(pairs, tmp_path / "rank0", rank=0, world_size=1, progress=False, **OPTIONS)
+    assert zero.morphed == ["pair0", "pair1", "pair2"]
+    np.testing.assert_array_equal(
+        iio.imread(tmp_path / "rank1/pair1.gif", index=None), iio.imread(tmp_path / "rank0/pair1.gif", index=None)
+    )
+    with pytest.raises(ValueError, match="rank must be in"):
+        morph_pairs(pairs, tmp_path / "x", rank=2, world_size=2)
+
+
+def test_two_processes_under_torch_distributed_give_the_outputs_of_one(tmp_path, gen):
+    """Two ranks (gloo on CPU, started as torchrun would: RANK, WORLD_SIZE, MASTER_ADDR, MASTER_PORT)."""
+    pairs = make_pairs(tmp_path, gen, n=3)
+    code = (
+        "import sys; from torchfluidwarp.apps.batch import morph_pairs; "
+        f"r = morph_pairs(sys.argv[1], sys.argv[2], progress=False, **{OPTIONS!r}); "
+        "print(sorted(r.morphed), len(r.failed))"
+    )
+    env = {**os.environ, "WORLD_SIZE": "2", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(29500 + os.getpid() % 1000)}
+    env.pop("CUDA_VISIBLE_DEVICES", None)
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", code, str(pairs), str(tmp_path / "two")],
+            env={**env, "RANK": str(r), "LOCAL_RANK": str(r), "CUDA_VISIBLE_DEVICES": ""},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for r in range(2)
+    ]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    # rows pair0, broken, pair1, pair2: rank 0 takes pair0 and pair1, rank 1 broken and pair2; both get the failure
+    assert outs[0][0].startswith("['pair0', 'pair1'] 1") and outs[1][0].startswith("['pair2'] 1")
+    morph_pairs(pairs, tmp_path / "one", progress=False, rank=0, world_size=1, **OPTIONS)
+    assert listing(tmp_path / "two") == listing(tmp_path / "one")
+    for k in range(3):
+        np.testing.assert_array_equal(
+            iio.imread(tmp_path / f"two/pair{k}.gif", index=None), iio.imread(tmp_path / f"one/pair{k}.gif", index=None)
+        )
+    drop = ("seconds",)
+    two = [{k: v for k, v in s.items() if k not in drop} for s in read_csv(tmp_path / "two/summary.csv")]
+    one = [{k: v for k, v in s.items() if k not in drop} for s in read_csv(tmp_path / "one/summary.csv")]
+    assert [Path(s.pop("output")).name for s in two] == [Path(s.pop("output")).name for s in one]
+    assert two == one
+    assert read_csv(tmp_path / "two/failures.csv") == read_csv(tmp_path / "one/failures.csv")
+
+
+def test_stream_frames_renders_large_frames_one_at_a_time(monkeypatch):
+    class Fake:
+        def __init__(self, nbytes):
+            self.nbytes = nbytes
+
+        def bytes_per_frame(self):
+            return self.nbytes
+
+        def iter_frames(self, chunk):
+            return chunk
+
+    assert batch.stream_frames(Fake(1000)) == 8
+    assert batch.stream_frames(Fake(batch.STREAM_BYTES // 3)) == 3
+    assert batch.stream_frames(Fake(4 * batch.STREAM_BYTES)) == 1

@@ -1,0 +1,294 @@
+"""Batch morphing: a CSV of image pairs morphed one after another in one process, resumable, sharded by rank.
+
+``torchfluidwarp morph --pairs pairs.csv --out DIR/`` calls :func:`morph_pairs`; Python code can call it too.
+Each row of the CSV is ``image_a,image_b,points_a,points_b[,name]``; relative paths resolve against the CSV's
+folder, blank lines and lines starting with ``#`` are skipped, and a first row ``image_a,image_b,...`` is a
+header. ``name`` (default ``<A's stem>-<B's stem>``) names the output ``DIR/<name>.gif`` (or ``.mp4``, or a
+folder ``DIR/<name>/`` of PNGs).
+
+* Each output is written atomically (:func:`~torchfluidwarp.io.write_animation`), its frames streamed from
+  :meth:`~torchfluidwarp.morph.result.MorphResult.iter_frames`, so memory does not grow with the frame count.
+* A rerun skips the pairs whose output exists: a killed run resumes where it stopped.
+* A bad row (a missing file, mismatched points, a morph that fails) goes to ``DIR/failures.csv`` (this run's
+  failures: ``row,name,reason``) and the others go on.
+* ``DIR/summary.csv`` has one row a pair: the landmark error (``result.fit.error``, pixels), the fraction of
+  folded map pixels (``result.folded``), the seconds it took and the warnings it raised; rows of earlier runs
+  are kept.
+
+Under ``torchrun`` (``RANK``/``WORLD_SIZE`` set) rank ``r`` of ``n`` takes the pairs ``r, r + n, r + 2n, ...``
+and uses ``cuda:LOCAL_RANK`` when there are GPUs; rank 0 gathers the summaries and failures
+(``torch.distributed``: gloo on CPU, nccl with GPUs). The outputs are the same whatever the world size. Ranks
+given without ``torch.distributed`` (no process group, no ``MASTER_ADDR``) each write
+``summary.rank<r>.csv`` and ``failures.rank<r>.csv`` instead.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import time
+import warnings
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from torchfluidwarp.apps.cli_args import check_disk_space
+from torchfluidwarp.io import check_point_counts, read_image, read_points, write_animation
+from torchfluidwarp.morph import morph
+from torchfluidwarp.morph.result import MorphResult
+
+__all__ = ["PairRow", "BatchReport", "read_pairs", "morph_pairs", "stream_frames", "STREAM_BYTES"]
+
+STREAM_BYTES = 512 * 2**20
+"""Bytes of frames (with their maps) rendered at once while streaming a morph: 8 frames, fewer when large."""
+
+SUMMARY_FIELDS = ("name", "output", "status", "error_mean_px", "error_max_px", "folded", "seconds", "warnings")
+FAILURE_FIELDS = ("row", "name", "reason")
+HEADER = ("image_a", "image_b", "points_a", "points_b")
+OutputFormat = Literal["gif", "mp4", "png"]
+
+
+@dataclass(frozen=True)
+class PairRow:
+    """One row of a pairs CSV: its line number, the output's name and the four paths (resolved)."""
+
+    row: int
+    name: str
+    image_a: Path
+    image_b: Path
+    points_a: Path
+    points_b: Path
+
+
+@dataclass
+class BatchReport:
+    """What :func:`morph_pairs` did: the names morphed and skipped, the failures ``(row, name, reason)``."""
+
+    morphed: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[tuple[int, str, str]] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """No pair failed."""
+        return not self.failed
+
+
+def stream_frames(result: MorphResult) -> Iterator[Tensor]:
+    """A morph's frames ``(C, H, W)``, rendered a few at a time so that at most :data:`STREAM_BYTES` are held."""
+    return result.iter_frames(chunk=max(1, min(8, STREAM_BYTES // result.bytes_per_frame())))
+
+
+def read_pairs(path: str | os.PathLike[str]) -> tuple[list[PairRow], list[tuple[int, str, str]]]:
+    """Read a pairs CSV: the good rows, and the bad ones as ``(row, name, reason)``.
+
+    A row is bad when it has not 4 or 5 fields, an empty or path-like name, or a name an earlier row has.
+    Files are not opened here (a missing one fails when its pair's turn comes).
+
+    Raises:
+        OSError: the CSV cannot be read.
+    """
+    csv_path = Path(path)
+    base = csv_path.parent
+    rows: list[PairRow] = []
+    bad: list[tuple[int, str, str]] = []
+    seen: dict[str, int] = {}
+    with open(csv_path, newline="", encoding="utf-8") as fp:
+        for line, fields in enumerate(csv.reader(fp), 1):
+            fields = [f.strip() for f in fields]
+            if not any(fields) or fields[0].startswith("#"):
+                continue
+            if not rows and not bad and tuple(f.lower() for f in fields[:4]) == HEADER:
+                continue
+            if len(fields) not in (4, 5) or not all(fields[:4]):
+                bad.append((line, "", f"expected image_a,image_b,points_a,points_b[,name], got {len(fields)} fields"))
+                continue
+            a, b, pa, pb = (base / f for f in fields[:4])
+            name = fields[4] if len(fields) == 5 and fields[4] else f"{a.stem}-{b.stem}"
+            if Path(name).name != name or name in (".", ".."):
+                bad.append((line, name, f"name {name!r} must be a plain file name (no folders)"))
+            elif name in seen:
+                bad.append((line, name, f"name {name!r} is already used by row {seen[name]}"))
+            else:
+                seen[name] = line
+                rows.append(PairRow(line, name, a, b, pa, pb))
+    return rows, bad
+
+
+def morph_pairs(
+    pairs: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    fmt: OutputFormat = "gif",
+    fps: float = 15.0,
+    overwrite: bool = False,
+    progress: bool = True,
+    rank: int | None = None,
+    world_size: int | None = None,
+    **options: Any,
+) -> BatchReport:
+    """Morph every pair of the CSV ``pairs`` into the folder ``out``, one after another.
+
+    Args:
+        pairs: the pairs CSV (format in the module docstring).
+        out: the output folder (created if missing); it receives the outputs, ``summary.csv`` and
+            ``failures.csv``.
+        fmt: ``"gif"``, ``"mp4"`` (imageio-ffmpeg) or ``"png"`` (a folder of frames per pair).
+        fps: frames per second of the outputs.
+        overwrite: redo pairs whose output exists (by default they are skipped, which resumes a killed run).
+        progress: a progress bar counting pairs.
+        rank, world_size: this process's share, pairs ``rank, rank + world_size, ...``; by default from the
+            ``RANK`` and ``WORLD_SIZE`` variables that ``torchrun`` sets (0 and 1 without them).
+        **options: passed to :func:`~torchfluidwarp.morph.morph` (``frames``, ``method``, ``grid``,
+            ``steps``, ...).
+
+    Returns:
+        This process's :class:`BatchReport` (with several ranks, its ``failed`` lists every rank's failures).
+
+    Raises:
+        OSError: the CSV cannot be read or ``out`` cannot be made.
+        ValueError: a bad ``fmt``, ``rank`` or ``world_size``.
+    """
+    if fmt not in ("gif", "mp4", "png"):
+        raise ValueError(f"fmt must be 'gif', 'mp4' or 'png', got {fmt!r}")
+    rank = int(os.environ.get("RANK", 0)) if rank is None else rank
+    world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else world_size
+    if not 0 <= rank < world_size:
+        raise ValueError(f"rank must be in [0, world_size), got rank={rank}, world_size={world_size}")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows, bad = read_pairs(pairs)
+    gather = world_size > 1 and _distributed()
+    suffix = f".rank{rank}" if world_size > 1 and not gather else ""
+    summary_path = folder / f"summary{suffix}.csv"
+    summary = {r["name"]: r for r in _read_csv(summary_path)}
+    report = BatchReport(failed=list(bad) if rank == 0 else [])
+    device = _device()
+    share = rows[rank::world_size]
+    bar = tqdm(share, unit="pair", desc="pairs" if world_size == 1 else f"pairs (rank {rank})", disable=not progress)
+    for pair in bar:
+        target = f"{folder / pair.name}{'/' if fmt == 'png' else '.' + fmt}"
+        if not overwrite and _exists(Path(target)):
+            report.skipped.append(pair.name)
+            summary.setdefault(pair.name, {"name": pair.name, "output": target, "status": "exists"})
+            continue
+        try:
+            summary[pair.name] = _morph_pair(pair, target, fps, overwrite, device, options)
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except Exception as exc:  # noqa: BLE001  (one bad pair must not stop the others)
+            report.failed.append((pair.row, pair.name, f"{type(exc).__name__}: {_first_line(exc)}"))
+            continue
+        report.morphed.append(pair.name)
+        if not gather:  # a killed run keeps the summary of the pairs it finished
+            _write_csv(summary_path, SUMMARY_FIELDS, summary.values())
+    if gather:
+        summary, report.failed = _gather(summary, report.failed)
+    if rank == 0 or not gather:
+        names = {r.name for r in rows}
+        ordered = [summary[r.name] for r in rows if r.name in summary]
+        ordered += [v for k, v in summary.items() if k not in names]  # earlier runs' other rows
+        _write_csv(summary_path, SUMMARY_FIELDS, ordered)
+        report.failed.sort()
+        failures = (dict(zip(FAILURE_FIELDS, f)) for f in report.failed)
+        _write_csv(folder / f"failures{suffix}.csv", FAILURE_FIELDS, failures)
+    return report
+
+
+def _morph_pair(
+    pair: PairRow, target: str, fps: float, overwrite: bool, device: torch.device, options: Mapping[str, Any]
+) -> dict[str, Any]:
+    """Morph one pair into ``target`` (atomically) and return its summary row."""
+    t0 = time.perf_counter()
+    a = read_image(pair.image_a).to(device)
+    b = read_image(pair.image_b).to(device)
+    pa, pb = read_points(pair.points_a), read_points(pair.points_b)
+    check_point_counts(pa, pb, "points_a", "points_b")
+    check_disk_space(target, options.get("frames", 30), a.shape[-2], a.shape[-1], a.shape[1])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = morph(a, b, pa.to(device), pb.to(device), **{"progress": False, **options})
+        write_animation(target, stream_frames(result), fps=fps, overwrite=overwrite)
+    err = result.fit.error
+    return {
+        "name": pair.name,
+        "output": target,
+        "status": "morphed",
+        "error_mean_px": f"{float(err.mean()):.4f}",
+        "error_max_px": f"{float(err.max()):.4f}",
+        "folded": f"{result.folded:.6g}",
+        "seconds": f"{time.perf_counter() - t0:.2f}",
+        "warnings": " | ".join(_first_line(w.message) for w in caught),
+    }
+
+
+def _device() -> torch.device:
+    if torch.cuda.is_available():
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+    return torch.device("cpu")
+
+
+def _distributed() -> bool:
+    """Whether the ranks can talk: a ``torch.distributed`` group exists, or ``torchrun``'s rendezvous is set."""
+    import torch.distributed as dist
+
+    return dist.is_available() and (dist.is_initialized() or "MASTER_ADDR" in os.environ)
+
+
+def _gather(
+    summary: dict[str, dict[str, Any]], failed: list[tuple[int, str, str]]
+) -> tuple[dict[str, dict[str, Any]], list[tuple[int, str, str]]]:
+    """Every rank's summary rows and failures, on every rank (``torch.distributed``, started here if needed)."""
+    import torch.distributed as dist
+
+    started = not dist.is_initialized()
+    if started:
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    try:
+        parts: list[Any] = [None] * dist.get_world_size()
+        dist.all_gather_object(parts, (summary, failed))
+    finally:
+        if started:
+            dist.destroy_process_group()
+    merged: dict[str, dict[str, Any]] = {}
+    failures: list[tuple[int, str, str]] = []
+    for part_summary, part_failed in parts:
+        for name, row in part_summary.items():
+            if name not in merged or row.get("status") == "morphed":
+                merged[name] = row
+        failures += [tuple(f) for f in part_failed]
+    return merged, failures
+
+
+def _exists(target: Path) -> bool:
+    return any(target.iterdir()) if target.is_dir() else target.exists()
+
+
+def _first_line(message: object) -> str:
+    text = str(message).strip().splitlines()
+    return text[0] if text else ""
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as fp:
+        return [row for row in csv.DictReader(fp) if row.get("name")]
+
+
+def _write_csv(path: Path, fields: tuple[str, ...], rows: Any) -> None:
+    """Write ``rows`` (dicts) as CSV atomically: a temporary sibling moved into place."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", newline="", encoding="utf-8") as fp:
+            writer = csv.DictWriter(fp, fields, extrasaction="ignore")
+            writer.writeheader()
+            writer.writerows(rows)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
