@@ -117,3 +117,58 @@ def test_bad_arguments(params, kwargs, error, match):
     x = torch.zeros(2, requires_grad=True)
     with pytest.raises(error, match=match):
         minimize(lambda: (x**2).sum(), [x] if params is None else params, **{"max_iter": 5, **kwargs})
+
+
+@pytest.mark.parametrize("history_size", [2, 100])
+def test_the_iterates_are_torch_lbfgs_step_for_step(history_size):
+    # minimize runs torch.optim.LBFGS's algorithm and line search as a function: the same evaluations, bitwise
+    def rosenbrock(x):
+        return ((1 - x[:-1]) ** 2).sum() + 100 * ((x[1:] - x[:-1] ** 2) ** 2).sum()
+
+    start = torch.tensor([-1.5, 2.0, 0.3, -0.7], dtype=torch.float64)
+    x = start.clone().requires_grad_(True)
+    ours: list[torch.Tensor] = []
+    res = minimize(
+        lambda: (ours.append(x.detach().clone()), rosenbrock(x))[1], [x], max_iter=25, history_size=history_size
+    )
+    y = start.clone().requires_grad_(True)
+    theirs: list[torch.Tensor] = []
+    opt = torch.optim.LBFGS(
+        [y],
+        lr=1.0,
+        max_iter=25,
+        max_eval=50,
+        history_size=history_size,
+        tolerance_grad=1e-12,
+        tolerance_change=1e-14,
+        line_search_fn="strong_wolfe",
+    )
+
+    def closure():
+        opt.zero_grad()
+        theirs.append(y.detach().clone())
+        loss = rosenbrock(y)
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    assert len(ours) == len(theirs) == res.evaluations >= 10
+    for a, b in zip(ours, theirs):
+        torch.testing.assert_close(a, b, atol=0, rtol=0)
+    assert res.iterations == opt.state[y]["n_iter"]
+
+
+def test_a_fit_does_not_import_torch_dynamo():
+    # the first torch.optim optimiser of a process imports torch._dynamo (about a second); minimize builds none
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, torch\n"
+        "from torchfluidwarp.control.optim import minimize\n"
+        "x = torch.zeros(2, dtype=torch.float64, requires_grad=True)\n"
+        "minimize(lambda: ((x - 1) ** 2).sum(), [x], max_iter=5)\n"
+        "print('torch._dynamo' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
