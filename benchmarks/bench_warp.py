@@ -23,6 +23,10 @@ through that map. Everything goes through the public API:
   Of (b), the back-trace displacement alone (the private ``torchfluidwarp.warp.layer._displacement``, called once per
   step on the same velocities) is timed separately; the rest of (b) is the composition.
 
+* **the floor** (issue #20): torch's ``grid_sample`` alone, once per frame, on the last frame's sampling grid,
+  against :meth:`FluidWarp.forward` (all ``T + 1`` frames in one tensor) and ``iter_frames`` per frame, in the
+  same repeats; the script prints each path's ratio to it (target: at most 2.5x at 600x600).
+
 Target (from the issue): at least 60 frames per second end to end for a 600x600 image on a 64x64 fluid.
 
 Each repeat runs (a), (b) + (c) and the end-to-end loop back to back, for every thread count in turn, so that
@@ -44,6 +48,7 @@ import torch
 from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict, write_json
 from torch import Tensor
 
+from torchfluidwarp.core.grid import pixel_to_normalized
 from torchfluidwarp.warp import Brushes, FluidWarp, identity_map, iter_backward_maps, warp_image
 
 SEED = 1234
@@ -81,7 +86,7 @@ def make_image(size: tuple[int, int]) -> Tensor:
 # ----------------------------------------------------------------------------------------------- timing
 
 
-PIECES = ("fluid", "maps", "resample", "public_resample", "displacement", "end_to_end", "serial")
+PIECES = ("fluid", "maps", "resample", "public_resample", "displacement", "end_to_end", "serial", "floor", "forward")
 
 
 def _clock() -> tuple[float, float]:
@@ -138,6 +143,16 @@ def one_repeat(warp: FluidWarp, brushes: Brushes, image: Tensor) -> dict[str, tu
         for _frame in warp.iter_frames(image, brushes, prefetch=False):
             pass
         add("serial", c0, _clock())
+        # the floor: torch's grid_sample alone, T times, on the last map's normalised grid (what a frame needs)
+        grid = pixel_to_normalized(m, size)
+        c0 = _clock()
+        for _ in range(T):
+            torch.nn.functional.grid_sample(image, grid, padding_mode="border", align_corners=False)
+        add("floor", c0, _clock())
+        # FluidWarp.forward: all T + 1 frames in one tensor
+        c0 = _clock()
+        warp(image, brushes)
+        add("forward", c0, _clock())
     if n != T + 1:
         raise RuntimeError(f"iter_frames yielded {n} frames, expected {T + 1}")
     return {k: (v[0], v[1]) for k, v in acc.items()}
@@ -172,6 +187,8 @@ class Row:
     end_to_end_cpu: float
     fps_cpu: float
     max_displacement_px: float
+    floor_ms: float = 0.0
+    forward_ms: float = 0.0
 
 
 def summarise(
@@ -208,6 +225,8 @@ def summarise(
         end_to_end_cpu=c["end_to_end"],
         fps_cpu=1e3 / c["end_to_end"],
         max_displacement_px=max_disp,
+        floor_ms=w["floor"],
+        forward_ms=w["forward"],
     )
 
 
@@ -343,6 +362,27 @@ def report(rows: list[Row], profiles: dict[str, list[dict[str, Any]]]) -> tuple[
                         [("(a) fluid", r.fluid_ms), ("(b) map", r.maps_ms), ("(c) resample", r.resample_ms)],
                         key=lambda kv: kv[1],
                     )[0],
+                ]
+                for r in rows
+            ],
+        )
+    )
+    out.append(
+        "\nAgainst the floor, one grid_sample of the frame (torch's alone, on the last frame's grid, timed in the "
+        "same repeats): ms per frame, and each path's ratio to it (target of issue #20: <= 2.5x)"
+    )
+    out.append(
+        table(
+            ["image", "threads", "floor ms", "forward ms", "forward / floor", "iter_frames ms", "iter_frames / floor"],
+            [
+                [
+                    f"{r.width}x{r.height}",
+                    str(r.threads),
+                    f"{r.floor_ms:.2f}",
+                    f"{r.forward_ms:.2f}",
+                    f"{r.forward_ms / r.floor_ms:.2f}x",
+                    f"{r.end_to_end_ms:.2f}",
+                    f"{r.end_to_end_ms / r.floor_ms:.2f}x",
                 ]
                 for r in rows
             ],
