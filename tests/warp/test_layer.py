@@ -167,3 +167,21 @@ def test_prefetched_frames_equal_the_plain_loop_and_stop_early(gen):
     last = list(warp.iter_frames(image, brushes))[-1]
     last.sum().backward()
     assert image.grad is not None and float(image.grad.abs().sum()) > 0
+
+
+@pytest.mark.parametrize("grad", [False, True])
+def test_forward_is_iter_frames_stacked_bitwise(gen, grad):
+    # forward shares iter_frames' machinery: the same grids and one resampling per frame, with or without grad
+    size = (37, 52)
+    warp = FluidWarp((9, 11), steps=4)
+    brushes = _random_brushes(gen, 2, size, amplitude=1.0, frequency=0.1)
+    image = torch.rand(2, 3, *size, generator=gen).requires_grad_(grad)
+    with torch.set_grad_enabled(grad):
+        frames = warp(image, brushes)
+        streamed = torch.stack(list(warp.iter_frames(image, brushes)), dim=1)
+    assert frames.shape == (2, 5, 3, *size) and frames.is_contiguous()
+    torch.testing.assert_close(frames, streamed, atol=0, rtol=0)
+    assert frames.requires_grad == grad
+    if grad:
+        (g,) = torch.autograd.grad(frames[:, -1].sum(), image)
+        assert float(g.abs().sum()) > 0
