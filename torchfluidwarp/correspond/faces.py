@@ -102,7 +102,7 @@ def detect_face_points(image: Tensor, *, face_index: int | None = None, name: st
 
     Example:
         >>> from torchfluidwarp.data import load_sample
-        >>> detect_face_points(load_sample("astronaut"), name="astronaut").shape  # doctest: +SKIP
+        >>> detect_face_points(load_sample("astronaut"), name="astronaut").shape
         torch.Size([63, 2])
     """
     x = single_image("image", image)

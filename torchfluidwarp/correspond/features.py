@@ -101,7 +101,7 @@ def match_features(
     model: RansacModel | None = "homography",
     inlier_threshold: float | None = None,
     consistency: float | None = 3.0,
-    num_features: int = 4000,
+    num_features: int = 2000,
     seed: int = 0,
 ) -> tuple[Tensor, Tensor]:
     """Matched points of two images, spread over image A, for use as morph landmarks.

@@ -1,0 +1,79 @@
+"""auto_points: faces when both images show one, features otherwise, with border anchors; border_points."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torchfluidwarp.correspond import FACE_MESH_INDICES, auto_points, border_points, detect_face_points
+from torchfluidwarp.data import load_sample
+from torchfluidwarp.warp.maps import identity_map, warp_image
+
+
+def shifted_and_scaled(y: torch.Tensor) -> torch.Tensor:
+    """The known map of these tests: scale by 1.05 about (128, 128), then shift by (5, -3) pixels."""
+    return 128 + 1.05 * (y - 128) + torch.tensor([5.0, -3.0], dtype=y.dtype)
+
+
+def warped(image: torch.Tensor) -> torch.Tensor:
+    size = (image.shape[-2], image.shape[-1])
+    return warp_image(image, shifted_and_scaled(identity_map(size)))
+
+
+def half(image: torch.Tensor) -> torch.Tensor:
+    return F.interpolate(image, scale_factor=0.5, mode="bilinear", antialias=True)
+
+
+def test_border_points_go_round_the_frame_with_pixel_centres_at_integers():
+    points = border_points((30, 50))
+    assert points.shape == (8, 2)
+    corners = {(0.0, 0.0), (49.0, 0.0), (49.0, 29.0), (0.0, 29.0)}
+    assert corners <= set(map(tuple, points.tolist()))
+    on_edge = (points[:, 0] == 0) | (points[:, 0] == 49) | (points[:, 1] == 0) | (points[:, 1] == 29)
+    assert bool(on_edge.all())
+    assert border_points((30, 50), per_side=2).shape == (4, 2)
+    assert border_points((30, 50), per_side=5, dtype=torch.float64).dtype == torch.float64
+    with pytest.raises(ValueError, match="per_side"):
+        border_points((30, 50), per_side=1)
+
+
+def test_two_faces_give_the_face_landmarks_and_the_border():
+    a = load_sample("astronaut")
+    b = warped(a)
+    pa, pb = auto_points(a, b)
+    assert pa.shape == pb.shape == (len(FACE_MESH_INDICES) + 8, 2)
+    assert torch.equal(pa[:-8], detect_face_points(a))
+    assert torch.equal(pa[-8:], border_points((512, 512))) and torch.equal(pb[-8:], pa[-8:])
+    # B(y) = A(phi(y)): the face points of B map onto A's (the mesh is a network's estimate: a few pixels)
+    error = (shifted_and_scaled(pb[:-8]) - pa[:-8]).norm(dim=-1)
+    assert float(error.median()) < 3.0
+
+
+def test_no_face_falls_back_to_matched_features():
+    a = half(load_sample("cat"))
+    b = warped(a)
+    pa, pb = auto_points(a, b, border=None, max_points=40)
+    assert 20 <= len(pa) <= 40
+    error = (shifted_and_scaled(pb) - pa).norm(dim=-1)
+    assert float(error.median()) < 1.5
+
+
+def test_without_mediapipe_auto_uses_features(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setitem(sys.modules, "mediapipe", None)
+    a = half(load_sample("astronaut"))  # a face, but no detector
+    b = a[..., 4:, 6:]  # b = a - (6, 4)
+    pa, pb = auto_points(a, b, border=2)
+    assert len(pa) > 20 + 4 and len(pa) != len(FACE_MESH_INDICES) + 4
+    assert float((pa[:-4] - pb[:-4] - torch.tensor([6.0, 4.0])).norm(dim=-1).median()) < 0.5
+    assert torch.equal(pb[-4:], border_points((252, 250), per_side=2))  # B's own frame
+
+
+def test_nothing_to_match_is_a_value_error_naming_both_images():
+    blank = torch.full((3, 48, 48), 0.5)
+    with pytest.raises(ValueError, match=r"found 0 matching features between a\.png and b\.png"):
+        auto_points(blank, blank, match="features", names=("a.png", "b.png"))
+    with pytest.raises(ValueError, match="match must be 'auto', 'faces' or 'features', got 'pixels'"):
+        auto_points(blank, blank, match="pixels")  # type: ignore[arg-type]
