@@ -42,7 +42,7 @@ from torchfluidwarp.morph.render import FEATHER, InverseMethod, Scene, paper_flo
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.timing import Timing, schedule
 
-__all__ = ["morph", "MorphResult", "resize_pair", "region_of_interest", "DEFAULTS", "PAD", "MIN_AREA", "FEATHER"]
+__all__ = ["morph", "resize_pair", "region_of_interest", "DEFAULTS", "PAD", "MIN_AREA", "FEATHER"]
 
 
 Method = Literal["natural", "paper"]

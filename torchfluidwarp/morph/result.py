@@ -34,14 +34,13 @@ class MorphResult:
         alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
             inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
-
-    All frames at once (rendered on first access of any of them, then kept):
-        frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B.
+        frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B. This and the
+            attributes below render all ``N`` frames once, on first access of any of them, and keep them.
         forward_frames: ``(N, C, H, W)`` image A warped forward (pre-alignment included).
         backward_frames: ``(N, C, H, W)`` image B pulled back along the flow.
         maps: ``(N, H, W, 2)`` backward coordinate maps of image A's whole warp (pre-alignment included), in
             A's pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
-            :func:`~torchfluidwarp.warp.jacobian_determinant`.
+            :func:`~torchfluidwarp.warp.maps.jacobian_determinant`.
         maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's pixels, after resizing to A's size).
         folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
             ``<= 0`` (0 for a fold-free morph; a ``RuntimeWarning`` gives their number when it is not).
