@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.correspond import FACE_MESH_INDICES, auto_points, border_points, detect_face_points
+from torchfluidwarp.correspond.auto import usable_pairs
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.warp.maps import identity_map, warp_image
 
@@ -77,3 +78,13 @@ def test_nothing_to_match_is_a_value_error_naming_both_images():
         auto_points(blank, blank, match="features", names=("a.png", "b.png"))
     with pytest.raises(ValueError, match="match must be 'auto', 'faces' or 'features', got 'pixels'"):
         auto_points(blank, blank, match="pixels")  # type: ignore[arg-type]
+
+
+def test_usable_pairs_drops_points_outside_and_repeats():
+    pa = torch.tensor([[1.0, 1.0], [5.0, 5.0], [-0.6, 3.0], [5.3, 5.2], [8.0, 2.0], [9.0, 9.0]])
+    pb = torch.tensor([[2.0, 2.0], [6.0, 6.0], [1.0, 1.0], [20.0, 20.0], [8.0, 2.0], [9.5, 9.5]])
+    keep = usable_pairs(pa, pb, (10, 10), (10, 10))
+    # 2: A's point left of the image; 3: within a pixel of pair 1 in A; 5: B's (9.5, 9.5) is on the edge of a
+    # 10 x 10 image (kept) and outside a 9 x 9 one (dropped)
+    assert keep.tolist() == [True, True, False, False, True, True]
+    assert usable_pairs(pa, pb, (10, 10), (9, 9)).tolist() == [True, True, False, False, True, False]

@@ -12,7 +12,7 @@ from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import detect_face_points, load_mediapipe
 from torchfluidwarp.correspond.features import match_features
 
-__all__ = ["MatchMode", "auto_points", "border_points"]
+__all__ = ["MatchMode", "auto_points", "border_points", "usable_pairs"]
 
 MatchMode = Literal["auto", "faces", "features"]
 
@@ -47,6 +47,24 @@ def border_points(
     bottom = torch.stack([(1 - t) * x1, torch.full_like(t, y1)], -1)
     left = torch.stack([torch.zeros_like(t), (1 - t) * y1], -1)
     return torch.cat([top, right, bottom, left]).to(dtype)
+
+
+def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], size_b: tuple[int, int]) -> Tensor:
+    """Which pairs a morph can take: both points inside their image, and neither within a pixel of an earlier one.
+
+    Args:
+        points_a, points_b: ``(M, 2)`` pairs, pixels of images of ``size_a`` and ``size_b`` ``(H, W)``.
+
+    Returns:
+        ``(M,)`` bool, True for the pairs kept (inside: ``x`` in ``[-0.5, W - 0.5]``, ``y`` likewise, the
+        bounds that :func:`~torchfluidwarp.control.keyframes.check_points` allows).
+    """
+    keep = torch.ones(len(points_a), dtype=torch.bool, device=points_a.device)
+    for p, (H, W) in ((points_a, size_a), (points_b, size_b)):
+        keep &= (p[:, 0] >= -0.5) & (p[:, 0] <= W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= H - 0.5)
+        close = torch.cdist(p, p) < 1.0
+        keep &= ~torch.tril(close, diagonal=-1).any(dim=1)  # close to an earlier point
+    return keep
 
 
 def _faces_or_none(a: Tensor, b: Tensor, face_index: tuple[int | None, int | None], names: tuple[str, str]):
@@ -94,6 +112,8 @@ def auto_points(
     Returns:
         ``(points_a, points_b)``: ``(M, 2)`` each, pixels ``(x, y)``, pixel centres at integers, in each
         image's own pixels, with image A's dtype and device; ``points_a[i]`` corresponds to ``points_b[i]``.
+        Pairs that a morph cannot take are left out (:func:`usable_pairs`: a face point outside its
+        image, a point within a pixel of an earlier one).
 
     Raises:
         ImportError: ``match="faces"`` without mediapipe (the message says how to install it).
@@ -126,8 +146,9 @@ def auto_points(
                 "give the points by hand"
             )
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
+    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
     if border is not None:
-        size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
         points_a = torch.cat([points_a, border_points(size_a, per_side=border, device=a.device, dtype=a.dtype)])
         points_b = torch.cat([points_b, border_points(size_b, per_side=border, device=a.device, dtype=a.dtype)])
-    return points_a, points_b
+    keep = usable_pairs(points_a, points_b, size_a, size_b)
+    return points_a[keep], points_b[keep]
