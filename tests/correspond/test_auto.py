@@ -76,8 +76,8 @@ def test_nothing_to_match_is_a_value_error_naming_both_images():
     blank = torch.full((3, 48, 48), 0.5)
     with pytest.raises(ValueError, match=r"found 0 matching features between a\.png and b\.png"):
         auto_points(blank, blank, match="features", names=("a.png", "b.png"))
-    with pytest.raises(ValueError, match="match must be 'auto', 'faces' or 'features', got 'pixels'"):
-        auto_points(blank, blank, match="pixels")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="match must be 'auto', 'faces', 'features' or 'pixels', got 'optical'"):
+        auto_points(blank, blank, match="optical")  # type: ignore[arg-type]
 
 
 def test_usable_pairs_drops_points_outside_and_repeats():
@@ -88,3 +88,12 @@ def test_usable_pairs_drops_points_outside_and_repeats():
     # 10 x 10 image (kept) and outside a 9 x 9 one (dropped)
     assert keep.tolist() == [True, True, False, False, True, True]
     assert usable_pairs(pa, pb, (10, 10), (9, 9)).tolist() == [True, True, False, False, True, False]
+
+
+def test_pixels_place_a_lattice_where_no_feature_is_needed():
+    a = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
+    b = warped(a)  # scale 1.05 about (128, 128), shift (5, -3): here, a shift of about -1.4 and -9.4 pixels
+    pa, pb = auto_points(a, b, match="pixels", pixels=4, border=None)
+    assert pa.shape == pb.shape == (16, 2)
+    # the cat's fur at 64 px: the fitted flow places the lattice within a pixel or so of the map
+    assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 1.5

@@ -11,10 +11,11 @@ from torchfluidwarp._checks import check_int, check_size
 from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import detect_face_points, load_mediapipe
 from torchfluidwarp.correspond.features import match_features
+from torchfluidwarp.correspond.refine import refine_points
 
 __all__ = ["MatchMode", "auto_points", "border_points", "usable_pairs"]
 
-MatchMode = Literal["auto", "faces", "features"]
+MatchMode = Literal["auto", "faces", "features", "pixels"]
 
 
 def border_points(
@@ -92,6 +93,7 @@ def auto_points(
     names: tuple[str, str] = ("image_a", "image_b"),
     border: int | None = 3,
     max_points: int = 64,
+    pixels: int = 8,
 ) -> tuple[Tensor, Tensor]:
     """Corresponding points of two images, for a morph with no point files.
 
@@ -101,13 +103,17 @@ def auto_points(
         match: ``"faces"``: the face landmarks of both (:func:`~torchfluidwarp.correspond.faces.detect_face_points`;
             needs the ``faces`` extra); ``"features"``: matched SIFT features
             (:func:`~torchfluidwarp.correspond.features.match_features`); ``"auto"``: faces when mediapipe is
-            installed and both images show a face, features otherwise.
+            installed and both images show a face, features otherwise; ``"pixels"``: a lattice of ``pixels x pixels``
+            points placed by a flow fitted to the images
+            (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors; slower: a coarse-to-fine
+            image fit).
         face_index: which face in A and in B (0 = largest; ``None``: the largest, with a warning when there
             are several).
         names: the images' names in messages (their file names, say).
         border: points per image edge for :func:`border_points` (3: corners and edge midpoints), appended to
             both lists; ``None`` for none.
         max_points: the most feature matches (not counting the border).
+        pixels: the lattice's points per side for ``match="pixels"``.
 
     Returns:
         ``(points_a, points_b)``: ``(M, 2)`` each, pixels ``(x, y)``, pixel centres at integers, in each
@@ -128,8 +134,8 @@ def auto_points(
         True
     """
     a, b = single_image("image_a", image_a), single_image("image_b", image_b)
-    if match not in ("auto", "faces", "features"):
-        raise ValueError(f"match must be 'auto', 'faces' or 'features', got {match!r}")
+    if match not in ("auto", "faces", "features", "pixels"):
+        raise ValueError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}")
     found = None
     if match == "faces":
         found = (
@@ -138,12 +144,15 @@ def auto_points(
         )
     elif match == "auto":
         found = _faces_or_none(a, b, face_index, names)
+    elif match == "pixels":
+        none = a.new_zeros(0, 2)
+        found = refine_points(a, b, none, none, extra=check_int("pixels", pixels))[:2]
     if found is None:
         found = match_features(a, b, max_points=max_points)
         if len(found[0]) < 3:
             raise ValueError(
                 f"found {len(found[0])} matching features between {names[0]} and {names[1]} (need 3 or more); "
-                "give the points by hand"
+                "give the points by hand, or let the pixels place them (match='pixels')"
             )
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
