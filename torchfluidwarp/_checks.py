@@ -79,10 +79,13 @@ def check_positive(name: str, value: float, *, allow_zero: bool = False) -> floa
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"{name} must be a number, got {describe(value)}")
     ok = value >= 0 if allow_zero else value > 0
-    if not ok or value != value or value in (float("inf"), float("-inf")):
+    if not ok or value != value or value in (float("inf"), float("-inf")) or value > _FLOAT_MAX:
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
     return float(value)
+
+
+_FLOAT_MAX = 1.7976931348623157e308  # an int beyond it cannot become a float
 
 
 def check_real(name: str, value: object) -> float:
@@ -138,6 +141,15 @@ def check_instance(name: str, value: object, kind: type | tuple[type, ...], *, o
     kinds = kind if isinstance(kind, tuple) else (kind,)
     names = " or ".join(k.__name__ for k in kinds) + (" or None" if optional else "")
     raise TypeError(f"{name} must be a {names}, got {describe(value)}")
+
+
+def check_float_dtype(name: str, value: object) -> torch.dtype:
+    """Validate a floating-point ``torch.dtype`` argument (``dtype="float32"`` and complex dtypes are refused)."""
+    if not isinstance(value, torch.dtype):
+        raise TypeError(f"{name} must be a torch.dtype such as torch.float32, got {describe(value)}")
+    if not value.is_floating_point:
+        raise TypeError(f"{name} must be a floating-point dtype (float16, bfloat16, float32 or float64), got {value}")
+    return value
 
 
 # The dtype policy. Images, points and forces of different float dtypes are promoted to the wider one

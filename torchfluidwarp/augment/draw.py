@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_size
+from torchfluidwarp._checks import check_int, check_memory, check_size
 from torchfluidwarp.augment.settings import FluidWarpSettings
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale, rescale_points, scale_factor
 from torchfluidwarp.warp.forces import gaussian_bumps
@@ -190,6 +190,13 @@ def draw_fluid_warp(
     """
     B = check_int("batch", batch)
     H, W = check_size("size", size)
+    if min(H, W) < 2:  # a fluid warp needs a pixel's neighbours: refuse, naming the image, instead of an IndexError
+        raise ValueError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
+    (h, w), itemsize = settings.grid.shape, torch.empty(0, dtype=dtype).element_size()
+    T = settings.steps[1]
+    nbytes = 3 * B * (T * 2 * (h + 1) * (w + 1) + 2 * H * W) * itemsize  # roll-out and maps, a few copies of each
+    what = f"a fluid warp of {B} images of size {(H, W)} on a grid of {h} x {w} cells for {T} steps"
+    check_memory(what, nbytes, settings.max_memory, "max_memory (FluidWarpSettings)")
     device = torch.device("cpu") if device is None else torch.device(device)
     g = generator
     draw_device = g.device if g is not None else torch.device("cpu")

@@ -73,6 +73,8 @@ class FluidWarpSettings:
         edge_points: points carried per box edge.
         max_retries: how many times a sample whose map would fold is rolled out again with half its force
             before it is left unwarped.
+        max_memory: bytes one draw may set out to hold (its roll-out and maps); default
+            :data:`torchfluidwarp._checks.MAX_BYTES`. A larger draw is refused before any work.
 
     Raises:
         TypeError, ValueError: a range that is not a number or a pair, empty, negative or non-finite, naming it;
@@ -97,6 +99,7 @@ class FluidWarpSettings:
     viscosity: float = 0.0
     edge_points: int = 8
     max_retries: int = 3
+    max_memory: float | None = None
 
     def __post_init__(self) -> None:
         normalised = {
@@ -109,6 +112,7 @@ class FluidWarpSettings:
             "viscosity": check_positive("viscosity", self.viscosity, allow_zero=True),
             "edge_points": check_int("edge_points", self.edge_points, minimum=2),
             "max_retries": check_int("max_retries", self.max_retries, minimum=0),
+            "max_memory": None if self.max_memory is None else check_positive("max_memory", self.max_memory),
         }
         for name, value in normalised.items():
             object.__setattr__(self, name, value)  # frozen: validated once, here

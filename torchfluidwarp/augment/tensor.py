@@ -216,7 +216,12 @@ class FluidWarpAugment(nn.Module):
         def batched(name: str, x: Tensor | None, tail: list[int | None], floating: bool) -> Tensor | None:
             if x is None:
                 return None
-            check_tensor(name, x, ndim=len(tail) + (0 if unbatched else 1), floating=floating)
+            check_tensor(name, x, floating=floating)
+            if x.ndim != len(tail) + (0 if unbatched else 1):
+                raise ValueError(
+                    f"{name} must have {len(tail) + (0 if unbatched else 1)} dimensions to go with an image of shape "
+                    f"{tuple(image.shape)}, got shape {tuple(x.shape)}"
+                )
             x = x.unsqueeze(0) if unbatched else x
             return check_tensor(name, x, shape=[B, *tail], floating=floating)
 

@@ -27,8 +27,17 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor, describe
-from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp._checks import (
+    check_float_dtype,
+    check_fraction,
+    check_int,
+    check_positive,
+    check_size,
+    check_tensor,
+    compute_dtype,
+    describe,
+)
+from torchfluidwarp.control.keyframes import check_fit_memory, check_points
 from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.core.fluid import Viscosity
@@ -148,6 +157,7 @@ def fit_images(
     dtype: torch.dtype = torch.float64,
     progress: bool = True,
     history_size: int = HISTORY_SIZE,
+    max_memory: float | None = None,
 ) -> ImageFit:
     """Fit forces so that the fluid warps ``source`` onto ``target``, coarse to fine.
 
@@ -180,6 +190,8 @@ def fit_images(
             (:func:`~torchfluidwarp.control.keyframes.fit_keyframes`, whose
             point loss was measured in both, defaults to float32).
         progress: show a tqdm bar of L-BFGS iterations per level, with the loss.
+        max_memory: bytes the fit may set out to hold (its finest level with autograd); default
+            :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
         history_size: L-BFGS memory, as for :func:`~torchfluidwarp.control.optim.minimize` (default 100, the
             library's one value; this fit used 20 before the driver was shared).
 
@@ -214,14 +226,19 @@ def fit_images(
     grids = _level_grids(fine, levels)
     steps = check_int("steps", steps)
     ky, kx = check_size("control", control, minimum=2)
-    check_positive("dt", dt)
-    check_positive("point_weight", point_weight, allow_zero=True)
-    check_positive("regularization", regularization, allow_zero=True)
+    dt = check_positive("dt", dt)
+    point_weight = check_positive("point_weight", point_weight, allow_zero=True)
+    regularization = check_positive("regularization", regularization, allow_zero=True)
+    if not isinstance(max_iter, (list, tuple)):
+        check_int("max_iter", max_iter)
     iters = [max_iter] * len(grids) if isinstance(max_iter, int) else list(max_iter)
     if len(iters) != len(grids):
         raise ValueError(f"max_iter must be an int or one int per level ({len(grids)}), got {max_iter!r}")
     iters = [check_int("max_iter", n) for n in iters]
     check_int("history_size", history_size)
+    check_fraction("compressible", compressible)
+    dtype = compute_dtype(check_float_dtype("dtype", dtype))  # half precision is fitted in float32
+    check_fit_memory("fit_images", B, steps, fine, (H, W), dtype, max_memory)
     pts = None
     if points is not None:
         if not (isinstance(points, (tuple, list)) and len(points) == 2):
@@ -233,6 +250,10 @@ def fit_images(
 
     src = src.expand(B, -1, -1, -1).to(dtype)
     tgt = tgt.expand(B, -1, -1, -1).to(src.device, dtype)
+    with torch.no_grad():
+        initial = float(objective(src, tgt))
+    if not math.isfinite(initial):
+        raise ValueError(f"loss must be finite, but it gave {initial} for source and target before any fitting")
     start = time.perf_counter()
     history: list[float] = []
     records: list[LevelFit] = []
@@ -274,8 +295,10 @@ def fit_images(
         vel = warp.rollout(module, (H, W)).velocities
         coords = next(iter_backward_maps(vel, (H, W), dt, times=[steps]))
         warped = warp_image(src, coords, warp.mode)
-        initial, final = float(objective(src, tgt)), float(objective(warped, tgt))
+        final = float(objective(warped, tgt))
         min_det = jacobian_determinant(coords).flatten(1).amin(1)
+    if not math.isfinite(final):
+        raise ValueError(f"loss became non-finite ({final}) on the fitted warp of source; no result to return")
     seconds = time.perf_counter() - start
     message = (
         f"loss {initial:.4g} -> {final:.4g} ({final / initial if initial else 0.0:.2%}) in "

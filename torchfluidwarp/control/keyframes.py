@@ -19,7 +19,18 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_int, check_positive, check_size, check_tensor
+from torchfluidwarp._checks import (
+    check_float_dtype,
+    check_fraction,
+    check_instance,
+    check_int,
+    check_memory,
+    check_positive,
+    check_size,
+    check_tensor,
+    compute_dtype,
+    describe,
+)
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
@@ -71,6 +82,18 @@ class KeyframeFit:
         return self.warp(image, self.forces)
 
 
+def check_fit_memory(
+    what: str, batch: int, steps: int, grid: object, size: tuple[int, int] | None, dtype: torch.dtype, limit: object
+) -> None:
+    """Refuse a fit whose roll-out with autograd (some 16 velocity-sized tensors per step, and some 8 maps of
+    ``size`` when images are fitted) would exceed ``limit`` bytes (``max_memory``), before any work."""
+    h, w = FluidGrid.of(grid).shape  # type: ignore[arg-type]
+    per_step = 16 * 2 * (h + 1) * (w + 1) + (0 if size is None else 8 * 2 * size[0] * size[1])
+    nbytes = batch * steps * per_step * torch.empty(0, dtype=dtype).element_size()
+    where = f"{what} over {steps} steps on a grid of {h} x {w} cells" + ("" if size is None else f", images {size}")
+    check_memory(where, nbytes, limit, "max_memory")  # type: ignore[arg-type]
+
+
 def check_points(name: str, points: object, image_size: tuple[int, int], batch: int | None = None) -> Tensor:
     """Validate pixel points ``(M, 2)`` or ``(B, M, 2)`` inside the image; returns ``(B, M, 2)``."""
     p = check_tensor(name, points, ndim=(2, 3))
@@ -94,6 +117,8 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
 def _keyframes(
     target: Keyframes, steps: int, image_size: tuple[int, int], m: int, batch: int
 ) -> list[tuple[int, Tensor]]:
+    if not isinstance(target, (Tensor, list, tuple)):
+        raise TypeError(f"target must be a tensor of points or a list of (time_step, points), got {describe(target)}")
     frames = [(steps, target)] if isinstance(target, Tensor) else list(target)
     if not frames:
         raise ValueError("target must be a tensor of points or a non-empty list of (time_step, points)")
@@ -164,6 +189,7 @@ def fit_keyframes(
     compressible: bool | float = False,
     dtype: torch.dtype = torch.float32,
     progress: bool = True,
+    max_memory: float | None = None,
 ) -> KeyframeFit:
     """Fit forces so that ``source`` points reach ``target`` at the keyframe(s).
 
@@ -194,6 +220,8 @@ def fit_keyframes(
             set-up, within 3 evaluations either way, at about 0.8x the time per evaluation
             (``benchmarks/bench_keyframes.py``); float64 is there for tight tolerances and checks.
         progress: show a tqdm bar of L-BFGS iterations with the loss.
+        max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
+            :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
 
     Returns:
         a :class:`KeyframeFit`.
@@ -211,12 +239,17 @@ def fit_keyframes(
     H, W = check_size("image_size", image_size)
     steps = check_int("steps", steps)
     check_int("max_iter", max_iter)
-    check_positive("tolerance", tolerance)
-    check_positive("regularization", regularization, allow_zero=True)
-    check_positive("smoothness", smoothness, allow_zero=True)
+    tolerance = check_positive("tolerance", tolerance)
+    regularization = check_positive("regularization", regularization, allow_zero=True)
+    smoothness = check_positive("smoothness", smoothness, allow_zero=True)
+    dt = check_positive("dt", dt)
+    check_fraction("compressible", compressible)
+    check_instance("forces", forces, nn.Module, optional=True)
+    dtype = compute_dtype(check_float_dtype("dtype", dtype))  # half precision is fitted in float32
     src = check_points("source", source, (H, W))
     keyframes = _keyframes(target, steps, (H, W), src.shape[1], src.shape[0])
     B = max([src.shape[0]] + [q.shape[0] for _, q in keyframes])
+    check_fit_memory("fit_keyframes", B, steps, grid, None, dtype, max_memory)
     device = src.device
     src = src.expand(B, -1, -1).to(dtype)
     keyframes = [(t, q.expand(B, -1, -1).to(device, dtype)) for t, q in keyframes]

@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import check_positive, check_real, check_tensor
+from torchfluidwarp._checks import check_int, check_positive, check_real, check_tensor
 from torchfluidwarp.core.grid import normalized_affine
 from torchfluidwarp.core.sampling import SampleMode, sample
 
@@ -28,6 +28,7 @@ __all__ = [
     "advect_points",
     "substeps",
     "MAX_STRAIN_PER_SUBSTEP",
+    "MAX_SUBSTEPS",
 ]
 
 
@@ -223,7 +224,15 @@ MAX_STRAIN_PER_SUBSTEP = 0.25
 near 1 and can never fold."""
 
 
-def substeps(velocity: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP) -> int:
+MAX_SUBSTEPS = 4096
+"""The default ``max_substeps`` of :func:`substeps`: a step that would need more sub-steps is refused with a
+``ValueError`` (giving the count, the limit and the setting that raises it) instead of running for hours. A gentle
+flow needs 1 to 10, forces of 10 cells per time unit^2 about 100, and forces of 1000 some 20000."""
+
+
+def substeps(
+    velocity: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP, max_substeps: int = MAX_SUBSTEPS
+) -> int:
     """Number of sub-steps that keep ``dt_sub * max|grad v|`` within ``max_strain``.
 
     The largest velocity difference between neighbouring faces of a staggered velocity ``(B, 2, h+1, w+1)``
@@ -234,11 +243,18 @@ def substeps(velocity: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SUB
         dt: the time to cover (time units; its sign is ignored).
         max_strain: the largest ``dt_sub * max|grad v|`` per sub-step (dimensionless, > 0). Below 1 a sub-step
             cannot fold; the default :data:`MAX_STRAIN_PER_SUBSTEP` keeps its determinant near 1.
+        max_substeps: the most sub-steps one step may take (default :data:`MAX_SUBSTEPS`).
+
+    Raises:
+        ValueError: a non-finite velocity, or a flow that needs more than ``max_substeps`` sub-steps.
     """
-    return _substeps(_extend(velocity.detach()), dt, check_positive("max_strain", max_strain))
+    max_substeps = check_int("max_substeps", max_substeps)
+    return _substeps(_extend(velocity.detach()), dt, check_positive("max_strain", max_strain), max_substeps)
 
 
-def _substeps(extended: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP) -> int:
+def _substeps(
+    extended: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP, max_substeps: int = MAX_SUBSTEPS
+) -> int:
     # on the extended layout (see _extend) the differences between neighbours along both axes are exactly the
     # staggered ones: the repeated padding row / column adds zero differences
     with torch.no_grad():
@@ -250,10 +266,25 @@ def _substeps(extended: Tensor, dt: float, max_strain: float = MAX_STRAIN_PER_SU
             f"velocity: non-finite velocity or strain times dt (strain {strain!r}, dt {dt!r}): "
             "the flow blew up (forces or dt too large?)"
         )
-    return max(1, math.ceil(strain * abs(dt) / max_strain))
+    n = max(1, math.ceil(strain * abs(dt) / max_strain))
+    if n > max_substeps:
+        raise ValueError(
+            f"the flow needs {n if n < 10**9 else f'about {float(n):.3g}'} sub-steps in one step "
+            f"(velocity strain {strain:.3g} per time unit, dt {dt:.3g}), "
+            f"above the limit of {max_substeps}: reduce the forces, the initial velocity or dt, or raise the "
+            "limit with max_substeps (MapConfig(max_substeps=...) for FluidWarp and the maps)"
+        )
+    return n
 
 
-def advect_points(points: Tensor, velocity: Tensor, dt: float, *, max_strain: float = MAX_STRAIN_PER_SUBSTEP) -> Tensor:
+def advect_points(
+    points: Tensor,
+    velocity: Tensor,
+    dt: float,
+    *,
+    max_strain: float = MAX_STRAIN_PER_SUBSTEP,
+    max_substeps: int = MAX_SUBSTEPS,
+) -> Tensor:
     """Carry points by one velocity field for one step: RK2 (midpoint) over ``dt``; they stay in the box.
 
     This is the one-step function; :meth:`torchfluidwarp.warp.layer.FluidWarp.carry_points` carries points
@@ -264,6 +295,7 @@ def advect_points(points: Tensor, velocity: Tensor, dt: float, *, max_strain: fl
         velocity: ``(B, 2, h + 1, w + 1)`` staggered, cells per time unit.
         dt: time step (time units).
         max_strain: strong flows are integrated in :func:`substeps` sub-steps of at most this strain.
+        max_substeps: the most sub-steps allowed (:data:`MAX_SUBSTEPS`); a flow that needs more is refused.
 
     Returns:
         ``(B, M, 2)`` the carried points, in fluid cells.
@@ -271,17 +303,25 @@ def advect_points(points: Tensor, velocity: Tensor, dt: float, *, max_strain: fl
     check_velocity(velocity)
     check_tensor("points", points, shape=[velocity.shape[0], None, 2])
     dt = check_real("dt", dt)
-    return _advect_points(points.transpose(1, 2), velocity, dt, max_strain=max_strain).transpose(1, 2)
+    max_substeps = check_int("max_substeps", max_substeps)
+    return _advect_points(
+        points.transpose(1, 2), velocity, dt, max_strain=max_strain, max_substeps=max_substeps
+    ).transpose(1, 2)
 
 
 def _advect_points(
-    points: Tensor, velocity: Tensor, dt: float, n: int | None = None, max_strain: float = MAX_STRAIN_PER_SUBSTEP
+    points: Tensor,
+    velocity: Tensor,
+    dt: float,
+    n: int | None = None,
+    max_strain: float = MAX_STRAIN_PER_SUBSTEP,
+    max_substeps: int = MAX_SUBSTEPS,
 ) -> Tensor:
     """Channel-first version: ``(B, 2, M)`` in, ``(B, 2, M)`` out, in ``n`` sub-steps (default: :func:`substeps`
-    with ``max_strain``)."""
+    with ``max_strain`` and ``max_substeps``)."""
     geo = _geo(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity)
     ext = _extend(velocity)
-    n = _substeps(ext, dt, check_positive("max_strain", max_strain)) if n is None else n
+    n = _substeps(ext, dt, check_positive("max_strain", max_strain), max_substeps) if n is None else n
     h = dt / n
     for _ in range(n):
         mid = points + (0.5 * h) * _velocity_at(ext, points, geo)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, TypedDict, cast
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import all_finite, check_positive, check_tensor
+from torchfluidwarp._checks import all_finite, check_fraction, check_positive, check_tensor, compute_dtype
 from torchfluidwarp.core.advection import _advect_points, _advect_velocity
 from torchfluidwarp.core.fluid import (
     Viscosity,
@@ -122,9 +122,7 @@ class StableFluidsStep(nn.Module):
         self.add_force = AddForce(dt)
         self.advect = Advect(dt)
         self.diffuse = Diffuse(dt, diffusion, adjoint)
-        keep = float(compressible)
-        if not 0.0 <= keep <= 1.0:
-            raise ValueError(f"compressible must be a bool or a weight in [0, 1], got {compressible!r}")
+        keep = check_fraction("compressible", compressible)
         self.keep_divergence = keep
         self.project = None if keep == 1.0 else Project(pressure, adjoint)
 
@@ -197,9 +195,8 @@ class FluidSimulator(nn.Module):
         if isinstance(viscosity, (nn.Module, nn.Parameter)):
             self.viscosity = viscosity
         elif isinstance(viscosity, Tensor):
-            self.register_buffer(
-                "viscosity", cast(Tensor, check_viscosity(viscosity, viscosity.shape[0], self.grid.shape))
-            )
+            batch = viscosity.shape[0] if viscosity.ndim else 1  # a 0-d tensor is one constant viscosity
+            self.register_buffer("viscosity", cast(Tensor, check_viscosity(viscosity, batch, self.grid.shape)))
         else:
             self.viscosity = check_viscosity(viscosity, 1, self.grid.shape)
 
@@ -211,9 +208,16 @@ class FluidSimulator(nn.Module):
         return check_viscosity(mu, batch, self.grid.shape)
 
     def check_forces(self, forces: Tensor) -> Tensor:
-        """Validate a force schedule ``(B, T, 2, h, w)`` on this grid."""
+        """Validate a force schedule ``(B, T, 2, h, w)`` on this grid, with ``B, T >= 1``."""
         h, w = self.grid.shape
-        return check_tensor("forces", forces, shape=[None, None, 2, h, w])
+        check_tensor("forces", forces, finite=False)
+        if forces.ndim != 5 or forces.shape[0] < 1 or forces.shape[1] < 1 or tuple(forces.shape[2:]) != (2, h, w):
+            raise ValueError(
+                f"forces must have shape (*, *, 2, {h}, {w}) on the grid of {h} x {w} cells, with a batch B >= 1 "
+                f"and at least one step T >= 1, "
+                f"got {tuple(forces.shape)}"
+            )
+        return check_tensor("forces", forces)
 
     def forward(
         self,
@@ -232,20 +236,26 @@ class FluidSimulator(nn.Module):
             image_size: ``(H, W)`` handed to a viscosity module (pixel-based maps); the grid's size by default.
 
         Returns:
-            a :class:`FluidRollout`.
+            a :class:`FluidRollout`. Inputs of different float dtypes are promoted; half precision is computed in
+            float32 and the velocities and points come back in the inputs' (promoted) dtype.
         """
         forces = self.check_forces(forces)
         B, T = forces.shape[:2]
         h, w = self.grid.shape
-        if T < 1:
-            raise ValueError(f"forces must hold at least one step, got T = {T} in shape {tuple(forces.shape)}")
-        if velocity is None:
-            velocity = forces.new_zeros(B, 2, h + 1, w + 1)
-        else:
-            check_tensor("velocity", velocity, shape=[B, 2, h + 1, w + 1])
+        given = [forces]
+        if velocity is not None:
+            given.append(check_tensor("velocity", velocity, shape=[B, 2, h + 1, w + 1]))
         if points is not None:
-            check_tensor("points", points, shape=[B, None, 2])
+            given.append(check_tensor("points", points, shape=[B, None, 2]))
+        out_dtype = given[0].dtype
+        for x in given[1:]:
+            out_dtype = torch.promote_types(out_dtype, x.dtype)
+        dtype = compute_dtype(out_dtype)
+        forces, points = forces.to(dtype), None if points is None else points.to(dtype)
+        velocity = forces.new_zeros(B, 2, h + 1, w + 1) if velocity is None else velocity.to(dtype)
         mu = self.current_viscosity(B, image_size)
+        if isinstance(mu, Tensor):
+            mu = mu.to(dtype)
         vels, iters = [], []
         traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
         # all steps' forces onto the faces at once, then unbind: one backward node each for the whole schedule
@@ -258,6 +268,13 @@ class FluidSimulator(nn.Module):
             if points is not None:
                 traj.append(_advect_points(traj[-1], velocity, self.dt))
             if not all_finite(velocity):
-                raise FloatingPointError(f"the flow blew up at step {t}: non-finite velocity (forces or dt too large?)")
-        pts = torch.stack(traj, 1).transpose(2, 3) if points is not None else None
-        return FluidRollout(torch.stack(vels, 1), pts, iters)
+                raise FlowBlewUp(
+                    f"the flow blew up at step {t}: non-finite velocity (forces, velocity or dt too large)"
+                )
+        pts = torch.stack(traj, 1).transpose(2, 3).to(out_dtype) if points is not None else None
+        return FluidRollout(torch.stack(vels, 1).to(out_dtype), pts, iters)
+
+
+class FlowBlewUp(ValueError, FloatingPointError):
+    """The roll-out's velocity became non-finite: a ``ValueError`` naming the forces, velocity and ``dt`` (and a
+    ``FloatingPointError``, what it used to be)."""

@@ -121,7 +121,13 @@ class FluidWarp(nn.Module):
                 )
             forces = forces(self.grid, self.steps, self.dt, image_size)
         h, w = self.grid.shape
-        return check_tensor("forces", forces, shape=[None, self.steps, 2, h, w])
+        check_tensor("forces", forces, finite=False)
+        if forces.ndim != 5 or tuple(forces.shape[1:]) != (self.steps, 2, h, w):
+            raise ValueError(
+                f"forces must have shape (*, {self.steps}, 2, {h}, {w}) for steps={self.steps} on the grid of "
+                f"{h} x {w} cells, got {tuple(forces.shape)}"
+            )
+        return check_tensor("forces", forces)
 
     def rollout(
         self, forces: ForceSource, size: tuple[int, int] | None = None, points: Tensor | None = None
@@ -255,7 +261,8 @@ class FluidWarp(nn.Module):
         size = self._size(size)
         check_tensor("points", points, shape=[None, None, 2])
         velocities = self._velocities(forces, size, points.shape[0], "points")
-        return _carry(velocities, points, size, self.dt, self.map_config.max_strain)
+        config = self.map_config
+        return _carry(velocities, points, size, self.dt, config.max_strain, config.max_substeps)
 
     def advect_points(self, points: Tensor, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Deprecated alias of :meth:`carry_points` (goes in the next release)."""

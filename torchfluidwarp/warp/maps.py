@@ -21,9 +21,19 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_positive, check_real, check_size, check_tensor
+from torchfluidwarp._checks import (
+    all_finite,
+    check_int,
+    check_memory,
+    check_positive,
+    check_real,
+    check_size,
+    check_tensor,
+    compute_dtype,
+)
 from torchfluidwarp.core.advection import (
     MAX_STRAIN_PER_SUBSTEP,
+    MAX_SUBSTEPS,
     _advect_points,
     _backtrace,
     _extend,
@@ -84,7 +94,9 @@ def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> 
         True
     """
     check_tensor("image", image, ndim=4)
-    check_tensor("coords", coords, shape=[image.shape[0], None, None, 2])
+    check_tensor("coords", coords, shape=[None, None, None, 2])
+    if image.shape[0] != coords.shape[0] or min(image.shape[-2:]) < 1:
+        raise ValueError(f"image {tuple(image.shape)} must be non-empty with the batch of coords {tuple(coords.shape)}")
     if mode not in ("bilinear", "bicubic", "nearest"):
         raise ValueError(f"mode must be 'bilinear', 'bicubic' or 'nearest', got {mode!r}")
     return _warp_image(image, coords, mode, check=None)  # coords checked above
@@ -133,16 +145,30 @@ class MapConfig:
         max_strain: maps and points are carried in sub-steps of at most this strain ``dt_sub * max|grad v|``
             (:func:`~torchfluidwarp.core.advection.substeps`). Default
             :data:`~torchfluidwarp.core.advection.MAX_STRAIN_PER_SUBSTEP`.
+        max_substeps: the most sub-steps one step may take; a flow that needs more is refused with a
+            ``ValueError``. Default :data:`~torchfluidwarp.core.advection.MAX_SUBSTEPS`.
+        max_memory: bytes the maps of one call may hold; default :data:`torchfluidwarp._checks.MAX_BYTES`.
     """
 
     oversample: int = OVERSAMPLE
     trace_oversample: int = TRACE_OVERSAMPLE
     max_strain: float = MAX_STRAIN_PER_SUBSTEP
+    max_substeps: int = MAX_SUBSTEPS
+    max_memory: float | None = None
 
     def __post_init__(self) -> None:
         check_int("oversample", self.oversample)
         check_int("trace_oversample", self.trace_oversample)
         check_positive("max_strain", self.max_strain)
+        check_int("max_substeps", self.max_substeps)
+        if self.max_memory is not None:
+            check_positive("max_memory", self.max_memory)
+
+    def check_memory(self, velocities: Tensor, size: tuple[int, int], count: int) -> None:
+        """Refuse ``count`` maps of ``size`` for ``velocities``' batch beyond ``max_memory``, before any work."""
+        nbytes = 3 * velocities.shape[0] * count * size[0] * size[1] * 2 * velocities.element_size()
+        what = f"{count} maps of size {tuple(size)} for a batch of {velocities.shape[0]}"
+        check_memory(what, nbytes, self.max_memory, "MapConfig(max_memory=...)")
 
 
 def upsample_raster(field: Tensor, size: tuple[int, int]) -> Tensor:
@@ -225,7 +251,7 @@ def _map_composer(
     ident = identity_map(size, device=like.device, dtype=like.dtype)  # (1, H, W, 2)
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
-        n = substeps(velocities[:, t], dt * duration, config.max_strain)
+        n = substeps(velocities[:, t], dt * duration, config.max_strain, config.max_substeps)
         for _ in range(n):
             back = _displacement(velocities[:, t], raster, dt * duration / n, config.trace_oversample)
             at = torch.clamp(pix - back, lo, hi)
@@ -249,6 +275,7 @@ class _Maps:
             raise TypeError(f"config must be a MapConfig, got {type(config).__name__}")
         self.T = velocities.shape[1]
         self.times = _frame_times(self.T, times)
+        config.check_memory(velocities, size, len(self.times))
         self.compose, self.to_map, self.raster = _map_composer(velocities, size, dt, config)
         self.zero = velocities.new_zeros(velocities.shape[0], 2, *self.raster)  # the identity's displacement
 
@@ -363,20 +390,28 @@ def forward_maps(
     H, W = check_size("size", size)
     dt = check_real("dt", dt)
     B, T = velocities.shape[:2]
+    config.check_memory(velocities, (H, W), T + 1)
     pix = identity_map((H, W), batch=B, device=velocities.device, dtype=velocities.dtype).reshape(B, -1, 2)
-    return _carry(velocities, pix, (H, W), dt, config.max_strain).view(B, T + 1, H, W, 2)
+    return _carry(velocities, pix, (H, W), dt, config.max_strain, config.max_substeps).view(B, T + 1, H, W, 2)
 
 
 def _carry(
-    velocities: Tensor, points: Tensor, size: tuple[int, int], dt: float, max_strain: float = MAX_STRAIN_PER_SUBSTEP
+    velocities: Tensor,
+    points: Tensor,
+    size: tuple[int, int],
+    dt: float,
+    max_strain: float = MAX_STRAIN_PER_SUBSTEP,
+    max_substeps: int = MAX_SUBSTEPS,
 ) -> Tensor:
-    """Carry ``(B, M, 2)`` pixel points through each step: ``(B, T + 1, M, 2)`` pixels."""
+    """Carry ``(B, M, 2)`` pixel points through each step: ``(B, T + 1, M, 2)`` pixels, in the promoted dtype."""
+    dtype = torch.promote_types(velocities.dtype, points.dtype)
+    velocities, points = velocities.to(compute_dtype(dtype)), points.to(compute_dtype(dtype))
     h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
     c = _cell_scale(size, h, w, points)
     traj = [rescale_points(points.transpose(1, 2), c)]  # (B, 2, M) cells
     for velocity in velocities.unbind(1):
-        traj.append(_advect_points(traj[-1], velocity, dt, max_strain=max_strain))
-    return rescale_points(torch.stack(traj, dim=1), c.unsqueeze(1), inverse=True).transpose(2, 3)
+        traj.append(_advect_points(traj[-1], velocity, dt, max_strain=max_strain, max_substeps=max_substeps))
+    return rescale_points(torch.stack(traj, dim=1), c.unsqueeze(1), inverse=True).transpose(2, 3).to(dtype)
 
 
 def jacobian_determinant(coords: Tensor) -> Tensor:
@@ -397,4 +432,7 @@ def jacobian_determinant(coords: Tensor) -> Tensor:
         raise ValueError(f"coords must have shape (B, H, W, 2) with H, W >= 2, got {tuple(coords.shape)}")
     dx_dy, dx_dx = torch.gradient(coords[..., 0], dim=(1, 2))
     dy_dy, dy_dx = torch.gradient(coords[..., 1], dim=(1, 2))
-    return dx_dx * dy_dy - dx_dy * dy_dx
+    det = dx_dx * dy_dy - dx_dy * dy_dx
+    if det.numel() and not all_finite(det):  # finite coordinates whose products overflow the dtype
+        raise ValueError(f"coords are too large for {coords.dtype}: their Jacobian determinant overflows")
+    return det
