@@ -105,3 +105,19 @@ def test_a_billion_frames_stream_but_are_refused_all_at_once():
     torch.testing.assert_close(first, A)  # frame 0 is image A
     with pytest.raises(ValueError, match=r"all 1000000000 frames .* above the limit of 8\.0 GiB.*iter_frames"):
         r.frames  # noqa: B018
+
+
+def test_without_points_the_morph_finds_them_from_the_pictures():
+    from torchfluidwarp.data import load_sample
+
+    photo = load_sample("astronaut").reshape(1, 3, 512, 512)
+    a = torch.nn.functional.interpolate(photo, size=(160, 160), mode="bilinear", antialias=True)[0]
+    b = torch.roll(a, shifts=(3, -4), dims=(1, 2))  # B: A moved 4 px left and 3 px down
+    with pytest.raises(ValueError, match="give both points_a and points_b, or neither"):
+        _morph(a, b, PA, None, frames=3)
+    r = _morph(a, b, frames=3, match="features", grid=24, steps=4, max_iter=20)
+    pa = r.fit.trajectories[0, 0]
+    pb = r.fit.points[0]  # where A's points ended
+    shift = (pb - pa).median(0).values.float()  # the matched points moved with the picture
+    torch.testing.assert_close(shift, torch.tensor([-4.0, 3.0]), atol=1.0, rtol=0)
+    assert r.folded == 0

@@ -35,6 +35,7 @@ from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimat
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
+from torchfluidwarp.correspond import MatchMode, auto_points
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural
 from torchfluidwarp.morph.regions import Background, hull_mask
@@ -147,9 +148,11 @@ a 512-pixel picture each, as 64 cells over the paper's box."""
 def morph(
     image_a: Tensor,
     image_b: Tensor,
-    points_a: Tensor,
-    points_b: Tensor,
+    points_a: Tensor | None = None,
+    points_b: Tensor | None = None,
     *,
+    match: MatchMode = "auto",
+    face_index: tuple[int | None, int | None] = (None, None),
     frames: int = 30,
     method: Method = "natural",
     grid: FluidGrid | int | tuple[int, int] | None = None,
@@ -192,7 +195,11 @@ def morph(
         image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]``; it sets the output size.
         image_b: target image; resized to A's size if needed (its points are scaled to match).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels; ``"natural"``
-            needs ``M >= 3`` points, not all on one line.
+            needs ``M >= 3`` points, not all on one line. ``None`` (both): found from the pictures by
+            :func:`~torchfluidwarp.correspond.auto.auto_points` with ``match`` and ``face_index``.
+        match: how to find the points when none are given: ``"auto"`` (faces when both images show one and
+            the faces extra is installed, else matched features), ``"faces"``, ``"features"`` or ``"pixels"``.
+        face_index: which face in A and in B (0 = the largest; ``None``: the largest, with a warning if several).
         frames: number of output frames ``N >= 2``.
         method: ``"natural"`` or ``"paper"`` (see above).
         grid, steps, viscosity: the fluid (see :func:`fit_keyframes`); ``grid`` cells cover the fluid's box
@@ -248,6 +255,7 @@ def morph(
         ``result.frames`` (and ``maps`` ...) renders all of them at once.
 
     Raises:
+        ImportError: ``match="faces"`` without the faces extra (``pip install "torchfluidwarp[faces]"``).
         ValueError: different point counts, points outside their image, repeated points, non-finite values,
             ``frames < 2``, fewer than 3 points or points on one line for ``"natural"``.
 
@@ -262,6 +270,13 @@ def morph(
         raise ValueError(f"image_a is on {a.device} but image_b is on {b.device}; put both on one device")
     out_dtype = torch.promote_types(a.dtype, b.dtype)
     a, b = a.to(compute_dtype(out_dtype)), b.to(compute_dtype(out_dtype))
+    if (points_a is None) != (points_b is None):
+        raise ValueError(
+            "give both points_a and points_b, or neither (then match= finds them: "
+            "'auto', 'faces', 'features' or 'pixels')"
+        )
+    if points_a is None:
+        points_a, points_b = auto_points(a, b, match=match, face_index=face_index)
     n = check_int("frames", frames, minimum=2)
     pa = _as_points("points_a", points_a, a)
     pb = _as_points("points_b", points_b, b)
