@@ -76,3 +76,17 @@ def test_jacobian_determinant_refuses_coordinates_whose_products_overflow():
     with pytest.raises(ValueError, match="coords are too large"):
         jacobian_determinant(coords * 1e30)
     torch.testing.assert_close(jacobian_determinant(coords * 3), torch.full((1, 5, 5), 9.0))
+
+
+def test_a_roll_out_beyond_max_memory_is_refused_before_the_force_module_runs():
+    calls = []
+
+    def module(*args: object) -> torch.Tensor:
+        calls.append(args)
+        return torch.zeros(1, 10**9, 2, 4, 4)
+
+    with pytest.raises(ValueError, match=r"roll-out of steps=1000000000 .* MapConfig\(max_memory=...\)"):
+        FluidWarp(4, 10**9).maps(module, (8, 8))
+    with pytest.raises(ValueError, match=r"grid of 100000 x 100000 cells"):
+        FluidWarp(10**5, 3).maps(module, (8, 8))
+    assert not calls

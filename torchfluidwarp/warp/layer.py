@@ -16,7 +16,7 @@ from contextlib import closing, nullcontext
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_int, check_size, check_tensor
+from torchfluidwarp._checks import check_int, check_memory, check_size, check_tensor
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, normalized_affine, pixel_to_normalized
 from torchfluidwarp.core.linalg import CGConfig
@@ -113,14 +113,21 @@ class FluidWarp(nn.Module):
         return self.image_size
 
     def resolve_forces(self, forces: ForceSource, image_size: tuple[int, int]) -> Tensor:
-        """The force schedule ``(B|1, T, 2, h, w)`` from a tensor or a force module, validated."""
+        """The force schedule ``(B|1, T, 2, h, w)`` from a tensor or a force module, validated.
+
+        A roll-out whose forces and velocities (some 8 tensors of ``T x 2 x (h + 1) x (w + 1)`` float32 per sample)
+        would exceed ``map_config.max_memory`` is refused before a force module is even called.
+        """
+        h, w = self.grid.shape
+        nbytes = 8 * self.steps * 2 * (h + 1) * (w + 1) * 4
+        what = f"a roll-out of steps={self.steps} on the grid of {h} x {w} cells"
+        check_memory(what, nbytes, self.map_config.max_memory, "MapConfig(max_memory=...)")
         if not isinstance(forces, Tensor):
             if not callable(forces):
                 raise TypeError(
                     f"forces must be a tensor (B, T, 2, h, w) or a force module, got {type(forces).__name__}"
                 )
             forces = forces(self.grid, self.steps, self.dt, image_size)
-        h, w = self.grid.shape
         check_tensor("forces", forces, finite=False)
         if forces.ndim != 5 or tuple(forces.shape[1:]) != (self.steps, 2, h, w):
             raise ValueError(
