@@ -91,6 +91,7 @@ def test_missing_image(tmp_path, capsys):
         ('{"viscosity": {"regions": [{"position": [1], "radius": 3, "value": 1}]}}', ["viscosity.regions[0].position"]),
         ('{"steps": 2.5}', ["steps", "2.5"]),
         ('{"grid": [16]}', ["grid"]),
+        ("[" * 100_000 + "]" * 100_000, ["nested too deeply"]),  # the JSON decoder recursed past the stack
     ],
 )
 def test_bad_config_exits_2(tmp_path, image, capsys, text, words):

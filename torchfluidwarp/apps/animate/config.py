@@ -170,6 +170,8 @@ def load_config(path: str | Path) -> AnimationConfig:
         raise ValueError(
             f"config {str(path)!r} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
         ) from None
+    except RecursionError:  # the decoder recurses once per level: a few bytes of "[[[[..." exhaust the stack
+        raise ValueError(f"config {str(path)!r} is nested too deeply to be an animation config") from None
     try:
         return parse_config(data, base_dir=path.parent)
     except ValueError as exc:

@@ -41,6 +41,8 @@ async def body_json(request: Request) -> dict:
         data = json.loads(await request.body())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise BadInput(f"the request is not valid JSON ({exc})") from None
+    except RecursionError:  # the decoder recurses once per level of nesting
+        raise BadInput("the request's JSON is nested too deeply") from None
     if not isinstance(data, dict):
         raise BadInput("the request must be a JSON object")
     return data
