@@ -15,7 +15,6 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 from torch import Tensor
@@ -42,7 +41,8 @@ class OptimResult:
             its tolerance) before ``max_iter`` iterations and ``max_eval`` evaluations. False when the fit ran
             out of iterations or evaluations, or met a non-finite loss or parameter.
         message: a one-line reason for stopping.
-        seconds: wall time of the fit.
+        seconds: wall time of the fit, from after the optimiser is built (the first ``torch.optim`` optimiser
+            of a process takes about a second to build, importing ``torch._dynamo``).
         best_loss: the smallest finite loss seen, that of the restored parameters (``inf`` if none was finite).
     """
 
@@ -122,10 +122,21 @@ def minimize(
     check_positive("tolerance_grad", tolerance_grad)
     check_positive("tolerance_change", tolerance_change)
 
-    counts = {"n_iter": 0, "func_evals": 0}  # what torch.optim.LBFGS keeps in its state
+    optimizer = torch.optim.LBFGS(
+        params,
+        lr=1.0,
+        max_iter=max_iter,
+        max_eval=max_eval,
+        history_size=history_size,
+        tolerance_grad=tolerance_grad,
+        tolerance_change=tolerance_change,
+        line_search_fn="strong_wolfe",
+    )
+    state = optimizer.state[params[0]]  # LBFGS keeps its counters here: n_iter, func_evals
     history: list[float] = []
     best_loss = math.inf
     best_state = [p.detach().clone() for p in params]  # the starting point, should nothing be finite
+    # timed from here: the first optimiser built in a process imports torch._dynamo (about 1 s)
     start = time.perf_counter()
     # each L-BFGS iteration is one or more evaluations (its line search)
     bar = tqdm(total=max_iter, desc=desc, unit="iter", disable=not progress, leave=False)
@@ -133,8 +144,7 @@ def minimize(
     @torch.enable_grad()
     def closure() -> Tensor:
         nonlocal best_loss, best_state
-        for p in params:
-            p.grad = None
+        optimizer.zero_grad()
         if not all(all_finite(p) for p in params):
             raise _Halt("the parameters became non-finite (a line-search step overflowed)")
         loss = objective()
@@ -143,7 +153,7 @@ def minimize(
             raise _Halt(f"the loss became non-finite ({value})")
         loss.backward()
         history.append(value)
-        bar.update(min(counts["n_iter"], max_iter) - bar.n)
+        bar.update(min(int(state.get("n_iter", 0)), max_iter) - bar.n)
         bar.set_postfix(loss=f"{value:.4g}", evals=len(history))
         if value < best_loss:
             best_loss = value
@@ -154,11 +164,11 @@ def minimize(
 
     halt: str | None = None
     try:
-        _lbfgs(closure, params, counts, max_iter, max_eval, history_size, tolerance_grad, tolerance_change)
+        optimizer.step(closure)
     except _Halt as e:
         halt = e.reason
     finally:
-        iterations = min(counts["n_iter"], max_iter)
+        iterations = min(int(state.get("n_iter", 0)), max_iter)
         bar.update(iterations - bar.n)
         bar.close()
     with torch.no_grad():
@@ -173,7 +183,7 @@ def minimize(
         message = f"did not converge: {halt} {done}; restored the best finite iterate"
     elif iterations >= max_iter:
         converged, message = False, f"did not converge: reached max_iter={max_iter} {done}"
-    elif counts["func_evals"] >= max_eval:
+    elif int(state.get("func_evals", 0)) >= max_eval:
         converged, message = False, f"did not converge: used the evaluation budget max_eval={max_eval} {done}"
     else:
         converged, message = True, f"converged: L-BFGS made no further progress {done}"
@@ -186,107 +196,3 @@ def minimize(
         seconds=time.perf_counter() - start,
         best_loss=best_loss,
     )
-
-
-def _flat_grad(params: list[Tensor]) -> Tensor:
-    return torch.cat([p.new_zeros(p.numel()) if p.grad is None else p.grad.reshape(-1) for p in params])
-
-
-def _add(params: list[Tensor], step: Any, direction: Tensor) -> None:
-    offset = 0
-    for p in params:
-        p.add_(direction[offset : offset + p.numel()].view_as(p), alpha=step)
-        offset += p.numel()
-
-
-@torch.no_grad()
-def _lbfgs(
-    closure: Callable[[], Tensor],
-    params: list[Tensor],
-    counts: dict[str, int],
-    max_iter: int,
-    max_eval: int,
-    history_size: int,
-    tolerance_grad: float,
-    tolerance_change: float,
-) -> None:
-    """``torch.optim.LBFGS(params, lr=1, line_search_fn="strong_wolfe", ...).step(closure)``, as a function.
-
-    The same iterates, operation for operation (torch's own strong-Wolfe line search does the steps), without
-    the optimiser class: building the first ``torch.optim`` optimiser of a process imports ``torch._dynamo``,
-    about a second, which a one-off fit (the demo, the command line) would pay every run. ``counts`` receives
-    ``n_iter`` and ``func_evals`` as the optimiser's state would; ``closure`` leaves the gradients in ``p.grad``.
-    """
-    from torch.optim.lbfgs import _strong_wolfe
-
-    loss = float(closure())
-    evals = 1
-    counts["func_evals"] += 1
-    flat_grad = _flat_grad(params)
-    if flat_grad.abs().max() <= tolerance_grad:
-        return
-    old_dirs: list[Tensor] = []
-    old_stps: list[Tensor] = []
-    ro: list[Tensor] = []
-    al: list[Any] = [None] * history_size  # 0-d tensors, as in torch; Any for alpha=
-    h_diag: Any = 1
-    d = flat_grad.neg()
-    t: Any = 1.0  # a float, or a 0-d tensor from the first step's scaling and the line search
-    prev_flat_grad: Tensor | None = None
-
-    def evaluate(x: list[Tensor], step: float, direction: Tensor) -> tuple[float, Tensor]:
-        _add(params, step, direction)
-        value = float(closure())
-        grad = _flat_grad(params)
-        for p, v in zip(params, x):
-            p.copy_(v)
-        return value, grad
-
-    while counts["n_iter"] < max_iter:
-        counts["n_iter"] += 1
-        if counts["n_iter"] > 1:  # the two-loop recursion over the kept pairs
-            assert prev_flat_grad is not None
-            y = flat_grad.sub(prev_flat_grad)
-            s = d.mul(t)
-            ys = y.dot(s)
-            if ys > 1e-10:
-                if len(old_dirs) == history_size:
-                    old_dirs.pop(0)
-                    old_stps.pop(0)
-                    ro.pop(0)
-                old_dirs.append(y)
-                old_stps.append(s)
-                ro.append(1.0 / ys)
-                h_diag = ys / y.dot(y)
-            q = flat_grad.neg()
-            for i in range(len(old_dirs) - 1, -1, -1):
-                al[i] = old_stps[i].dot(q) * ro[i]
-                q.add_(old_dirs[i], alpha=-al[i])
-            d = r = torch.mul(q, h_diag)
-            for i in range(len(old_dirs)):
-                be_i = old_dirs[i].dot(r) * ro[i]
-                r.add_(old_stps[i], alpha=al[i] - be_i)
-        if prev_flat_grad is None:
-            prev_flat_grad = flat_grad.clone(memory_format=torch.contiguous_format)
-        else:
-            prev_flat_grad.copy_(flat_grad)
-        prev_loss = loss
-        t = min(1.0, 1.0 / flat_grad.abs().sum()) if counts["n_iter"] == 1 else 1.0
-        gtd = flat_grad.dot(d)
-        if gtd > -tolerance_change:
-            break
-        x_init = [p.clone(memory_format=torch.contiguous_format) for p in params]
-        loss, flat_grad, t, ls_evals = _strong_wolfe(
-            evaluate, x_init, t, d, loss, flat_grad, gtd, max_ls=max_eval - evals
-        )
-        _add(params, t, d)
-        evals += ls_evals
-        counts["func_evals"] += ls_evals
-        if (
-            counts["n_iter"] == max_iter
-            or evals >= max_eval
-            or flat_grad.abs().max() <= tolerance_grad
-            or d.mul(t).abs().max() <= tolerance_change
-            or abs(loss - prev_loss) < tolerance_change
-        ):
-            break
