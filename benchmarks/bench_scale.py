@@ -63,7 +63,9 @@ print(prof.key_averages().table(sort_by="self_cpu_memory_usage", row_limit=12))
 
 
 def run(argv: list[str]) -> dict:
-    """``torchfluidwarp ARGV`` in a fresh process: its exit status, wall seconds and peak RSS (KiB)."""
+    """``torchfluidwarp ARGV`` in a fresh process: its exit status, wall seconds and peak RSS (KiB).
+
+    Each result is printed as it comes (a long run can be stopped and the figures so far are kept)."""
     out = subprocess.run(
         [sys.executable, "-c", CHILD.format(here=str(HERE)), *argv], capture_output=True, text=True, check=False
     )
@@ -73,6 +75,7 @@ def run(argv: list[str]) -> dict:
     result = json.loads(lines[-1])
     if result["rc"] != 0:
         raise RuntimeError(f"torchfluidwarp {' '.join(argv)} exited {result['rc']}:\n{out.stderr[-2000:]}")
+    print(f"# torchfluidwarp {' '.join(argv)}: {json.dumps(result)}", flush=True)
     return result
 
 

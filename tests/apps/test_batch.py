@@ -6,6 +6,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -17,6 +18,7 @@ from torchfluidwarp.apps import batch
 from torchfluidwarp.apps.batch import morph_pairs, read_pairs
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.io import write_image, write_points
+from torchfluidwarp.morph.result import MorphResult
 
 FAST = ["--grid", "12", "--steps", "2", "--max-iter", "5", "--frames", "4", "--quiet"]
 OPTIONS = dict(grid=12, steps=2, max_iter=5, frames=4)
@@ -50,7 +52,11 @@ def listing(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
 
 
-def test_cli_batch_end_to_end_and_resume(tmp_path, gen, capsys):
+def test_cli_batch_end_to_end_and_resume(tmp_path, gen, capsys, monkeypatch):
+    def refuse(self):
+        raise AssertionError("the batch streams its frames; it must not hold all of them")
+
+    monkeypatch.setattr(MorphResult, "materialize", refuse)  # folded must come from the streamed frames
     pairs = make_pairs(tmp_path / "in", gen)
     out = tmp_path / "out"
     assert main(["morph", "--pairs", str(pairs), "--out", f"{out}/", *FAST]) == 1  # one row failed
@@ -176,3 +182,25 @@ def test_stream_frames_renders_large_frames_one_at_a_time(monkeypatch):
     assert batch.stream_frames(Fake(1000)) == 8
     assert batch.stream_frames(Fake(batch.STREAM_BYTES // 3)) == 3
     assert batch.stream_frames(Fake(4 * batch.STREAM_BYTES)) == 1
+
+
+def test_a_killed_run_resumes_with_each_output_once_and_no_temporaries(tmp_path, gen):
+    pairs = make_pairs(tmp_path, gen, n=3, bad=False)
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "torchfluidwarp.apps.cli", "morph", "--pairs", str(pairs), "--out", str(out)]
+    argv += ["--grid", "12", "--steps", "2", "--max-iter", "5", "--frames", "150", "--quiet"]
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        while not (out / "pair0.gif").exists() and proc.poll() is None:
+            time.sleep(0.02)
+    finally:
+        proc.kill()  # SIGKILL: no clean-up runs, a temporary output may be left behind
+        proc.wait()
+    (out / ".pair2.gif.0123abcd.tmp.gif").write_bytes(b"GIF89a half")  # as a kill in pair2's write leaves it
+    before = (out / "pair0.gif").stat().st_mtime_ns
+    assert main(argv[3:]) == 0
+    assert listing(out) == ["failures.csv", "pair0.gif", "pair1.gif", "pair2.gif", "summary.csv"]
+    assert (out / "pair0.gif").stat().st_mtime_ns == before  # finished before the kill: not redone
+    assert [s["name"] for s in read_csv(out / "summary.csv")] == ["pair0", "pair1", "pair2"]
+    for k in range(3):
+        assert len(iio.imread(out / f"pair{k}.gif", index=None)) == 150

@@ -8,7 +8,8 @@ folder ``DIR/<name>/`` of PNGs).
 
 * Each output is written atomically (:func:`~torchfluidwarp.io.write_animation`), its frames streamed from
   :meth:`~torchfluidwarp.morph.result.MorphResult.iter_frames`, so memory does not grow with the frame count.
-* A rerun skips the pairs whose output exists: a killed run resumes where it stopped.
+* A rerun skips the pairs whose output exists: a killed run resumes where it stopped (the temporary file a
+  killed run left for the pair it was writing is removed when that pair's turn comes again).
 * A bad row (a missing file, mismatched points, a morph that fails) goes to ``DIR/failures.csv`` (this run's
   failures: ``row,name,reason``) and the others go on.
 * ``DIR/summary.csv`` has one row a pair: the landmark error (``result.fit.error``, pixels), the fraction of
@@ -25,7 +26,10 @@ given without ``torch.distributed`` (no process group, no ``MASTER_ADDR``) each 
 from __future__ import annotations
 
 import csv
+import glob
+import importlib.util
 import os
+import shutil
 import time
 import warnings
 from collections.abc import Iterator, Mapping
@@ -37,8 +41,8 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from torchfluidwarp.apps.cli_args import check_disk_space
-from torchfluidwarp.io import check_point_counts, read_image, read_points, write_animation
+from torchfluidwarp.apps.cli_args import check_disk_space, first_line
+from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, write_animation
 from torchfluidwarp.morph import morph
 from torchfluidwarp.morph.result import MorphResult
 
@@ -152,10 +156,12 @@ def morph_pairs(
 
     Raises:
         OSError: the CSV cannot be read or ``out`` cannot be made.
-        ValueError: a bad ``fmt``, ``rank`` or ``world_size``.
+        ValueError: a bad ``fmt``, ``rank`` or ``world_size``; ``"mp4"`` without imageio-ffmpeg.
     """
     if fmt not in ("gif", "mp4", "png"):
         raise ValueError(f"fmt must be 'gif', 'mp4' or 'png', got {fmt!r}")
+    if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise ValueError(FFMPEG_HINT)
     rank = int(os.environ.get("RANK", 0)) if rank is None else rank
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else world_size
     if not 0 <= rank < world_size:
@@ -177,12 +183,14 @@ def morph_pairs(
             report.skipped.append(pair.name)
             summary.setdefault(pair.name, {"name": pair.name, "output": target, "status": "exists"})
             continue
+        for stale in folder.glob(_temporary_pattern(Path(target), fmt)):  # a killed run's half-written output
+            _remove(stale)
         try:
             summary[pair.name] = _morph_pair(pair, target, fps, overwrite, device, options)
         except (KeyboardInterrupt, SystemExit):
             raise
         except Exception as exc:  # noqa: BLE001  (one bad pair must not stop the others)
-            report.failed.append((pair.row, pair.name, f"{type(exc).__name__}: {_first_line(exc)}"))
+            report.failed.append((pair.row, pair.name, f"{type(exc).__name__}: {first_line(exc)}"))
             continue
         report.morphed.append(pair.name)
         if not gather:  # a killed run keeps the summary of the pairs it finished
@@ -223,7 +231,7 @@ def _morph_pair(
         "error_max_px": f"{float(err.max()):.4f}",
         "folded": f"{result.folded:.6g}",
         "seconds": f"{time.perf_counter() - t0:.2f}",
-        "warnings": " | ".join(_first_line(w.message) for w in caught),
+        "warnings": " | ".join(first_line(w.message) for w in caught),
     }
 
 
@@ -265,13 +273,21 @@ def _gather(
     return merged, failures
 
 
+def _temporary_pattern(target: Path, fmt: str) -> str:
+    """The glob of the temporary names :func:`~torchfluidwarp.io.write_animation` gives ``target`` while it writes
+    (``.<name>.<8 hex digits>.tmp<suffix>``), for this pair only."""
+    return f".{glob.escape(target.name)}.{'?' * 8}.tmp{'' if fmt == 'png' else '.' + fmt}"
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
 def _exists(target: Path) -> bool:
     return any(target.iterdir()) if target.is_dir() else target.exists()
-
-
-def _first_line(message: object) -> str:
-    text = str(message).strip().splitlines()
-    return text[0] if text else ""
 
 
 def _read_csv(path: Path) -> list[dict[str, str]]:
@@ -283,7 +299,7 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
 
 def _write_csv(path: Path, fields: tuple[str, ...], rows: Any) -> None:
     """Write ``rows`` (dicts) as CSV atomically: a temporary sibling moved into place."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(f".{path.name}.tmp")  # one writer per file: a killed run's leftover is overwritten
     try:
         with open(tmp, "w", newline="", encoding="utf-8") as fp:
             writer = csv.DictWriter(fp, fields, extrasaction="ignore")

@@ -29,6 +29,7 @@ __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_INTERRUPTED",
     "fail",
+    "first_line",
     "checked",
     "count",
     "numbers",
@@ -47,10 +48,15 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
 T = TypeVar("T")
 
 
+def first_line(message: object) -> str:
+    """The first line of a message or an exception's text (the exception's type name when it has none)."""
+    text = str(message).strip().splitlines()
+    return text[0] if text else type(message).__name__
+
+
 def fail(command: str, message: object) -> int:
     """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr; returns exit status 2."""
-    text = str(message).strip().splitlines()
-    print(f"{PROG} {command}: error: {text[0] if text else type(message).__name__}", file=sys.stderr)
+    print(f"{PROG} {command}: error: {first_line(message)}", file=sys.stderr)
     return EXIT_BAD_INPUT
 
 
