@@ -82,3 +82,11 @@ def test_max_substeps_raises_the_limit_and_is_checked():
     pts = torch.full((1, 2, 2), 3.0)
     with pytest.raises(ValueError, match="limit of 1"):
         advection.advect_points(pts, velocity, 1.0, max_substeps=1)
+
+
+def test_points_or_velocity_with_another_batch_name_the_forces_batch():
+    f = forces(2, 1, 2, 8, 8)
+    with pytest.raises(ValueError, match="points has batch 1 but forces have batch 2"):
+        FluidSimulator(8)(f, points=torch.zeros(1, 3, 2))
+    with pytest.raises(ValueError, match="velocity has batch 3 but forces have batch 2"):
+        FluidSimulator(8)(f, velocity=torch.zeros(3, 2, 9, 9))

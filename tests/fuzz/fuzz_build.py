@@ -53,7 +53,7 @@ def tensor_variant(v: str, x: Tensor) -> Any:
     if v == "batch_plus":
         return torch.cat([x, x]) if x.ndim else x
     if v == "requires_grad":
-        return x.clone().requires_grad_(True)
+        return x.clone().requires_grad_(True) if x.is_floating_point() else x
     if v == "noncontig":
         return x.transpose(-1, -2).contiguous().transpose(-1, -2) if x.ndim >= 2 else x
     if v == "identical":

@@ -72,7 +72,7 @@ def run_cli(spec: dict[str, Any], case: Path, tmp: Path) -> dict[str, str]:
     points = torch.tensor(json.loads((case / "a.json").read_text()))
     names, output, helped = [], "out.gif", False
     for opt, value in spec["perturb"]:
-        names.append(opt.lstrip("-").lower())
+        names += [opt.lstrip("-").lower(), opt.lstrip("-").lower().replace("-", "_")]
         if opt in POSITIONAL or opt in ("--points-a", "--points-b", "--config"):
             old = POSITIONAL.get(opt) or argv[argv.index(opt) + 1]
             new = str(cli_file(value, opt.strip("-").lower(), case, case / old, points))

@@ -90,3 +90,12 @@ def test_a_roll_out_beyond_max_memory_is_refused_before_the_force_module_runs():
     with pytest.raises(ValueError, match=r"grid of 100000 x 100000 cells"):
         FluidWarp(10**5, 3).maps(module, (8, 8))
     assert not calls
+
+
+@pytest.mark.parametrize("shape", [(0, 3, 12, 12), (1, 3, 12, 0)])
+def test_an_empty_image_is_named_by_forward_and_iter_frames(shape):
+    warp = FluidWarp(8, 2)
+    with pytest.raises(ValueError, match="image must have B, H and W >= 1"):
+        warp(torch.rand(shape), forces(1, 2, 2, 8, 8))
+    with pytest.raises(ValueError, match="image must have B, H and W >= 1"):
+        list(warp.iter_frames(torch.rand(shape), forces(1, 2, 2, 8, 8)))

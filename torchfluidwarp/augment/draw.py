@@ -189,7 +189,7 @@ def draw_fluid_warp(
         (2, (32, 32), True)
     """
     B = check_int("batch", batch)
-    H, W = check_size("size", size)
+    H, W = check_size("size", size, minimum=0)
     if min(H, W) < 2:  # a fluid warp needs a pixel's neighbours: refuse, naming the image, instead of an IndexError
         raise ValueError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
     (h, w), itemsize = settings.grid.shape, torch.empty(0, dtype=dtype).element_size()

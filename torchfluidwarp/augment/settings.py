@@ -110,7 +110,9 @@ class FluidWarpSettings:
             "grid": FluidGrid.of(self.grid),
             "dt": check_positive("dt", self.dt),
             "viscosity": check_positive("viscosity", self.viscosity, allow_zero=True),
-            "edge_points": check_int("edge_points", self.edge_points, minimum=2),
+            "edge_points": _at_most(
+                "edge_points", check_int("edge_points", self.edge_points, minimum=2), MAX_EDGE_POINTS
+            ),
             "max_retries": check_int("max_retries", self.max_retries, minimum=0),
             "max_memory": None if self.max_memory is None else check_positive("max_memory", self.max_memory),
         }
@@ -139,6 +141,16 @@ class FluidWarpSettings:
             f"count={self.count}, strength={self.strength}, radius={self.radius}, steps={self.steps}, "
             f"grid={self.grid.shape}, dt={self.dt}, viscosity={self.viscosity}"
         )
+
+
+MAX_EDGE_POINTS = 1024
+"""The most points carried per box edge (``edge_points``): more cannot follow a fluid grid any better."""
+
+
+def _at_most(name: str, value: int, limit: int) -> int:
+    if value > limit:
+        raise ValueError(f"{name} must be at most {limit}, got {value}")
+    return value
 
 
 FIELDS = frozenset(f.name for f in dataclasses.fields(FluidWarpSettings))

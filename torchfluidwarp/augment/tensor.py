@@ -42,7 +42,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_instance, check_tensor
+from torchfluidwarp._checks import check_instance, check_tensor, describe
 from torchfluidwarp.augment.carry import apply_fluid_warp
 from torchfluidwarp.augment.draw import FluidWarpParams, draw_fluid_warp
 from torchfluidwarp.augment.settings import FIELDS, FluidWarpSettings, make_settings, settings_signature
@@ -212,11 +212,15 @@ class FluidWarpAugment(nn.Module):
         unbatched = image.ndim == 3
         img = image.unsqueeze(0) if unbatched else image
         B, _, H, W = img.shape
+        if image.is_complex() or min(H, W) < 2:
+            raise ValueError(f"image must be real and at least 2 x 2 pixels to warp, got {describe(image)}")
 
         def batched(name: str, x: Tensor | None, tail: list[int | None], floating: bool) -> Tensor | None:
             if x is None:
                 return None
             check_tensor(name, x, floating=floating)
+            if x.is_complex():
+                raise TypeError(f"{name} must be real, got dtype {x.dtype}")
             if x.ndim != len(tail) + (0 if unbatched else 1):
                 raise ValueError(
                     f"{name} must have {len(tail) + (0 if unbatched else 1)} dimensions to go with an image of shape "

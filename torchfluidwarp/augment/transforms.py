@@ -255,7 +255,10 @@ class RandomFluidWarp(v2.Transform):
         return f"{type(self).__name__}({self.sampler.extra_repr()})"
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
-        size = v2.query_size(flat_inputs)
+        try:
+            size = v2.query_size(flat_inputs)
+        except (TypeError, ValueError) as exc:  # torchvision's own message, which names no argument
+            raise type(exc)(f"sample: {exc}") from exc
         device, dtype = torch.device("cpu"), torch.float32
         for inpt in flat_inputs:
             if isinstance(inpt, Tensor) and not isinstance(inpt, (tv_tensors.KeyPoints, tv_tensors.BoundingBoxes)):

@@ -45,7 +45,10 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     da, db = a - ca, b - cb
     if kind == "similarity":
         if a.shape[0] < 2 or float((da**2).sum()) == 0:
-            raise ValueError("a similarity alignment needs at least 2 distinct points")
+            raise ValueError(
+                f"a similarity alignment needs at least 2 distinct points in points_a, got {a.shape[0]} points "
+                f"spread over {float((da**2).sum()):.3g} px^2"
+            )
         u, s, vh = torch.linalg.svd(db.T @ da / a.shape[0])
         d = torch.ones(2, dtype=torch.float64, device=a.device)
         d[1] = torch.sign(torch.linalg.det(u @ vh))  # no reflections

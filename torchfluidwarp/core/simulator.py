@@ -244,9 +244,11 @@ class FluidSimulator(nn.Module):
         h, w = self.grid.shape
         given = [forces]
         if velocity is not None:
-            given.append(check_tensor("velocity", velocity, shape=[B, 2, h + 1, w + 1]))
+            given.append(
+                check_tensor("velocity", velocity, shape=[_same_batch("velocity", velocity, B), 2, h + 1, w + 1])
+            )
         if points is not None:
-            given.append(check_tensor("points", points, shape=[B, None, 2]))
+            given.append(check_tensor("points", points, shape=[_same_batch("points", points, B), None, 2]))
         out_dtype = given[0].dtype
         for x in given[1:]:
             out_dtype = torch.promote_types(out_dtype, x.dtype)
@@ -273,6 +275,13 @@ class FluidSimulator(nn.Module):
                 )
         pts = torch.stack(traj, 1).transpose(2, 3).to(out_dtype) if points is not None else None
         return FluidRollout(torch.stack(vels, 1).to(out_dtype), pts, iters)
+
+
+def _same_batch(name: str, x: object, batch: int) -> int:
+    """``batch``, after refusing a tensor ``x`` whose batch differs from the forces' (naming both)."""
+    if isinstance(x, Tensor) and x.ndim and x.shape[0] != batch:
+        raise ValueError(f"{name} has batch {x.shape[0]} but forces have batch {batch}; got shape {tuple(x.shape)}")
+    return batch
 
 
 class FlowBlewUp(ValueError, FloatingPointError):

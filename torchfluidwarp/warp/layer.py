@@ -41,6 +41,14 @@ __all__ = ["FluidWarp"]  # the maps' names resolve here too, but live in torchfl
 ForceSource = Tensor | Callable[..., Tensor]
 
 
+def check_image(image: object) -> Tensor:
+    """Validate an image ``(B, C, H, W)`` to warp, with ``B, H, W >= 1``."""
+    x = check_tensor("image", image, ndim=4)
+    if min(x.shape[0], *x.shape[-2:]) < 1:
+        raise ValueError(f"image must have B, H and W >= 1, got shape {tuple(x.shape)}")
+    return x
+
+
 class FluidWarp(nn.Module):
     """A differentiable fluid warp layer.
 
@@ -157,7 +165,7 @@ class FluidWarp(nn.Module):
         the next sampling grid built in a worker thread meanwhile); without grad they are written straight into
         the output, so the only large allocation is the output itself.
         """
-        check_tensor("image", image, ndim=4)
+        check_image(image)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
@@ -185,7 +193,7 @@ class FluidWarp(nn.Module):
                 consumed (PyTorch releases the GIL inside its operators, so on two cores the two overlap).
                 ``False`` does everything in the calling thread.
         """
-        check_tensor("image", image, ndim=4)
+        check_image(image)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
         yield image
