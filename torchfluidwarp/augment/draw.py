@@ -192,7 +192,7 @@ def draw_fluid_warp(
     H, W = check_size("size", size, minimum=0)
     if min(H, W) < 2:  # a fluid warp needs a pixel's neighbours: refuse, naming the image, instead of an IndexError
         raise ValueError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
-    (h, w), itemsize = settings.grid.shape, torch.empty(0, dtype=dtype).element_size()
+    (h, w), itemsize = settings.grid.shape, dtype.itemsize
     T = settings.steps[1]
     nbytes = 3 * B * (T * 2 * (h + 1) * (w + 1) + 2 * H * W) * itemsize  # roll-out and maps, a few copies of each
     what = f"a fluid warp of {B} images of size {(H, W)} on a grid of {h} x {w} cells for {T} steps"

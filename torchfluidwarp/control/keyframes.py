@@ -89,7 +89,7 @@ def check_fit_memory(
     ``size`` when images are fitted) would exceed ``limit`` bytes (``max_memory``), before any work."""
     h, w = FluidGrid.of(grid).shape  # type: ignore[arg-type]
     per_step = 16 * 2 * (h + 1) * (w + 1) + (0 if size is None else 8 * 2 * size[0] * size[1])
-    nbytes = batch * steps * per_step * torch.empty(0, dtype=dtype).element_size()
+    nbytes = batch * steps * per_step * dtype.itemsize
     where = f"{what} over {steps} steps on a grid of {h} x {w} cells" + ("" if size is None else f", images {size}")
     check_memory(where, nbytes, limit, "max_memory")  # type: ignore[arg-type]
 

@@ -35,7 +35,7 @@ def extra_points(size: tuple[int, int], per_side: int, avoid: Tensor, spacing: f
         ``(K, 2)`` pixels ``(x, y)``, pixel centres at integers, ``K <= per_side**2``, with ``avoid``'s dtype.
     """
     H, W = size
-    u = (torch.arange(per_side, dtype=torch.float64) + 0.5) / per_side
+    u = (torch.arange(per_side, dtype=torch.float64, device=avoid.device) + 0.5) / per_side
     ys, xs = torch.meshgrid(u * H - 0.5, u * W - 0.5, indexing="ij")
     lattice = torch.stack([xs.reshape(-1), ys.reshape(-1)], -1).to(device=avoid.device, dtype=avoid.dtype)
     if len(avoid):

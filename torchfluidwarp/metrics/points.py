@@ -38,7 +38,7 @@ def invert_map_at(map1: Tensor, targets: Tensor, init: Tensor, iters: int = 30) 
     """
     y = init.double().clone()
     h = 0.5
-    ex, ey = torch.tensor([h, 0.0], dtype=torch.float64), torch.tensor([0.0, h], dtype=torch.float64)
+    ex, ey = y.new_tensor([h, 0.0]), y.new_tensor([0.0, h])
     for _ in range(iters):
         r = read_map(map1, y) - targets  # (K, 2)
         jx = (read_map(map1, y + ex) - read_map(map1, y - ex)) / (2 * h)
