@@ -93,7 +93,7 @@ MAX_MARGIN = 10.0
 
 
 def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid: object, itemsize: int) -> float:
-    """Bytes a morph sets out to hold: a few rendered ``frames`` with their maps, and the fit's fluid states."""
+    """Bytes a morph sets out to hold: ``frames`` rendered at once (one, streamed) and the fit's fluid states."""
     H, W = size
     per_frame = H * W * (3 * channels + 2 * 2 + 2 * 2 * 2)  # frames, A and B warped; maps; maps on the fluid box
     g = FluidGrid.of(grid)  # type: ignore[arg-type]
@@ -298,7 +298,7 @@ def morph(
             raise ValueError(f"margin must be <= {MAX_MARGIN} (a fraction of the points' extent), got {margin!r}")
     check_instance("warm_start", warm_start, KeyframeFit, optional=True)
     shape, colour = schedule("motion", motion), schedule("blend", blend)
-    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], min(n, 8), steps, grid, a.element_size())
+    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], 1, steps, grid, a.element_size())  # streamed
     check_memory(f"morph(frames={n}, steps={steps}, grid={grid})", estimate, max_memory, "morph(max_memory=...)")
     smoothness = defaults["smoothness"] if smoothness is None else smoothness
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)

@@ -160,17 +160,53 @@ class MorphFrames:
     folded: int
 
 
-def render(scene: Scene, ts: list[float]) -> MorphFrames:
+BAND_PIXELS = 2**21
+"""Output pixels rendered at once: a frame larger than this is rendered in bands of rows, so that its
+float64 coordinates and temporaries stay bounded (about 0.3 GB) whatever the picture's size."""
+
+
+def _band(scene: Scene, g: Tensor, k_map: Tensor, s: float, w: float, rows: tuple[int, int]) -> list[Tensor]:
+    """One band of rows ``[r0, r1)`` of a frame at fluid time ``s`` with colour weight ``w``: the frame, A and B
+    warped ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to
+    ``r1`` (one more row each side, where the picture has one, for the Jacobian's central differences)."""
+    a, b, steps = scene.a, scene.b, scene.steps
+    H, W = scene.size
+    lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
+    offset = torch.tensor([scene.box[0], scene.box[1]], dtype=a.dtype, device=a.device)
+    ident = identity_map((hi - lo, W), device=a.device, dtype=torch.float64)
+    ident = ident + ident.new_tensor([0.0, float(lo)])
+    Mk = interpolate_alignment(scene.M, s / steps, scene.center)
+    z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
+    map_a = _sample_map(g, z) + offset
+    map_b = apply_alignment(scene.M, (_sample_map(k_map, z) + offset).double()).to(a.dtype)
+    fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
+    det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, n, W) each
+    frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, (H, W), scene.feather)
+    mine = slice(rows[0] - lo, rows[1] - lo)  # the band's own rows
+    a_rows, b_rows = a[:, :, rows[0] : rows[1]], b[:, :, rows[0] : rows[1]]
+    frame, fa, fb, map_a, map_b = frame[:, :, mine], fa[:, :, mine], fb[:, :, mine], map_a[:, mine], map_b[:, mine]
+    if scene.masks is not None:  # the region, carried by each image's map, shows the morph; the rest the background
+        ma = _warp_image(scene.masks[0], map_a, "bilinear")
+        mb = _warp_image(scene.masks[1], map_b, "bilinear")
+        background = {"a": a_rows, "b": b_rows}.get(scene.background)
+        background = torch.lerp(a_rows, b_rows, w) if background is None else background
+        frame = composite(frame, background, torch.lerp(ma, mb, w))
+    folded = (det_a[:, mine] <= 0).sum() + (det_b[:, mine] <= 0).sum()
+    return [frame, fa, fb, map_a, map_b, folded]
+
+
+def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
     """Render the frames of a fitted morph at the morph's times ``ts`` (increasing, in ``[0, 1]``).
 
     Frame ``t`` shows the fluid at time ``motion(t) T`` (steps) and image B with weight ``blend(t)``.
+    ``keep=False`` keeps the frames only (the warped images and maps come back empty), for streaming.
 
     Cost: one pass of the fluid's maps through time (``T`` raster steps) for the whole list, and per frame two
     resamplings of the images and two of the maps; memory grows with ``len(times)`` only, so callers render long
-    morphs a few frames at a time.
+    morphs a few frames at a time. Frames over :data:`BAND_PIXELS` are rendered in bands of rows.
     """
-    a, b, steps = scene.a, scene.b, scene.steps
-    roi, size, dt = scene.roi, scene.size, scene.dt
+    a, steps = scene.a, scene.steps
+    roi, (H, W), dt = scene.roi, scene.size, scene.dt
     times = [steps * scene.motion(t) for t in ts]  # fluid times, steps
     # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
     g = backward_maps(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, h_r, w_r, 2)
@@ -179,32 +215,24 @@ def render(scene: Scene, ts: list[float]) -> MorphFrames:
     else:
         assert scene.flows is not None
         k_maps = torch.cat(_paper_inverse(scene.flows, times, roi)).to(a.dtype).unsqueeze(1)
-    offset = torch.tensor([scene.box[0], scene.box[1]], dtype=a.dtype, device=a.device)
-    ident = identity_map(size, device=a.device, dtype=torch.float64)
-    out, fwd, bwd, maps_a, maps_b = [], [], [], [], []
+    n, C = len(ts), a.shape[1]
+    rows = max(2, BAND_PIXELS // W)
+    frames = a.new_empty(n, C, H, W)
+    rest = [a.new_empty(n, C, H, W), a.new_empty(n, C, H, W), a.new_empty(n, H, W, 2), a.new_empty(n, H, W, 2)]
+    if not keep:
+        rest = [t[:0] for t in rest]
     folded = 0
     for k, s in enumerate(times):
-        Mk = interpolate_alignment(scene.M, s / steps, scene.center)
-        z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, H, W, 2) in the box
-        map_a = _sample_map(g[k], z) + offset
-        k_at = _sample_map(k_maps[k], z) + offset
-        map_b = apply_alignment(scene.M, k_at.double()).to(a.dtype)
-        fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
-        det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, H, W) each
-        folded += int((det_a <= 0).sum()) + int((det_b <= 0).sum())
-        w = scene.blend(ts[k])
-        frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, size, scene.feather)
-        if scene.masks is None:
+        for r0 in range(0, H, rows):
+            r1 = min(H, r0 + rows)
+            frame, *parts, count = _band(scene, g[k], k_maps[k], s, scene.blend(ts[k]), (r0, r1))
+            frames[k, :, r0:r1] = frame[0]
+            if keep:
+                fa, fb, map_a, map_b = parts
+                rest[0][k, :, r0:r1], rest[1][k, :, r0:r1] = fa[0], fb[0]  # images (n, C, H, W)
+                rest[2][k, r0:r1], rest[3][k, r0:r1] = map_a[0], map_b[0]  # maps (n, H, W, 2)
+            folded += int(count)
+        if scene.masks is None and ts[k] in (0, 1):
             # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-            frame = a if ts[k] == 0 else b if ts[k] == 1 else frame
-        else:  # the region, carried by each image's map, shows the morph; the rest shows the background
-            ma, mb = _warp_image(scene.masks[0], map_a, "bilinear"), _warp_image(scene.masks[1], map_b, "bilinear")
-            background = {"a": a, "b": b}.get(scene.background)
-            frame = composite(frame, torch.lerp(a, b, w) if background is None else background, torch.lerp(ma, mb, w))
-        out.append(frame)
-        fwd.append(fa)
-        bwd.append(fb)
-        maps_a.append(map_a)
-        maps_b.append(map_b)
-    cat = torch.cat
-    return MorphFrames(cat(out), cat(fwd), cat(bwd), cat(maps_a), cat(maps_b), folded)
+            frames[k] = (a if ts[k] == 0 else scene.b)[0]
+    return MorphFrames(frames, rest[0], rest[1], rest[2], rest[3], folded)

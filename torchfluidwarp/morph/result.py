@@ -83,9 +83,9 @@ class MorphResult:
         """Frame ``k``'s time ``t`` in ``[0, 1]``: the frames are evenly spaced, ending exactly at 1."""
         return 1.0 if k == self._count - 1 else k / (self._count - 1)
 
-    def _render(self, ts: list[float]) -> MorphFrames:
+    def _render(self, ts: list[float], keep: bool = True) -> MorphFrames:
         with torch.no_grad():
-            return render(self._scene, ts)
+            return render(self._scene, ts, keep)
 
     def render(self, ts: Sequence[float]) -> MorphFrames:
         """Render the morph at the times ``ts`` (increasing, each in ``[0, 1]``) with its warped images and maps.
@@ -119,9 +119,11 @@ class MorphResult:
             return
         folded = 0
         for start in range(0, self._count, chunk):
-            part = self._render([self._time(k) for k in range(start, min(start + chunk, self._count))])
+            part = self._render([self._time(k) for k in range(start, min(start + chunk, self._count))], keep=False)
             folded += part.folded
-            yield from part.frames.to(self._dtype).unbind(0)
+            frames = part.frames.to(self._dtype)
+            del part  # hold the frames only while they are handed out
+            yield from frames.unbind(0)
         self._set_folded(folded)
 
     def _set_folded(self, count: int) -> None:
