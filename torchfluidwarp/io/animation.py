@@ -1,8 +1,10 @@
 """Animations: ``(T, C, H, W)`` frames, or an iterable of ``(C, H, W)`` frames, streamed to an animated GIF,
-an MP4 or a folder of PNGs, or encoded to bytes, one frame at a time.
+an MP4 or a folder of PNGs, or written as an animated WebP, or encoded to bytes.
 
-Frames are float tensors ``(T, C, H, W)``: ``T`` frames, values in ``[0, 1]``, ``C`` in 1, 3, 4. Every output
-is written to a temporary sibling and moved into place only on success.
+Frames are float tensors ``(T, C, H, W)``: ``T`` frames, values in ``[0, 1]``, ``C`` in 1, 3, 4. RGBA frames
+stay RGBA where the format can hold it: PNG frames keep their alpha exactly, a GIF makes the pixels with alpha
+below 0.5 transparent, a WebP keeps its alpha (lossless alpha, lossy colour). Every output is written to a
+temporary sibling and moved into place only on success.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import BinaryIO, Literal
 
 import imageio.v3 as iio
 import numpy as np
-from PIL import GifImagePlugin, Image
+from PIL import GifImagePlugin, Image, features
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_real, check_tensor, describe
@@ -33,10 +35,11 @@ __all__ = [
     "MIN_FPS",
     "MAX_FPS",
     "MAX_LOOP",
+    "MAX_WEBP_BYTES",
     "AnimationFormat",
 ]
 
-AnimationFormat = Literal["gif", "mp4"]
+AnimationFormat = Literal["gif", "mp4", "webp"]
 
 FFMPEG_HINT = "MP4 output needs imageio-ffmpeg: pip install 'torchfluidwarp[video]'"
 
@@ -49,6 +52,12 @@ MAX_FPS = 1000.0
 past 100 fps every GIF frame is shown for 0.01 s; MP4 keeps the rate."""
 MAX_LOOP = 65535
 """The largest GIF repeat count (a 16-bit field)."""
+MAX_WEBP_BYTES = 2**30
+"""The most raw frame bytes (``T * H * W * 4``, 8-bit RGBA) an animated WebP may hold. Pillow's WebP writer takes
+all frames at once, so unlike the other formats a WebP is not streamed: its frames are held in memory until the
+last one, and a longer or larger animation is refused (write a GIF or PNG frames instead)."""
+TRANSPARENT = 255
+"""The GIF palette index of transparent pixels (the colours are quantized to the other 255)."""
 
 
 def write_animation(
@@ -60,12 +69,17 @@ def write_animation(
 
     * ``*.gif``: an animated GIF (Pillow's encoder). Each frame is shown for ``1 / fps`` seconds, rounded to
       the GIF's 10 ms steps; every frame is kept, repeated ones included, each with its own palette.
+      RGBA frames give a transparent GIF: pixels with alpha below 0.5 (127 of 255) are transparent, the others
+      opaque (a GIF has no partial transparency); each frame replaces the one before (disposal 2).
     * ``*.mp4``: H.264 through imageio-ffmpeg (needs the ``[video]`` extra). Odd sizes are
       padded by one edge row/column, as yuv420p needs even sizes.
+    * ``*.webp``: an animated WebP (Pillow, where built with WebP: ``PIL.features.check("webp")``), lossy colour
+      at quality 90 and lossless alpha. Its frames are held in memory until the last (Pillow's writer takes
+      them all at once), at most :data:`MAX_WEBP_BYTES` as 8-bit RGBA.
     * a path ending in ``/``, an existing directory or a path without suffix: a folder of
-      ``frame_0000.png``, ``frame_0001.png``, ... (all channels kept).
+      ``frame_0000.png``, ``frame_0001.png``, ... (all channels kept, alpha included).
 
-    GIF and MP4 are RGB: gray frames are repeated to RGB and an alpha channel is dropped.
+    Gray frames are repeated to RGB for GIF, MP4 and WebP; MP4 drops an alpha channel.
 
     Frames are encoded as they come, so an iterable (e.g. ``result.iter_frames()`` of a morph) is written in
     the memory of one frame whatever its length. The output goes to a temporary sibling that is moved into
@@ -88,7 +102,7 @@ def write_animation(
             suffix. They are checked before anything is written (a tensor's frames all, an iterable's first
             one; a later bad frame of an iterable raises as it comes, and leaves nothing behind).
         FileExistsError: the output exists and ``overwrite`` is false.
-        RuntimeError: MP4 output without imageio-ffmpeg installed.
+        RuntimeError: MP4 output without imageio-ffmpeg installed, or WebP output from a Pillow without WebP.
     """
     target = check_output_path("path", path, folder_ok=True)
     as_folder = os.fspath(path).endswith(("/", os.sep)) or target.is_dir() or not target.suffix
@@ -100,6 +114,8 @@ def write_animation(
     data = _uint8_stream(frames)
     if kind == "mp4":
         _require_ffmpeg()
+    if kind == "webp":
+        _require_webp()
     check_overwrite(target, overwrite)
     make_parents("path", target)
     with atomic_output(target, folder=kind == "frames") as tmp:
@@ -108,6 +124,9 @@ def write_animation(
         elif kind == "gif":
             with open(tmp, "wb") as fp:
                 _write_gif(fp, data, fps, loop)
+        elif kind == "webp":
+            with open(tmp, "wb") as fp:
+                _write_webp(fp, data, fps, loop)
         else:
             _write_mp4(tmp, data, fps)
     return target
@@ -116,12 +135,13 @@ def write_animation(
 def encode_animation(
     frames: Tensor | Iterable[Tensor], fmt: AnimationFormat = "gif", *, fps: float = 10.0, loop: int = 0
 ) -> bytes:
-    """Encode frames as GIF or MP4 bytes, e.g. to send from a web server without touching disk.
+    """Encode frames as GIF, MP4 or WebP bytes, e.g. to send from a web server without touching disk.
 
     Args:
         frames: ``(T, C, H, W)`` float tensor with values in ``[0, 1]``, ``C`` in 1, 3, 4, or an iterable of
             ``(C, H, W)`` frames (encoded as they come).
-        fmt: ``"gif"`` or ``"mp4"`` (MP4 needs imageio-ffmpeg and passes through a temporary file).
+        fmt: ``"gif"``, ``"mp4"`` (needs imageio-ffmpeg and passes through a temporary file) or ``"webp"``
+            (frames held in memory, see :func:`write_animation`).
         fps: frames per second, from :data:`MIN_FPS` (0.01) to :data:`MAX_FPS` (1000).
         loop: GIF repeat count, 0 to :data:`MAX_LOOP`; 0 loops forever.
 
@@ -130,21 +150,23 @@ def encode_animation(
 
     Raises:
         TypeError, ValueError: bad ``frames``, ``fmt``, ``fps`` or ``loop``.
-        RuntimeError: ``fmt="mp4"`` without imageio-ffmpeg installed.
+        RuntimeError: ``fmt="mp4"`` without imageio-ffmpeg installed, ``fmt="webp"`` without Pillow's WebP.
 
     Example:
         >>> import torch
         >>> encode_animation(torch.rand(3, 3, 8, 8), "gif")[:6]
         b'GIF89a'
     """
-    if fmt not in ("gif", "mp4"):
-        raise ValueError(f"fmt must be 'gif' or 'mp4', got {fmt!r}")
+    if fmt not in ("gif", "mp4", "webp"):
+        raise ValueError(f"fmt must be 'gif', 'mp4' or 'webp', got {fmt!r}")
     fps = check_fps(fps)
     _check_loop(loop)
     data = _uint8_stream(frames)
-    if fmt == "gif":
+    if fmt in ("gif", "webp"):
+        if fmt == "webp":
+            _require_webp()
         buffer = io.BytesIO()
-        _write_gif(buffer, data, fps, loop)
+        (_write_gif if fmt == "gif" else _write_webp)(buffer, data, fps, loop)
         return buffer.getvalue()
     _require_ffmpeg()
     with tempfile.TemporaryDirectory() as folder:
@@ -177,9 +199,10 @@ def _check_loop(loop: object) -> None:
 
 def _animation_format(suffix: str) -> str:
     kind = suffix.lower().lstrip(".")
-    if kind not in ("gif", "mp4"):
+    if kind not in ("gif", "mp4", "webp"):
         raise ValueError(
-            f"unknown animation suffix {suffix!r}: use .gif, .mp4, or a folder (a path ending in '/' or without suffix)"
+            f"unknown animation suffix {suffix!r}: use .gif, .mp4, .webp, or a folder (a path ending in '/' or "
+            "without suffix)"
         )
     return kind
 
@@ -189,6 +212,11 @@ def _require_ffmpeg() -> None:
         import imageio_ffmpeg  # noqa: F401
     except ImportError:
         raise RuntimeError(FFMPEG_HINT) from None
+
+
+def _require_webp() -> None:
+    if not features.check("webp"):
+        raise RuntimeError("WebP output needs a Pillow built with WebP support (PIL.features.check('webp') is False)")
 
 
 def _uint8_stream(frames: Tensor | Iterable[Tensor]) -> Iterator[np.ndarray]:
@@ -242,7 +270,8 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
 
     Each frame is quantized on its own (median cut, 256 colours, no dithering) and written whole with its
     own colour table, so nothing is held but the frame at hand and no frame is merged with the one before it
-    (Pillow's multi-frame writer keeps every frame until the end, and drops repeated ones).
+    (Pillow's multi-frame writer keeps every frame until the end, and drops repeated ones). An RGBA frame is
+    quantized to 255 colours and its pixels with alpha below 128 take the transparent index :data:`TRANSPARENT`.
     """
     delay_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
     for k, frame in enumerate(frames):
@@ -251,10 +280,42 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
             h, w = rgb.shape[:2]
             fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
             fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
-        quantized = Image.fromarray(rgb).quantize(colors=256)
-        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, include_color_table=True):
+        if frame.shape[-1] == 4:
+            quantized, extra = _transparent(rgb, frame[..., 3]), {"transparency": TRANSPARENT, "disposal": 2}
+        else:
+            quantized, extra = Image.fromarray(rgb).quantize(colors=256), {}
+        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, include_color_table=True, **extra):
             fp.write(part)
     fp.write(b";")
+
+
+def _transparent(rgb: np.ndarray, alpha: np.ndarray) -> Image.Image:
+    """A palette image of ``rgb`` in 255 colours, with index :data:`TRANSPARENT` where ``alpha < 128``."""
+    quantized = Image.fromarray(rgb).quantize(colors=TRANSPARENT)
+    indices = np.asarray(quantized).copy()
+    indices[alpha < 128] = TRANSPARENT
+    palette = (quantized.getpalette() or [])[: 3 * TRANSPARENT]
+    out = Image.fromarray(indices, "P")
+    out.putpalette(palette + [0] * (768 - len(palette)))
+    return out
+
+
+def _write_webp(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int) -> None:
+    """Encode ``(H, W, C)`` uint8 frames as an animated WebP, holding them until the last (at most
+    :data:`MAX_WEBP_BYTES` as RGBA)."""
+    images: list[Image.Image] = []
+    held = 0
+    for frame in frames:
+        held += frame.shape[0] * frame.shape[1] * 4
+        if held > MAX_WEBP_BYTES:
+            raise ValueError(
+                f"an animated WebP holds its frames in memory, and these pass {MAX_WEBP_BYTES / 2**30:g} GiB "
+                f"(MAX_WEBP_BYTES) at frame {len(images)}; write a .gif or a folder of PNG frames instead"
+            )
+        rgb = _rgb(frame)
+        images.append(Image.fromarray(np.dstack([rgb, frame[..., 3]]) if frame.shape[-1] == 4 else rgb))
+    duration = max(1, round(1000.0 / fps))
+    images[0].save(fp, format="WEBP", save_all=True, append_images=images[1:], duration=duration, loop=loop, quality=90)
 
 
 def _write_mp4(file: Path, frames: Iterator[np.ndarray], fps: float) -> None:
