@@ -16,7 +16,7 @@ import struct
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import BinaryIO, Literal
+from typing import Any, BinaryIO, Literal
 
 import imageio.v3 as iio
 import numpy as np
@@ -280,10 +280,11 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
             h, w = rgb.shape[:2]
             fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
             fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
+        extra: dict[str, Any] = {}
         if frame.shape[-1] == 4:
             quantized, extra = _transparent(rgb, frame[..., 3]), {"transparency": TRANSPARENT, "disposal": 2}
         else:
-            quantized, extra = Image.fromarray(rgb).quantize(colors=256), {}
+            quantized = Image.fromarray(rgb).quantize(colors=256)
         for part in GifImagePlugin.getdata(quantized, duration=delay_ms, include_color_table=True, **extra):
             fp.write(part)
     fp.write(b";")
