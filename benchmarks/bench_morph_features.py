@@ -1,0 +1,85 @@
+"""Benchmark of #23's sequences and averages at 512 x 512: the time of a 5-image sequence and of a 10-image average.
+
+The images are the bundled astronaut and cat (512 x 512, 23 corresponding points each,
+:func:`torchfluidwarp.data.load_sample_points`) and copies of them under mild known affine maps (about a degree of
+rotation, a few percent of zoom out, a few pixels of shift: a crop-and-zoom of the photo), their points moved by the
+same map, so every image has the same 23 points in the same order:
+
+* **sequence**: astronaut -> cat -> astronaut' -> cat' -> astronaut'' (:func:`torchfluidwarp.morph.morph_sequence`,
+  default settings, ``--frames`` frames in all, streamed with ``iter_frames``): fit time (the segments' fits and
+  roll-outs, in the call) and total time with every frame rendered;
+* **average**: five copies of the astronaut and five of the cat (:func:`torchfluidwarp.morph.average`, default
+  settings): total time, the fraction of folded map pixels and the mean point error.
+
+Float32 on CPU, one process, one run each (the figures are seconds, not milliseconds)::
+
+    python benchmarks/bench_morph_features.py [--frames 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import torch
+import torch.nn.functional as F
+from _common import describe_load, machine, machine_load
+
+from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.morph import average, morph_sequence
+
+
+def affine_copy(image: torch.Tensor, points: torch.Tensor, angle: float, scale: float, shift: tuple[float, float]):
+    """``image`` (1, C, H, W) under the map ``p -> R(angle) * scale * (p - c) + c + shift`` (pixels, c the centre),
+    and ``points`` (M, 2) moved by it."""
+    H, W = image.shape[-2:]
+    c = torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64)
+    a = math.radians(angle)
+    m = scale * torch.tensor([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]], dtype=torch.float64)
+    t = torch.tensor(shift, dtype=torch.float64)
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float64), torch.arange(W, dtype=torch.float64), indexing="ij")
+    out = torch.stack([xs, ys], -1)  # output pixels y; read the source at m^-1 (y - c - t) + c
+    src = (out - c - t) @ torch.linalg.inv(m).T + c
+    grid = torch.stack([(src[..., 0] + 0.5) / W * 2 - 1, (src[..., 1] + 0.5) / H * 2 - 1], -1)
+    warped = F.grid_sample(image, grid[None].float(), mode="bilinear", padding_mode="border", align_corners=False)
+    moved = (points.double() - c) @ m.T + c + t
+    return warped, moved.to(points.dtype)
+
+
+MAPS = [(0.0, 1.0, (0.0, 0.0)), (1.0, 0.96, (4.0, -3.0)), (-1.0, 0.97, (-3.0, 4.0)), (0.5, 0.95, (-4.0, -4.0)),
+        (-0.5, 0.96, (3.0, 3.0))]  # fmt: skip
+"""(degrees, scale, shift in pixels) of each copy: mild, and they keep the cat's border points inside the picture."""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=60, help="frames of the sequence (default 60)")
+    args = parser.parse_args()
+    samples = {name: (load_sample(name), load_sample_points(name)) for name in ("astronaut", "cat")}
+    copies = {name: [affine_copy(img, pts, *m) for m in MAPS] for name, (img, pts) in samples.items()}
+    info = machine()
+    print(f"machine: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} ({info['torch_threads']} threads)")
+    print(f"load before: {describe_load(machine_load())}")
+
+    order = [copies["astronaut"][0], copies["cat"][0], copies["astronaut"][1], copies["cat"][1], copies["astronaut"][2]]
+    t0 = time.perf_counter()
+    seq = morph_sequence([im for im, _ in order], [p for _, p in order], frames=args.frames, progress=False)
+    fitted = time.perf_counter() - t0
+    count = sum(1 for _ in seq.iter_frames())
+    total = time.perf_counter() - t0
+    print(f"sequence of 5 images at 512x512, {count} frames: fit {fitted:.1f} s, total with rendering {total:.1f} s")
+
+    ten = copies["astronaut"] + copies["cat"]
+    t0 = time.perf_counter()
+    mean = average([im for im, _ in ten], [p for _, p in ten], progress=False)
+    seconds = time.perf_counter() - t0
+    print(
+        f"average of 10 images at 512x512: {seconds:.1f} s, folded {mean.folded:.2e}, "
+        f"mean point error {float(mean.errors.mean()):.2f} px"
+    )
+    print(f"load after: {describe_load(machine_load())}")
+
+
+if __name__ == "__main__":
+    main()
