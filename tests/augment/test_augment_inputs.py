@@ -53,7 +53,7 @@ def test_complex_images_and_masks_and_empty_images_are_refused_by_name():
         random_fluid_warp(torch.rand(3, 8, 8, dtype=torch.complex64), **SMALL)
     with pytest.raises(TypeError, match="masks must be real"):
         random_fluid_warp(torch.rand(3, 8, 8), masks=torch.zeros(1, 8, 8, dtype=torch.complex64), **SMALL)
-    with pytest.raises(ValueError, match=r"image must be real and at least 2 x 2 .* \(2, 3, 8, 0\)"):
+    with pytest.raises(ValueError, match=r"image must be real, non-empty and at least 2 x 2 .* \(2, 3, 8, 0\)"):
         random_fluid_warp(torch.rand(2, 3, 8, 0), masks=torch.zeros(2, 1, 8, 8), **SMALL)
 
 
@@ -68,3 +68,8 @@ def test_the_v2_transform_names_the_sample_when_torchvision_cannot_size_it():
     sample = {"image": tv_tensors.Image(torch.rand(3, 8, 8)), "mask": tv_tensors.Mask(torch.tensor(0.5))}
     with pytest.raises(TypeError, match="sample: "):
         torchfluidwarp.RandomFluidWarp(**SMALL)(sample)
+
+
+def test_an_empty_batch_names_the_image_not_the_keypoints():
+    with pytest.raises(ValueError, match="image must be real, non-empty"):
+        random_fluid_warp(torch.rand(0, 3, 8, 8), keypoints=torch.zeros(2, 3, 2), **SMALL)

@@ -15,3 +15,12 @@ def test_a_non_finite_image_is_refused(bad):
     with pytest.raises(ValueError, match="image contains non-finite"):
         resize_image(image, (5, 11))
     assert resize_image(torch.rand(1, 3, 8, 8), (5, 11)).isfinite().all()
+
+
+def test_shrink_image_refuses_a_non_finite_image_even_when_it_is_small_enough():
+    from torchfluidwarp.io import shrink_image
+
+    image = torch.rand(1, 3, 8, 8)
+    image[0, 0, 0, 0] = float("inf")
+    with pytest.raises(ValueError, match="image contains non-finite"):
+        shrink_image(image, 10**9)

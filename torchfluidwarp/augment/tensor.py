@@ -212,8 +212,8 @@ class FluidWarpAugment(nn.Module):
         unbatched = image.ndim == 3
         img = image.unsqueeze(0) if unbatched else image
         B, _, H, W = img.shape
-        if image.is_complex() or min(H, W) < 2:
-            raise ValueError(f"image must be real and at least 2 x 2 pixels to warp, got {describe(image)}")
+        if image.is_complex() or min(H, W) < 2 or B < 1:
+            raise ValueError(f"image must be real, non-empty and at least 2 x 2 pixels to warp, got {describe(image)}")
 
         def batched(name: str, x: Tensor | None, tail: list[int | None], floating: bool) -> Tensor | None:
             if x is None:

@@ -238,7 +238,7 @@ def fit_images(
     check_int("history_size", history_size)
     check_fraction("compressible", compressible)
     dtype = compute_dtype(check_float_dtype("dtype", dtype))  # half precision is fitted in float32
-    check_fit_memory("fit_images", B, steps, fine, (H, W), dtype, max_memory)
+    check_fit_memory("fit_images", B, steps, fine, (H, W), dtype, max_memory, (ky, kx))
     pts = None
     if points is not None:
         if not (isinstance(points, (tuple, list)) and len(points) == 2):

@@ -83,12 +83,21 @@ class KeyframeFit:
 
 
 def check_fit_memory(
-    what: str, batch: int, steps: int, grid: object, size: tuple[int, int] | None, dtype: torch.dtype, limit: object
+    what: str,
+    batch: int,
+    steps: int,
+    grid: object,
+    size: tuple[int, int] | None,
+    dtype: torch.dtype,
+    limit: object,
+    control: object = 2,
 ) -> None:
-    """Refuse a fit whose roll-out with autograd (some 16 velocity-sized tensors per step, and some 8 maps of
-    ``size`` when images are fitted) would exceed ``limit`` bytes (``max_memory``), before any work."""
+    """Refuse a fit whose roll-out with autograd (some 16 velocity-sized tensors per step, some 8 maps of
+    ``size`` when images are fitted, and the ``control`` weights with L-BFGS' history of 100 steps) would exceed
+    ``limit`` bytes (``max_memory``), before any work."""
     h, w = FluidGrid.of(grid).shape  # type: ignore[arg-type]
-    per_step = 16 * 2 * (h + 1) * (w + 1) + (0 if size is None else 8 * 2 * size[0] * size[1])
+    ky, kx = check_size("control", control)
+    per_step = 16 * 2 * (h + 1) * (w + 1) + (0 if size is None else 8 * 2 * size[0] * size[1]) + 210 * 2 * ky * kx
     nbytes = batch * steps * per_step * dtype.itemsize
     where = f"{what} over {steps} steps on a grid of {h} x {w} cells" + ("" if size is None else f", images {size}")
     check_memory(where, nbytes, limit, "max_memory")  # type: ignore[arg-type]
@@ -249,7 +258,7 @@ def fit_keyframes(
     src = check_points("source", source, (H, W))
     keyframes = _keyframes(target, steps, (H, W), src.shape[1], src.shape[0])
     B = max([src.shape[0]] + [q.shape[0] for _, q in keyframes])
-    check_fit_memory("fit_keyframes", B, steps, grid, None, dtype, max_memory)
+    check_fit_memory("fit_keyframes", B, steps, grid, None, dtype, max_memory, control)
     device = src.device
     src = src.expand(B, -1, -1).to(dtype)
     keyframes = [(t, q.expand(B, -1, -1).to(device, dtype)) for t, q in keyframes]

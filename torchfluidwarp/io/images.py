@@ -222,7 +222,7 @@ def shrink_image(image: Tensor, longest: int) -> Tensor:
         >>> shrink_image(torch.ones(1, 3, 300, 200), 150).shape
         torch.Size([1, 3, 150, 100])
     """
-    check_tensor("image", image, ndim=4, finite=False)
+    check_tensor("image", image, ndim=4)  # as resize_image: NaN or inf is refused, shrunk or not
     check_int("longest", longest, minimum=0)
     H, W = image.shape[-2:]
     if longest == 0 or max(H, W) <= longest:
