@@ -99,7 +99,8 @@ def check_fit_memory(
     ky, kx = check_size("control", control)
     per_step = 16 * 2 * (h + 1) * (w + 1) + (0 if size is None else 8 * 2 * size[0] * size[1]) + 210 * 2 * ky * kx
     nbytes = batch * steps * per_step * dtype.itemsize
-    where = f"{what} over {steps} steps on a grid of {h} x {w} cells" + ("" if size is None else f", images {size}")
+    where = f"{what} over {steps} steps on a grid of {h} x {w} cells, control {ky} x {kx}"
+    where += "" if size is None else f", images {size}"
     check_memory(where, nbytes, limit, "max_memory")  # type: ignore[arg-type]
 
 
