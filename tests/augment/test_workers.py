@@ -1,0 +1,140 @@
+"""Augmentation at scale: DataLoader workers draw different, reproducible warps; a batch draws in one call."""
+
+import itertools
+from functools import cache
+
+import pytest
+import torch
+from torch.utils.data import DataLoader, Dataset, get_worker_info
+from torchvision import tv_tensors
+
+from torchfluidwarp.augment import FluidWarpAugment, FluidWarpSettings, brush_forces, draw_fluid_warp, raster_map
+from torchfluidwarp.augment.transforms import RandomFluidWarp
+from torchfluidwarp.warp.layer import FluidWarp
+
+N, S = 8, 24  # 8 identical images of 24 x 24: only the warp differs between samples
+SETTINGS = FluidWarpSettings(count=(1, 2), strength=(0.2, 0.4), radius=(4.0, 8.0), steps=(2, 4), grid=8)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _image():
+    g = torch.Generator().manual_seed(0)
+    return torch.rand(3, S, S, generator=g)
+
+
+class _Same(Dataset):
+    """``N`` copies of one image through ``transform``; each item also says which worker warped it."""
+
+    def __init__(self, transform):
+        self.transform, self.image = transform, _image()
+
+    def __len__(self):
+        return N
+
+    def __getitem__(self, i):
+        return self.transform(tv_tensors.Image(self.image)).as_subclass(torch.Tensor), get_worker_info().id
+
+
+TRANSFORMS = {
+    # no generator: the draws come from torch's default RNG, which DataLoader seeds in each worker
+    "RandomFluidWarp, default RNG": lambda: RandomFluidWarp(settings=SETTINGS),
+    # a generator made at construction is pickled into every worker, which re-seeds its own copy
+    "FluidWarpAugment, own generator": lambda: FluidWarpAugment(
+        settings=SETTINGS, generator=torch.Generator().manual_seed(5)
+    ),
+}
+
+
+@cache
+def _run(name, seed, run):
+    """The ``N`` warped images and the worker of each, from a fresh transform in a 2-worker loader seeded with
+    ``seed``. Cached (``run`` tells repeats apart), so each loader starts its workers once for the module."""
+    loader = DataLoader(
+        _Same(TRANSFORMS[name]()),
+        batch_size=1,
+        num_workers=2,
+        generator=torch.Generator().manual_seed(seed),
+    )
+    images, workers = zip(*loader)
+    return torch.cat(images), torch.cat(workers)
+
+
+@pytest.mark.parametrize("name", TRANSFORMS)
+def test_workers_and_samples_draw_different_warps(name):
+    images, workers = _run(name, 1, 0)
+    assert images.shape == (N, 3, S, S) and set(workers.tolist()) == {0, 1}
+    # every pair differs, within a worker and across the two: no worker repeats another's draws
+    for i, j in itertools.combinations(range(N), 2):
+        assert (images[i] - images[j]).abs().amax() > 1e-3, (i, j, workers[i].item(), workers[j].item())
+    # and they are warps of the image, not noise: each stays close to it on average
+    assert ((images - _image()).abs().mean((1, 2, 3)) < 0.3).all()
+
+
+@pytest.mark.parametrize("name", TRANSFORMS)
+def test_seeded_runs_reproduce_and_another_seed_differs(name):
+    first, workers = _run(name, 1, 0)
+    again, workers_again = _run(name, 1, 1)
+    assert torch.equal(workers, workers_again)
+    assert torch.equal(first, again)  # bit for bit: same loader seed, same warps, sample by sample
+    other, _ = _run(name, 2, 0)
+    assert all((first[i] - other[i]).abs().amax() > 1e-3 for i in range(N))
+
+
+def test_a_batch_is_drawn_and_rolled_out_in_one_call(monkeypatch):
+    calls = []
+    rollout = FluidWarp.rollout
+
+    def counted(self, forces, *args, **kwargs):
+        calls.append(forces.shape[0])
+        return rollout(self, forces, *args, **kwargs)
+
+    monkeypatch.setattr(FluidWarp, "rollout", counted)
+    images = _image().expand(16, -1, -1, -1)
+    out = FluidWarpAugment(settings=SETTINGS, generator=torch.Generator().manual_seed(0))(images)
+    assert calls == [16]  # one roll-out for the whole batch (these settings never need a fold retry)
+    # per-sample warps: no two samples of the batch share one
+    for i, j in itertools.combinations(range(16), 2):
+        assert (out[i] - out[j]).abs().amax() > 1e-3, (i, j)
+
+
+def test_a_sample_warp_depends_only_on_its_own_brushes():
+    # the batched roll-out computes what a roll-out per sample would, from the same brushes
+    params = draw_fluid_warp(SETTINGS, 6, (S, S), generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    assert (params.force_scale == 1).all()
+    for b in range(params.batch):
+        one = slice(b, b + 1)
+        forces = brush_forces(
+            params.centers[one],
+            params.directions[one],
+            params.amplitude[one],
+            params.radius[one],
+            grid=SETTINGS.grid,
+            image_size=(S, S),
+            steps=int(params.steps[b]),
+        )
+        with torch.no_grad():
+            v = FluidWarp(SETTINGS.grid, int(params.steps[b]), SETTINGS.dt, SETTINGS.viscosity)
+            v = v.rollout(forces, (S, S)).velocities
+        torch.testing.assert_close(params.velocities[one, : v.shape[1]], v, rtol=1e-6, atol=1e-8)
+        assert not params.velocities[b, v.shape[1] :].any()  # past its own steps, a sample stands still
+        torch.testing.assert_close(params.raster_map[one], raster_map(v, (S, S), SETTINGS.dt), rtol=1e-6, atol=1e-6)
+
+
+def test_a_batch_draw_is_not_a_sequence_of_single_draws():
+    # the documented contract: a seed fixes the draws of a call of a given batch size; sample b of a batch of B
+    # is not what the b-th call of batch 1 would draw (the batch draws each quantity for all samples at once)
+    aug = FluidWarpAugment(settings=SETTINGS, generator=torch.Generator().manual_seed(4))
+    batch = aug.make_params(4, (S, S)).centers
+    aug.generator.manual_seed(4)
+    singles = torch.cat([aug.make_params(1, (S, S)).centers for _ in range(4)])
+    assert not torch.allclose(batch, singles)
+    aug.generator.manual_seed(4)
+    torch.testing.assert_close(aug.make_params(4, (S, S)).centers, batch, rtol=0, atol=0)
