@@ -169,7 +169,11 @@ def draw_fluid_warp(
     """Draw the random brushes of one call and roll the fluid out for the whole batch, fold-free.
 
     Draws happen on the generator's device (CPU without one), so a seed gives the same warp on any device; the
-    roll-out then runs on ``device`` in ``dtype`` without autograd. A sample whose map would fold
+    roll-out then runs on ``device`` in ``dtype`` without autograd, for the whole batch in one
+    :class:`~torchfluidwarp.warp.layer.FluidWarp` call (a sample's map depends only on its own brushes). Each
+    random quantity is drawn for all ``B`` samples at once (counts, steps, centres, angles, strengths, radii),
+    so a generator state fixes the draw of a given ``batch``, but sample ``b`` of a batch is not the warp that
+    the ``b``-th of ``B`` batch-1 draws from the same state would give. A sample whose map would fold
     (:func:`min_quad_determinant` below :data:`MIN_DET`) is rolled out again with half its force, up to
     ``settings.max_retries`` times, then left unwarped (``force_scale`` records it).
 

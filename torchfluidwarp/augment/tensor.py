@@ -83,7 +83,9 @@ class FluidWarpAugment(nn.Module):
 
     The draw happens once per call (:meth:`make_params`), and all inputs of the call share it. The whole batch is
     rolled out in one :class:`~torchfluidwarp.warp.layer.FluidWarp` call with per-sample forces, on the input's
-    device and in its floating dtype (float32 for integer images).
+    device and in its floating dtype (float32 for integer images); each sample's warp depends on its own brushes
+    only. A seed fixes the warps of a call for its batch size: sample ``b`` of a batch is not the warp that
+    the ``b``-th of a run of single-image calls would draw (see :func:`~torchfluidwarp.augment.draw.draw_fluid_warp`).
 
     Args:
         count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries: the settings, by name
@@ -91,9 +93,13 @@ class FluidWarpAugment(nn.Module):
             :class:`~torchfluidwarp.augment.settings.FluidWarpSettings`; ranges are ``(min, max)`` or a number.
         settings: a ready :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` instead; settings given by
             name next to it replace its fields.
-        generator: a ``torch.Generator`` for the draws; ``None`` uses torch's global RNG. In a
-            ``DataLoader`` worker the generator is re-seeded once from its seed and the worker's seed, so
-            workers draw different, reproducible warps.
+        generator: a ``torch.Generator`` for the draws; ``None`` uses torch's default RNG (which ``DataLoader``
+            seeds in each worker from its base seed). In a ``DataLoader`` worker a generator is replaced, on the
+            first draw there, by a fresh one seeded from its ``initial_seed()`` and the worker's seed
+            (``get_worker_info().seed``): workers draw different warps, each epoch new ones, and a loader
+            seeded with ``generator=torch.Generator().manual_seed(s)`` draws the same warps on every run. (Its
+            state in the main process does not carry over: a copy pickled into each worker would repeat the
+            same warps in every worker.)
 
     Attributes:
         settings: the validated :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` (its fields also read

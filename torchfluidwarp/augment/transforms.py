@@ -213,7 +213,9 @@ class RandomFluidWarp(v2.Transform):
         settings: a ready :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` instead.
         generator: ``torch.Generator`` or ``None`` (torch's global RNG, which ``DataLoader`` seeds per worker).
             A generator is pickled into each ``DataLoader`` worker and re-seeded there from its seed and the
-            worker's seed, so workers draw different warps.
+            worker's seed, so workers draw different warps; either way a loader seeded with
+            ``generator=torch.Generator().manual_seed(s)`` draws the same warps on every run (see
+            :class:`~torchfluidwarp.augment.tensor.FluidWarpAugment`).
 
     A sample is warped as one: batched images ``(B, C, H, W)`` in one call share one warp, as for every
     torchvision transform. Works in ``v2.Compose``, on dicts and tuples, and in ``DataLoader`` workers.
