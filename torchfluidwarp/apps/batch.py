@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
 from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, write_animation
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import MorphSequence, morph
 from torchfluidwarp.morph.result import MorphResult
 
 __all__ = ["PairRow", "BatchReport", "read_pairs", "morph_pairs", "stream_frames", "STREAM_BYTES"]
@@ -83,9 +83,11 @@ class BatchReport:
         return not self.failed
 
 
-def stream_frames(result: MorphResult) -> Iterator[Tensor]:
-    """A morph's frames ``(C, H, W)``, rendered a few at a time so that at most :data:`STREAM_BYTES` are held."""
-    return result.iter_frames(chunk=max(1, min(8, STREAM_BYTES // result.bytes_per_frame())))
+def stream_frames(result: MorphResult | MorphSequence) -> Iterator[Tensor]:
+    """A morph's (or a sequence's) frames ``(C, H, W)``, rendered a few at a time so that at most
+    :data:`STREAM_BYTES` are held."""
+    first = result.segments[0] if isinstance(result, MorphSequence) else result
+    return result.iter_frames(chunk=max(1, min(8, STREAM_BYTES // first.bytes_per_frame())))
 
 
 def read_pairs(path: str | os.PathLike[str]) -> tuple[list[PairRow], list[tuple[int, str, str]]]:

@@ -6,7 +6,9 @@ Subcommands:
   write a GIF, an MP4 or a folder of PNG frames. The settings come from options or a JSON file (its format is
   in :mod:`torchfluidwarp.apps.animate` and in ``torchfluidwarp animate --help``).
 * ``morph``: morph image A into image B along corresponding points (:func:`torchfluidwarp.morph.morph`,
-  in :mod:`torchfluidwarp.apps.cli_morph`).
+  in :mod:`torchfluidwarp.apps.cli_morph`), found from the pictures when no point files are given; or through
+  several images (:mod:`torchfluidwarp.apps.cli_sequence`).
+* ``average``: the mean of several images, each warped to the mean shape (:func:`torchfluidwarp.morph.average`).
 * ``demo``: the morph of the bundled samples (astronaut into cat), written to ``morph.gif``.
 * ``studio``: the local web page (:mod:`torchfluidwarp.apps.studio`, the ``[studio]`` extra).
 
@@ -51,6 +53,7 @@ from torchfluidwarp.apps.cli_args import (
     progress_bar,
 )
 from torchfluidwarp.apps.cli_morph import add_demo, add_morph
+from torchfluidwarp.apps.cli_sequence import add_average
 from torchfluidwarp.io import read_image, write_animation
 
 __all__ = ["build_parser", "main"]
@@ -100,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_animate(commands)
     add_demo(commands)
     add_morph(commands)
+    add_average(commands)
     _add_studio(commands)
     return parser
 

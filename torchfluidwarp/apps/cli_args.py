@@ -18,10 +18,12 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from PIL import Image
 from tqdm import tqdm
 
-from torchfluidwarp._checks import check_int, check_positive, format_bytes
+from torchfluidwarp._checks import check_fraction, check_int, check_positive, format_bytes
 from torchfluidwarp.io import FFMPEG_HINT, check_fps
+from torchfluidwarp.morph.timing import schedule
 
 __all__ = [
     "PROG",
@@ -36,7 +38,10 @@ __all__ = [
     "POSITIVE",
     "NON_NEGATIVE",
     "FPS",
+    "FRACTION",
+    "timing",
     "check_output",
+    "check_image_output",
     "check_disk_space",
     "output_bytes",
     "progress_bar",
@@ -89,6 +94,29 @@ NON_NEGATIVE: Callable[[str], float] = checked(float, check_positive, allow_zero
 """An argparse ``type``: a finite number ``>= 0``."""
 FPS: Callable[[str], float] = checked(float, lambda name, value: check_fps(value))
 """An argparse ``type``: a frame rate :func:`~torchfluidwarp.io.check_fps` accepts (0.01 to 1000)."""
+FRACTION: Callable[[str], float] = checked(float, check_fraction)
+"""An argparse ``type``: a number in ``[0, 1]`` (a morph's time ``t``)."""
+
+
+def timing(text: str) -> str | list[tuple[float, float]]:
+    """An argparse ``type``: a schedule of :mod:`torchfluidwarp.morph.timing`, an easing name (``linear``,
+    ``smooth``, ``ease-in``, ``ease-out``) or control points ``t:progress,...`` such as ``0:0,0.3:0.7,1:1``.
+
+    Example:
+        >>> timing("0:0,0.3:0.7,1:1")
+        [(0.0, 0.0), (0.3, 0.7), (1.0, 1.0)]
+    """
+    value: str | list[tuple[float, float]] = text
+    if ":" in text:
+        try:
+            value = [(float(t), float(v)) for t, v in (pair.split(":") for pair in text.split(","))]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an easing name or t:progress,... pairs, got {text!r}") from None
+    try:
+        schedule("the schedule", value)
+    except (TypeError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
 
 
 def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[[str], T]:
@@ -116,12 +144,28 @@ def check_output(path: str, overwrite: bool) -> None:
     """
     target = Path(path)
     folder = _is_folder(path)
-    if not folder and target.suffix.lower() not in (".gif", ".mp4"):
-        raise ValueError(f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4 or a folder ending in '/'")
+    if not folder and target.suffix.lower() not in (".gif", ".mp4", ".webp"):
+        raise ValueError(
+            f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4, .webp or a folder ending in '/'"
+        )
     if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise ValueError(FFMPEG_HINT)
     exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
     if exists and not overwrite:
+        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
+
+
+def check_image_output(path: str, overwrite: bool) -> None:
+    """Fail before any work on an image output (``--frame``, ``average``) that could not be written.
+
+    Raises:
+        ValueError: a suffix no image format has, or an existing output without ``overwrite``.
+    """
+    target = Path(path)
+    Image.init()
+    if target.suffix.lower() not in Image.registered_extensions():
+        raise ValueError(f"-o {path!r}: an image needs a suffix such as .png or .jpg, got {target.suffix!r}")
+    if (target.exists() or target.is_symlink()) and not overwrite:
         raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
 
 
@@ -134,10 +178,11 @@ def output_bytes(path: str, frames: int, height: int, width: int, channels: int)
     """About how many bytes an animation of ``frames`` frames ``(channels, height, width)`` takes at ``path``.
 
     A GIF holds about a byte a pixel (8-bit palette indices, which LZW rarely shrinks for photos), a folder of
-    PNGs at most ``channels`` bytes a pixel, an H.264 MP4 about 0.3 (generous for its default quality).
+    PNGs at most ``channels`` bytes a pixel, an H.264 MP4 about 0.3 (generous for its default quality), a WebP at
+    quality 90 about 1 (lossy colour, lossless alpha).
     """
     suffix = "" if _is_folder(path) else Path(path).suffix.lower()
-    per_pixel = {".gif": 1.0, ".mp4": 0.3}.get(suffix, float(channels))
+    per_pixel = {".gif": 1.0, ".mp4": 0.3, ".webp": 1.0}.get(suffix, float(channels))
     return frames * (height * width * per_pixel + 1024)
 
 

@@ -3,7 +3,12 @@
 ``torchfluidwarp morph A B --points-a FA --points-b FB -o OUT`` reads the images and the point files, calls
 :func:`~torchfluidwarp.morph.morph` with the options, and streams the frames to the output (written atomically;
 memory does not grow with ``--frames``); ``demo`` does the same with the bundled samples (astronaut into cat).
-``torchfluidwarp morph --pairs pairs.csv --out DIR/`` morphs a list of pairs (:mod:`torchfluidwarp.apps.batch`).
+Without point files the points are found from the pictures (``--match``: face landmarks, matched features or
+the pixels; :func:`torchfluidwarp.correspond.auto_points`), and ``--save-points`` writes them.
+``torchfluidwarp morph A B C ... --points FA FB FC ...`` morphs through several images
+(:mod:`torchfluidwarp.apps.cli_sequence`), and ``torchfluidwarp morph --pairs pairs.csv --out DIR/`` morphs a
+list of pairs (:mod:`torchfluidwarp.apps.batch`). The timing, region and output options are in
+:mod:`torchfluidwarp.apps.cli_morph_output`.
 
 Exit status as in :mod:`torchfluidwarp.apps.cli`: 0 on success, 2 for bad input (also an output that would not
 fit on its disk, or a morph above ``--max-memory``, refused before any work); with ``--pairs``, 1 when some
@@ -14,25 +19,24 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
 from torch import Tensor
 
-from torchfluidwarp.apps.batch import morph_pairs, stream_frames
-from torchfluidwarp.apps.cli_args import (
-    EXIT_OK,
-    FPS,
-    NON_NEGATIVE,
-    POSITIVE,
-    PROG,
-    check_disk_space,
-    check_output,
-    count,
-    fail,
-    progress_bar,
+from torchfluidwarp.apps.batch import morph_pairs
+from torchfluidwarp.apps.cli_args import EXIT_OK, FPS, NON_NEGATIVE, POSITIVE, PROG, count, fail
+from torchfluidwarp.apps.cli_morph_output import (
+    add_result_options,
+    check_result_output,
+    morph_options,
+    result_options,
+    write_report,
+    write_result,
 )
+from torchfluidwarp.apps.cli_sequence import run_sequence
+from torchfluidwarp.correspond import auto_points
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.io import check_point_counts, read_image, read_points, write_animation
+from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
+from torchfluidwarp.metrics import morph_report
 from torchfluidwarp.morph import morph
 
 __all__ = ["add_morph", "add_demo", "EXIT_SOME_FAILED"]
@@ -72,7 +76,6 @@ _MORPH_CHOICES = (
         ("flow", "paper"),
         "how image B is pulled back: along the same flow (default) or the paper's stepwise fits",
     ),
-    ("--blend", ("linear", "smooth"), "cross-dissolve schedule (default linear)"),
 )
 
 
@@ -83,8 +86,9 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         "--out",
         metavar="OUT",
         default=None,
-        help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/'); with --pairs, "
-        "the output folder",
+        help="output: OUT.gif (RGBA input: transparent where alpha < 0.5), OUT.mp4 (needs imageio-ffmpeg), "
+        "OUT.webp (animated, RGBA) or a folder of PNG frames (ending in '/', RGBA kept); with --frame an image "
+        "file; with --pairs, the output folder",
     )
     p.add_argument("--frames", type=count(2), default=frames, help=f"frames (default {frames})")
     p.add_argument("--fps", type=FPS, default=15.0, help="frames per second, 0.01 to 1000 (default 15)")
@@ -107,6 +111,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         p.add_argument(flag, choices=choices, default=choices[0], help=text)
     for flag, metavar, kind, text in _MORPH_TUNING:
         p.add_argument(flag, metavar=metavar, type=kind, default=None, help=text)
+    add_result_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
@@ -119,14 +124,54 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
         "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
         'cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {"points": ...}) or CSV, '
         "pixels with pixel centres at integers.",
-        epilog="example:\n  torchfluidwarp morph a.png b.png --points-a a.pts --points-b b.pts -o morph.gif "
-        "--frames 30\n  torchfluidwarp morph --pairs pairs.csv --out morphs/",
+        epilog="examples:\n  torchfluidwarp morph a.png b.png --points-a a.pts --points-b b.pts -o morph.gif "
+        "--frames 30\n  torchfluidwarp morph face1.jpg face2.jpg -o morph.gif --save-points p1.pts p2.pts\n"
+        "  torchfluidwarp morph a.jpg b.jpg c.jpg --points a.pts b.pts c.pts -o seq.gif\n"
+        "  torchfluidwarp morph a.jpg b.jpg --points a.pts b.pts --frame 0.5 -o mid.png --report report.json\n"
+        "  torchfluidwarp morph --pairs pairs.csv --out morphs/",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("image_a", metavar="A", nargs="?", help="source image")
-    p.add_argument("image_b", metavar="B", nargs="?", help="target image (resized to A's size if needed)")
+    p.add_argument(
+        "images",
+        metavar="IMAGE",
+        nargs="*",
+        help="two images A B (each later one resized to A's size), or more: a sequence through them",
+    )
     p.add_argument("--points-a", metavar="FILE", help="A's points (.pts, .json or .csv)")
     p.add_argument("--points-b", metavar="FILE", help="B's points, same count and order")
+    p.add_argument(
+        "--points",
+        metavar="FILE",
+        nargs="+",
+        help="one point file per image, in the images' order (the same points in the same order in each)",
+    )
+    p.add_argument(
+        "--match",
+        choices=("auto", "faces", "features", "pixels"),
+        default="auto",
+        help="with no point files, how to find the points: face landmarks (pip install "
+        "'torchfluidwarp[faces]'), matched SIFT features, a lattice placed by the pixels, or faces when both "
+        "images show one and features otherwise (default)",
+    )
+    p.add_argument(
+        "--face-index",
+        type=count(0),
+        default=None,
+        metavar="I",
+        help="which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next",
+    )
+    p.add_argument(
+        "--save-points",
+        nargs=2,
+        metavar=("A_FILE", "B_FILE"),
+        help="write the points found (.pts, .json or .csv) to correct them and rerun with --points-a/-b",
+    )
+    p.add_argument(
+        "--held-out-a",
+        metavar="FILE",
+        help="--report: points of A not given to the morph, whose error the report measures",
+    )
+    p.add_argument("--held-out-b", metavar="FILE", help="--report: the held-out points of B, same count and order")
     p.add_argument(
         "--pairs",
         metavar="CSV",
@@ -151,36 +196,21 @@ def add_demo(commands: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_cmd_demo)
 
 
-def _morph_options(args: argparse.Namespace) -> dict[str, Any]:
-    """:func:`~torchfluidwarp.morph.morph`'s keyword arguments from the command line's options."""
-    return dict(
-        frames=args.frames,
-        method=args.method,
-        grid=args.grid,
-        steps=args.steps,
-        control=args.control,
-        align=None if args.align == "none" else args.align,
-        inverse=args.inverse,
-        blend=args.blend,
-        compressible=args.compressible,
-        smoothness=args.smoothness,
-        max_iter=args.max_iter,
-        max_memory=None if args.max_memory is None else args.max_memory * 2**30,
-    )
-
-
 def _run_morph(
     command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
 ) -> int:
-    check_output(args.output, args.overwrite)
-    check_disk_space(args.output, args.frames, image_a.shape[-2], image_a.shape[-1], image_a.shape[1])
+    check_result_output(args, args.frames, image_a)
+    held = _held_out(args)
     progress = not args.quiet and sys.stderr.isatty()
+    options = {**morph_options(args), **result_options(args)}
     try:
-        result = morph(image_a, image_b, points_a, points_b, progress=progress, **_morph_options(args))
+        result = morph(image_a, image_b, points_a, points_b, progress=progress, **options)
     except ValueError as exc:  # name the command line's option, not the library's argument
         raise ValueError(str(exc).replace("morph(max_memory=...)", "--max-memory GIB")) from None
-    frames = progress_bar(stream_frames(result), len(result), "frames", args.quiet)
-    path = write_animation(args.output, frames, fps=args.fps, overwrite=args.overwrite)
+    path = write_result(result, args)
+    if args.report:
+        report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
+        print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
         err = result.fit.error
         print(
@@ -192,9 +222,27 @@ def _run_morph(
     return EXIT_OK
 
 
+def _held_out(args: argparse.Namespace) -> tuple[Tensor, Tensor] | None:
+    """``--held-out-a/-b``'s points (both or neither, with ``--report``)."""
+    a, b = getattr(args, "held_out_a", None), getattr(args, "held_out_b", None)  # demo has none
+    if bool(a) != bool(b):
+        raise ValueError("give both --held-out-a and --held-out-b, or neither")
+    if a and not args.report:
+        raise ValueError("--held-out-a/-b are measured by the report: add --report JSON")
+    if not a or not b:
+        return None
+    pa, pb = read_points(a), read_points(b)
+    check_point_counts(pa, pb, "--held-out-a", "--held-out-b")
+    return pa, pb
+
+
 def _run_pairs(args: argparse.Namespace) -> int:
-    if args.image_a or args.image_b or args.points_a or args.points_b:
-        raise ValueError("--pairs takes the pairs from its CSV: give no A, B, --points-a or --points-b")
+    if args.images or args.points_a or args.points_b or args.points:
+        raise ValueError("--pairs takes the pairs from its CSV: give no images, --points-a/-b or --points")
+    if args.frame is not None or args.report or args.save_points:
+        raise ValueError("--pairs writes each pair's animation: --frame, --report and --save-points do not apply")
+    if args.region not in (None, "points"):
+        raise ValueError("--pairs takes --region points only (one pair of masks cannot serve every pair)")
     if not args.output:
         raise ValueError("--pairs needs --out DIR/, the folder for the outputs")
     report = morph_pairs(
@@ -204,7 +252,8 @@ def _run_pairs(args: argparse.Namespace) -> int:
         fps=args.fps,
         overwrite=args.overwrite,
         progress=not args.quiet,
-        **_morph_options(args),
+        **morph_options(args),
+        **result_options(args),
     )
     print(  # even with --quiet, as the failures below: the command's result
         f"{PROG} morph: {len(report.morphed)} morphed, {len(report.skipped)} skipped (done before), "
@@ -221,24 +270,32 @@ def _cmd_morph(args: argparse.Namespace) -> int:
     try:
         if args.pairs:
             return _run_pairs(args)
-        missing = [
-            flag
-            for flag, value in (
-                ("A", args.image_a),
-                ("B", args.image_b),
-                ("--points-a", args.points_a),
-                ("--points-b", args.points_b),
-            )
-            if not value
-        ]
-        if missing:
-            return fail("morph", f"missing {', '.join(missing)} (or give --pairs CSV)")
+        if len(args.images) < 2:
+            return fail("morph", "give two images A B (or more, for a sequence), or --pairs CSV")
+        if args.points and (args.points_a or args.points_b):
+            return fail("morph", "give --points FILE... or --points-a/--points-b, not both")
+        if bool(args.points_a) != bool(args.points_b):
+            return fail("morph", "give both --points-a and --points-b, or neither (then --match finds them)")
+        if args.points and len(args.points) != len(args.images):
+            return fail("morph", f"--points needs one file per image: {len(args.images)} images, {len(args.points)}")
         args.output = args.output or "morph.gif"
-        a, b = read_image(args.image_a), read_image(args.image_b)
-        pa, pb = read_points(args.points_a), read_points(args.points_b)
-        check_point_counts(pa, pb, "--points-a", "--points-b")
+        if len(args.images) > 2:
+            return run_sequence(args)
+        a, b = (read_image(path) for path in args.images)
+        files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
+        if files:
+            if args.save_points:
+                raise ValueError("--save-points writes the points found: give no point files with it")
+            pa, pb = read_points(files[0]), read_points(files[1])
+            check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
+        else:
+            face = args.face_index
+            pa, pb = auto_points(a, b, match=args.match, face_index=(face, face), names=tuple(args.images))
+            if args.save_points:
+                for path, points in zip(args.save_points, (pa, pb)):
+                    print(f"points: {write_points(path, points)}", file=sys.stderr)
         return _run_morph("morph", args, a, b, pa, pb)
-    except (ValueError, TypeError, OSError) as exc:
+    except (ValueError, TypeError, OSError, ImportError) as exc:  # ImportError: the faces extra is missing
         return fail("morph", exc)
 
 

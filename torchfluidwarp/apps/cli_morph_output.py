@@ -1,0 +1,159 @@
+"""What the ``morph`` and ``demo`` subcommands share after the points are known: the timing, region and output
+options (``--motion``, ``--blend``, ``--region``, ``--background``, ``--frame``, ``--report``), the checks made
+before any work, and the writing of the animation, the single frame and the quality report.
+
+A morph of two images is a :class:`~torchfluidwarp.morph.MorphResult`, a sequence a
+:class:`~torchfluidwarp.morph.MorphSequence`; both render ``frame(t)`` and stream ``iter_frames()``, so one writer
+serves both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from torch import Tensor
+
+from torchfluidwarp.apps.batch import stream_frames
+from torchfluidwarp.apps.cli_args import (
+    FRACTION,
+    NON_NEGATIVE,
+    check_disk_space,
+    check_image_output,
+    check_output,
+    progress_bar,
+    timing,
+)
+from torchfluidwarp.io import read_image, write_animation, write_image
+from torchfluidwarp.morph import MorphResult, MorphSequence
+
+__all__ = [
+    "add_result_options",
+    "morph_options",
+    "result_options",
+    "check_result_output",
+    "write_result",
+    "write_report",
+]
+
+
+def add_result_options(p: argparse.ArgumentParser) -> None:
+    """``--motion``, ``--blend``, ``--region``, ``--region-margin``, ``--background``, ``--frame``, ``--report``."""
+    p.add_argument(
+        "--motion",
+        metavar="SCHEDULE",
+        type=timing,
+        default="linear",
+        help="how the shape progresses: linear (default), smooth, ease-in, ease-out, or control points "
+        "t:progress,... such as 0:0,0.3:0.7,1:1 (the shape 70%% there at 30%% of the time)",
+    )
+    p.add_argument(
+        "--blend",
+        metavar="SCHEDULE",
+        type=timing,
+        default="linear",
+        help="how the colour progresses (the cross-dissolve), as --motion; e.g. --motion ease-out --blend "
+        "ease-in: the shape leads the colour",
+    )
+    p.add_argument(
+        "--region",
+        metavar="points|MASK_A,MASK_B",
+        default=None,
+        help="morph only a region: 'points' (the points' convex hull grown by --region-margin) or two gray mask "
+        "images (white = morph) for A and B; outside it shows --background (default: the whole picture)",
+    )
+    p.add_argument(
+        "--region-margin",
+        metavar="F",
+        type=NON_NEGATIVE,
+        default=0.25,
+        help="--region points: how far the region reaches beyond the hull, times the points' extent (default 0.25)",
+    )
+    p.add_argument(
+        "--background",
+        choices=("a", "b", "blend"),
+        default="blend",
+        help="with --region, what shows outside it: A's, B's or their cross-dissolve (default blend)",
+    )
+    p.add_argument(
+        "--frame",
+        metavar="T",
+        type=FRACTION,
+        default=None,
+        help="write the single image at time T in [0, 1] to -o (an image file, e.g. --frame 0.5 -o mid.png: the "
+        "middle image of a morph-attack set) instead of an animation",
+    )
+    p.add_argument(
+        "--report",
+        metavar="JSON",
+        help="also write the morph's quality report (torchfluidwarp.metrics.morph_report: folds per frame, point "
+        "errors, ghosting, seam, path smoothness) to JSON",
+    )
+
+
+def morph_options(args: argparse.Namespace) -> dict[str, Any]:
+    """:func:`~torchfluidwarp.morph.morph`'s keyword arguments from the command line's options."""
+    return dict(
+        frames=args.frames,
+        method=args.method,
+        grid=args.grid,
+        steps=args.steps,
+        control=args.control,
+        align=None if args.align == "none" else args.align,
+        inverse=args.inverse,
+        compressible=args.compressible,
+        smoothness=args.smoothness,
+        max_iter=args.max_iter,
+        max_memory=None if args.max_memory is None else args.max_memory * 2**30,
+    )
+
+
+def result_options(args: argparse.Namespace) -> dict[str, Any]:
+    """:func:`~torchfluidwarp.morph.morph`'s timing and region settings from the options (masks read here)."""
+    options: dict[str, Any] = dict(motion=args.motion, blend=args.blend)
+    if args.region is None:
+        return options
+    if args.region == "points":
+        region: Any = "points"
+    else:
+        files = args.region.split(",")
+        if len(files) != 2 or not all(files):
+            raise ValueError(f"--region takes 'points' or MASK_A,MASK_B (two image files), got {args.region!r}")
+        region = tuple(read_image(f, channels=1)[0, 0] for f in files)
+    return {**options, "region": region, "background": args.background, "region_margin": args.region_margin}
+
+
+def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) -> None:
+    """Refuse, before any work, an output that could not be written: the animation's, or ``--frame``'s image."""
+    if args.frame is not None:
+        check_image_output(args.output, args.overwrite)
+    else:
+        check_output(args.output, args.overwrite)
+        check_disk_space(args.output, frames, image.shape[-2], image.shape[-1], image.shape[1])
+    if args.report and Path(args.report).exists() and not args.overwrite:
+        raise ValueError(f"--report {args.report!r} already exists; pass --overwrite to replace it")
+
+
+def write_result(result: MorphResult | MorphSequence, args: argparse.Namespace) -> Path:
+    """Write ``--frame``'s image, or stream every frame to the animation ``-o``; returns the path written."""
+    if args.frame is not None:
+        return write_image(args.output, result.frame(args.frame))
+    frames = progress_bar(stream_frames(result), len(result), "frames", args.quiet)
+    return write_animation(args.output, frames, fps=args.fps, overwrite=args.overwrite)
+
+
+def write_report(path: str, report: dict[str, Any]) -> Path:
+    """Write ``report`` as JSON (strict: no NaN or infinity) to ``path``, atomically; returns the path."""
+    text = json.dumps(report, indent=1, allow_nan=False)
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.tmp")
+    try:
+        tmp.write_text(text + "\n", encoding="utf-8")
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return target

@@ -1,0 +1,146 @@
+"""Morphing more than two images from the command line: ``morph`` through a sequence, and ``average``.
+
+* ``torchfluidwarp morph A B C ... --points FA FB FC ... -o seq.gif`` morphs through the images in order
+  (:func:`torchfluidwarp.morph.morph_sequence`): one animation of ``--frames`` frames whose points keep one speed
+  through every middle image. ``--frame T`` writes the single image at ``T`` of the whole sequence, and
+  ``--report`` a list of each segment's quality report.
+* ``torchfluidwarp average IMG1 IMG2 ... --points F1 F2 ... -o mean.png`` writes the mean of the images, each
+  warped to the mean shape of the points by its own fold-free flow (:func:`torchfluidwarp.morph.average`).
+
+Exit status as in :mod:`torchfluidwarp.apps.cli`: 0 on success, 2 for bad input, with one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from torch import Tensor
+
+from torchfluidwarp.apps.cli_args import EXIT_OK, NON_NEGATIVE, POSITIVE, PROG, check_image_output, count, fail
+from torchfluidwarp.apps.cli_morph_output import (
+    check_result_output,
+    morph_options,
+    result_options,
+    write_report,
+    write_result,
+)
+from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
+from torchfluidwarp.metrics import morph_report
+from torchfluidwarp.morph import average, morph_sequence
+
+__all__ = ["run_sequence", "add_average"]
+
+
+def _read_all(images: list[str], point_files: list[str]) -> tuple[list[Tensor], list[Tensor]]:
+    """Every image and its points; every point file must have as many points as the first."""
+    if len(point_files) != len(images):
+        raise ValueError(f"--points needs one file per image: {len(images)} images, {len(point_files)} files")
+    pictures = [read_image(path) for path in images]
+    points = [read_points(path) for path in point_files]
+    for path, p in zip(point_files[1:], points[1:]):
+        check_point_counts(points[0], p, point_files[0], path)
+    return pictures, points
+
+
+def run_sequence(args: argparse.Namespace) -> int:
+    """``morph A B C ... --points ...``: the sequence through the images, written as ``morph`` writes a morph.
+
+    ``args`` are the ``morph`` subcommand's (:mod:`torchfluidwarp.apps.cli_morph`), with ``args.output`` set.
+    """
+    if not args.points:
+        raise ValueError(
+            f"a sequence of {len(args.images)} images needs --points FILE... (one per image): "
+            "--match finds the points of two images only"
+        )
+    if args.save_points or args.held_out_a or args.held_out_b:
+        raise ValueError("--save-points and --held-out-a/-b apply to two images only")
+    pictures, points = _read_all(args.images, args.points)
+    options = {**morph_options(args), **result_options(args)}
+    if isinstance(options.get("region"), tuple):
+        raise ValueError("a sequence takes --region points only (a pair of masks is for two images)")
+    frames = options.pop("frames")
+    check_result_output(args, frames, pictures[0])
+    progress = not args.quiet and sys.stderr.isatty()
+    sequence = morph_sequence(pictures, points, frames=frames, progress=progress, **options)
+    path = write_result(sequence, args)
+    if args.report:
+        reports = [
+            morph_report(segment, pictures[i], pictures[i + 1], points[i], points[i + 1])
+            for i, segment in enumerate(sequence.segments)
+        ]
+        print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
+    if not args.quiet:
+        errors = [float(segment.fit.error.mean()) for segment in sequence.segments]
+        print(
+            f"{PROG} morph: {len(errors)} segments, mean point error per segment "
+            + ", ".join(f"{e:.2f}" for e in errors)
+            + " px",
+            file=sys.stderr,
+        )
+    print(path)
+    return EXIT_OK
+
+
+def add_average(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser(
+        "average",
+        help="the average of several images: each warped to the mean shape of the points, then averaged",
+        description="Average images (faces, objects) that show the same points: the mean shape of the point "
+        "sets is found (each set brought onto the first by a similarity, then averaged), every image is warped "
+        "to it by its own fitted fold-free flow, and the warped images are averaged.",
+        epilog="example:\n  torchfluidwarp average f1.jpg f2.jpg f3.jpg --points f1.pts f2.pts f3.pts -o mean.png",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("images", metavar="IMAGE", nargs="+", help="two or more images (resized to the first's size)")
+    p.add_argument("--points", metavar="FILE", nargs="+", required=True, help="one point file per image, in order")
+    p.add_argument("-o", "--output", metavar="OUT", default="average.png", help="the image (default average.png)")
+    p.add_argument("--save-points", metavar="FILE", help="write the mean shape (.pts, .json or .csv)")
+    p.add_argument("--method", choices=("natural", "paper"), default="natural", help="as morph (default natural)")
+    p.add_argument("--align", choices=("similarity", "affine", "none"), default="similarity", help="as morph")
+    p.add_argument("--grid", metavar="N", type=count(4), default=None, help="fluid grid N x N cells, as morph")
+    p.add_argument("--steps", type=count(1), default=10, help="fluid steps (default 10)")
+    p.add_argument("--compressible", metavar="W", type=NON_NEGATIVE, default=None, help="as morph")
+    p.add_argument("--smoothness", metavar="S", type=NON_NEGATIVE, default=None, help="as morph")
+    p.add_argument("--max-iter", metavar="N", type=count(1), default=None, help="L-BFGS iterations, as morph")
+    p.add_argument("--max-memory", metavar="GIB", type=POSITIVE, default=None, help="as morph (default 8)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
+    p.set_defaults(handler=_cmd_average)
+
+
+def _average_options(args: argparse.Namespace) -> dict[str, Any]:
+    return dict(
+        method=args.method,
+        align=None if args.align == "none" else args.align,
+        grid=args.grid,
+        steps=args.steps,
+        compressible=args.compressible,
+        smoothness=args.smoothness,
+        max_iter=args.max_iter,
+        max_memory=None if args.max_memory is None else args.max_memory * 2**30,
+        progress=False,
+    )
+
+
+def _cmd_average(args: argparse.Namespace) -> int:
+    try:
+        if len(args.images) < 2:
+            return fail("average", f"give two or more images, got {len(args.images)}")
+        check_image_output(args.output, args.overwrite)
+        pictures, points = _read_all(args.images, args.points)
+        result = average(pictures, points, **_average_options(args))
+        path = write_image(args.output, result.image)
+        if args.save_points:
+            print(f"points: {write_points(args.save_points, result.points)}", file=sys.stderr)
+        if not args.quiet:
+            print(
+                f"{PROG} average: {len(pictures)} images, mean point error "
+                f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}",
+                file=sys.stderr,
+            )
+    except (ValueError, TypeError, OSError) as exc:
+        return fail("average", exc)
+    print(path)
+    return EXIT_OK
