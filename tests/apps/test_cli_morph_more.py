@@ -226,3 +226,15 @@ def test_region_masks_and_a_transparent_gif(tmp_path):
     argv = ["morph", *paths, "--points", *points, "-o", str(webp), "--frames", "3", *FAST]
     assert main(argv) == 0
     assert webp.read_bytes()[8:12] == b"WEBP"
+
+
+def test_an_existing_output_is_refused_before_the_points_are_searched_for(astronauts, tmp_path, capsys, monkeypatch):
+    (a, b), _, _, _ = astronauts
+    calls = []
+    monkeypatch.setattr("torchfluidwarp.apps.cli_morph.auto_points", lambda *x, **k: calls.append(1))
+    out = tmp_path / "exists.gif"
+    out.write_bytes(b"keep me")
+    assert main(["morph", str(a), str(b), "-o", str(out), *FAST]) == 2
+    assert "already exists" in capsys.readouterr().err and calls == [] and out.read_bytes() == b"keep me"
+    assert main(["morph", str(a), str(b), "--frame", "0.5", "-o", str(tmp_path / "mid.xyz"), *FAST]) == 2
+    assert "an image needs a suffix" in capsys.readouterr().err and calls == []

@@ -199,7 +199,7 @@ def add_demo(commands: argparse._SubParsersAction) -> None:
 def _run_morph(
     command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
 ) -> int:
-    check_result_output(args, args.frames, image_a)
+    """Morph, write the animation (or ``--frame``) and the report; the output was checked by the caller."""
     held = _held_out(args)
     progress = not args.quiet and sys.stderr.isatty()
     options = {**morph_options(args), **result_options(args)}
@@ -282,6 +282,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         if len(args.images) > 2:
             return run_sequence(args)
         a, b = (read_image(path) for path in args.images)
+        check_result_output(args, args.frames, a)  # before the points are searched for
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
         if files:
             if args.save_points:
@@ -302,10 +303,12 @@ def _cmd_morph(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     try:
         args.output = args.output or "morph.gif"
+        a = load_sample("astronaut")
+        check_result_output(args, args.frames, a)
         return _run_morph(
             "demo",
             args,
-            load_sample("astronaut"),
+            a,
             load_sample("cat"),
             load_sample_points("astronaut"),
             load_sample_points("cat"),
