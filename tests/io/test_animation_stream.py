@@ -96,3 +96,26 @@ def test_streaming_holds_one_frame_not_all(tmp_path):
 
     small, large = peak(5), peak(200)  # 200 frames of 64x64 RGB would be 2.4 MB as uint8
     assert large < small + 500_000
+
+
+def test_a_transparent_gif_streams_in_one_frames_memory(tmp_path):
+    """RGBA frames take the transparent-GIF path, which is streamed as the RGB one is."""
+
+    def rgba(k: int) -> torch.Tensor:
+        frame = torch.full((4, 64, 64), (k % 7) / 7)
+        frame[3, :, : 8 + k % 40] = 0.0  # a transparent band of changing width
+        frame[3, :, 8 + k % 40 :] = 1.0
+        return frame
+
+    def peak(n: int) -> int:
+        tracemalloc.start()
+        write_animation(tmp_path / f"t{n}.gif", (rgba(k) for k in range(n)))
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return peak
+
+    small, large = peak(5), peak(200)
+    assert large < small + 500_000
+    alpha = iio.imread(tmp_path / "t200.gif", index=None, mode="RGBA")[..., 3]
+    for k in (0, 57, 199):
+        assert (alpha[k, :, : 8 + k % 40] == 0).all() and (alpha[k, :, 8 + k % 40 :] == 255).all()
