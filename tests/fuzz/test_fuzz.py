@@ -29,7 +29,9 @@ import json
 import os
 from typing import Any
 
+import pytest
 from fuzz_cases import specs
+from fuzz_pool import Worker
 from hypothesis import HealthCheck, Phase, given, seed, settings
 
 SEED = int(os.environ.get("TORCHFLUIDWARP_FUZZ_SEED", "19"))
@@ -67,6 +69,14 @@ def run_all(worker: Any, strategy: Any, share: float) -> None:
         f"TORCHFLUIDWARP_FUZZ_CASES={CASES}); reproduce one with python tests/fuzz/fuzz_worker.py '<spec>':\n"
         + "\n".join(failures[:40])
     )
+
+
+@pytest.fixture(scope="module")
+def fuzz_worker() -> Any:
+    """The long-lived worker process (not in a conftest.py: that name here would shadow tests/conftest.py)."""
+    worker = Worker(float(os.environ.get("TORCHFLUIDWARP_FUZZ_TIMEOUT", "20")))
+    yield worker
+    worker.close()
 
 
 def test_api_fuzz(fuzz_worker: Any) -> None:

@@ -12,8 +12,6 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 WORKER = Path(__file__).with_name("fuzz_worker.py")
 
 
@@ -73,10 +71,3 @@ class Worker:
     def close(self) -> None:
         self.stop()
         shutil.rmtree(self.root, ignore_errors=True)
-
-
-@pytest.fixture(scope="session")
-def fuzz_worker() -> Any:
-    worker = Worker(float(os.environ.get("TORCHFLUIDWARP_FUZZ_TIMEOUT", "20")))
-    yield worker
-    worker.close()
