@@ -95,20 +95,14 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
 
 
 def morph_options(args: argparse.Namespace) -> dict[str, Any]:
-    """:func:`~torchfluidwarp.morph.morph`'s keyword arguments from the command line's options."""
-    return dict(
-        frames=args.frames,
-        method=args.method,
-        grid=args.grid,
-        steps=args.steps,
-        control=args.control,
-        align=None if args.align == "none" else args.align,
-        inverse=args.inverse,
-        compressible=args.compressible,
-        smoothness=args.smoothness,
-        max_iter=args.max_iter,
-        max_memory=None if args.max_memory is None else args.max_memory * 2**30,
-    )
+    """:func:`~torchfluidwarp.morph.morph`'s keyword arguments from whichever of its options a command has."""
+    names = ("frames", "method", "grid", "steps", "control", "inverse", "compressible", "smoothness", "max_iter")
+    options = {name: getattr(args, name) for name in names if hasattr(args, name)}
+    if hasattr(args, "align"):
+        options["align"] = None if args.align == "none" else args.align
+    if hasattr(args, "max_memory"):
+        options["max_memory"] = None if args.max_memory is None else args.max_memory * 2**30
+    return options
 
 
 def result_options(args: argparse.Namespace) -> dict[str, Any]:

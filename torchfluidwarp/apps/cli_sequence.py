@@ -111,17 +111,7 @@ def add_average(commands: argparse._SubParsersAction) -> None:
 
 
 def _average_options(args: argparse.Namespace) -> dict[str, Any]:
-    return dict(
-        method=args.method,
-        align=None if args.align == "none" else args.align,
-        grid=args.grid,
-        steps=args.steps,
-        compressible=args.compressible,
-        smoothness=args.smoothness,
-        max_iter=args.max_iter,
-        max_memory=None if args.max_memory is None else args.max_memory * 2**30,
-        progress=False,
-    )
+    return {**morph_options(args), "progress": False}
 
 
 def _cmd_average(args: argparse.Namespace) -> int:
