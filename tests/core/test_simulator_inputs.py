@@ -90,3 +90,11 @@ def test_points_or_velocity_with_another_batch_name_the_forces_batch():
         FluidSimulator(8)(f, points=torch.zeros(1, 3, 2))
     with pytest.raises(ValueError, match="velocity has batch 3 but forces have batch 2"):
         FluidSimulator(8)(f, velocity=torch.zeros(3, 2, 9, 9))
+
+
+def test_a_viscosity_and_dt_whose_product_overflows_the_dtype_are_named():
+    from torchfluidwarp import FluidSimulator
+
+    sim = FluidSimulator(5, dt=1e30, viscosity=1e30)
+    with pytest.raises(ValueError, match=r"dt \* viscosity = 1e\+60 is beyond the range of torch.float32"):
+        sim(torch.zeros(1, 2, 2, 5, 5))

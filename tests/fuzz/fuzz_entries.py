@@ -117,7 +117,9 @@ def _tv_sample(a: Args) -> Any:
     image = a["image"]
     img = image[0] if isinstance(image, Tensor) and image.ndim == 4 else image
     h, w = (img.shape[-2], img.shape[-1]) if isinstance(img, Tensor) and img.ndim >= 2 else (8, 8)
-    sample: dict[str, Any] = {"image": tv_tensors.Image(img) if isinstance(img, Tensor) else img, "label": 3}
+    # tv_tensors.Image itself refuses tensors under 2-D: such an image goes in as a plain tensor
+    as_image = isinstance(img, Tensor) and img.ndim >= 2
+    sample: dict[str, Any] = {"image": tv_tensors.Image(img) if as_image else img, "label": 3}
     mask, boxes = a["mask"], a["boxes"]
     sample["mask"] = tv_tensors.Mask(mask) if isinstance(mask, Tensor) else mask
     if isinstance(boxes, Tensor) and boxes.ndim >= 2:

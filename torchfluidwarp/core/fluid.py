@@ -13,6 +13,7 @@ semi-Lagrangian steps live in :mod:`torchfluidwarp.core.advection` and are impor
 from __future__ import annotations
 
 import functools
+import math
 
 import torch
 import torch.nn.functional as F
@@ -218,7 +219,13 @@ def diffuse(
     elif viscosity == 0:
         x, iters = velocity, 0
     else:
-        a = torch.full((velocity.shape[0],), dt * viscosity, device=velocity.device, dtype=velocity.dtype)
+        coefficient = dt * viscosity
+        if not math.isfinite(coefficient) or abs(coefficient) > torch.finfo(velocity.dtype).max:
+            raise ValueError(
+                f"dt * viscosity = {float(coefficient):.3g} is beyond the range of {velocity.dtype} "
+                f"(dt {dt!r}, viscosity {viscosity!r}); use a smaller dt or viscosity"
+            )
+        a = torch.full((velocity.shape[0],), coefficient, device=velocity.device, dtype=velocity.dtype)
         x, iters = implicit_solve(
             _constant_operator(dt * viscosity, mask),
             velocity,
