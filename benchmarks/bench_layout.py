@@ -61,7 +61,10 @@ out["fit_keyframes paper set-up"] = timed(
 yy, xx = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
 blob = lambda cx, cy: torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 60.0)[None, None]
 out["fit_images 64^2"] = timed(
-    lambda: tfw.fit_images(blob(28, 30), blob(34, 32), grid=16, levels=(8, 16), steps=4, max_iter=15, progress=False), repeats=2
+    lambda: tfw.fit_images(
+        blob(28, 30), blob(34, 32), grid=16, levels=(8, 16), steps=4, max_iter=15, progress=False
+    ),
+    repeats=2,
 )
 a, b = load_sample("astronaut"), load_sample("cat")
 pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
