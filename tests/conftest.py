@@ -26,6 +26,16 @@ def gen() -> torch.Generator:
     return torch.Generator().manual_seed(1234)
 
 
+@pytest.fixture
+def one_thread():
+    """One torch thread for the test: on a small shared machine, multi-threaded CPU kernels stall whenever
+    another process holds a core. Modules opt in with ``pytestmark = pytest.mark.usefixtures("one_thread")``."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 def gradcheck64(fn, *inputs: torch.Tensor, **kwargs) -> bool:
     """``torch.autograd.gradcheck`` on float64 copies of ``inputs`` (all made to require grad)."""
     xs = [x.detach().to(torch.float64).requires_grad_() for x in inputs]

@@ -15,13 +15,7 @@ FIELDS = [f.name for f in dataclasses.fields(FluidWarpSettings)]
 SETTINGS = {"count": (1, 2), "strength": 0.2, "radius": (10.0, 14.0), "steps": (2, 3), "grid": 12, "dt": 1.0}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def _gen(seed=0):

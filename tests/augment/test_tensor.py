@@ -20,14 +20,7 @@ from torchfluidwarp.augment import (
 from torchfluidwarp.augment import tensor as augment_tensor
 from torchfluidwarp.warp.layer import FluidWarp, identity_map, jacobian_determinant, warp_image
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def _seeded(seed=0, **kwargs):

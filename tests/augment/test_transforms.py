@@ -14,13 +14,7 @@ from torchfluidwarp.augment.transforms import RandomFluidWarp, fluid_warp
 H, W = 64, 80
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def _warp(seed=0, **kwargs):

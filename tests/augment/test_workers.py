@@ -16,13 +16,7 @@ N, S = 8, 24  # 8 identical images of 24 x 24: only the warp differs between sam
 SETTINGS = FluidWarpSettings(count=(1, 2), strength=(0.2, 0.4), radius=(4.0, 8.0), steps=(2, 4), grid=8)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def _image():

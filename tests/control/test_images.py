@@ -7,14 +7,7 @@ from torchfluidwarp.data import load_sample
 from torchfluidwarp.warp.forces import Brushes
 from torchfluidwarp.warp.layer import FluidWarp, jacobian_determinant
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # on a small shared machine, multi-threaded CPU kernels stall whenever another process holds a core
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
