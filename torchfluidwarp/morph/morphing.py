@@ -349,8 +349,11 @@ def morph(
     with torch.no_grad():  # the fit is done: rendering needs no graph
         velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
         flows = None if inverse == "flow" else paper_flows(fit, roi, {**fit_kwargs, "progress": False})
-    scene = Scene(a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, shape, colour, feather, flows)
-    scene.masks, scene.background = _region_masks(region, region_margin, pa, pb, a, image_b_size), background
+    scene = Scene(
+        a, b, velocities, fit.warp.dt, steps, M, center, box, roi, inverse, shape, colour, feather, flows,
+        masks=_region_masks(region, region_margin, pa, pb, a, image_b_size),
+        background=background,
+    )  # fmt: skip
     t_inv = time.perf_counter()
 
     traj = torch.stack(

@@ -165,18 +165,18 @@ BAND_PIXELS = 2**21
 float64 coordinates and temporaries stay bounded (about 0.3 GB) whatever the picture's size."""
 
 
-def _band(scene: Scene, g: Tensor, k_map: Tensor, s: float, w: float, rows: tuple[int, int]) -> list[Tensor]:
-    """One band of rows ``[r0, r1)`` of a frame at fluid time ``s`` with colour weight ``w``: the frame, A and B
-    warped ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to
-    ``r1`` (one more row each side, where the picture has one, for the Jacobian's central differences)."""
-    a, b, steps = scene.a, scene.b, scene.steps
+def _band(scene: Scene, g: Tensor, k_map: Tensor, unalign: Tensor, w: float, rows: tuple[int, int]) -> list[Tensor]:
+    """One band of rows ``[r0, r1)`` of a frame whose pre-alignment is undone by ``unalign`` ``(3, 3)`` and whose
+    colour weight is ``w``: the frame, A and B warped ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded
+    pixel count, over the rows ``r0 - 1`` to ``r1`` (one more row each side, where the picture has one, for the
+    Jacobian's central differences)."""
+    a, b = scene.a, scene.b
     H, W = scene.size
     lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
-    offset = torch.tensor([scene.box[0], scene.box[1]], dtype=a.dtype, device=a.device)
+    offset = a.new_tensor([scene.box[0], scene.box[1]])
     ident = identity_map((hi - lo, W), device=a.device, dtype=torch.float64)
     ident = ident + ident.new_tensor([0.0, float(lo)])
-    Mk = interpolate_alignment(scene.M, s / steps, scene.center)
-    z = apply_alignment(torch.linalg.inv(Mk), ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
+    z = apply_alignment(unalign, ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
     map_a = _sample_map(g, z) + offset
     map_b = apply_alignment(scene.M, (_sample_map(k_map, z) + offset).double()).to(a.dtype)
     fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
@@ -218,14 +218,19 @@ def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
     n, C = len(ts), a.shape[1]
     rows = max(2, BAND_PIXELS // W)
     frames = a.new_empty(n, C, H, W)
-    rest = [a.new_empty(n, C, H, W), a.new_empty(n, C, H, W), a.new_empty(n, H, W, 2), a.new_empty(n, H, W, 2)]
-    if not keep:
-        rest = [t[:0] for t in rest]
+    kept = n if keep else 0  # warped images and maps are held only when asked for
+    rest = [
+        a.new_empty(kept, C, H, W),
+        a.new_empty(kept, C, H, W),
+        a.new_empty(kept, H, W, 2),
+        a.new_empty(kept, H, W, 2),
+    ]
     folded = 0
     for k, s in enumerate(times):
+        unalign = torch.linalg.inv(interpolate_alignment(scene.M, s / steps, scene.center))  # the frame's M_s^-1
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
-            frame, *parts, count = _band(scene, g[k], k_maps[k], s, scene.blend(ts[k]), (r0, r1))
+            frame, *parts, count = _band(scene, g[k], k_maps[k], unalign, scene.blend(ts[k]), (r0, r1))
             frames[k, :, r0:r1] = frame[0]
             if keep:
                 fa, fb, map_a, map_b = parts
