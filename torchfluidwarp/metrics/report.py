@@ -29,14 +29,14 @@ class Morph(Protocol):
 
     def render(self, ts: Sequence[float]) -> Any: ...  # MorphFrames: frames, maps_a, maps_b (n, ...)
 
+    def frame_ts(self, start: int, stop: int) -> list[float]: ...
+
 
 def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
     """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2))`` for each of the ``N`` frames, in order, rendered
     ``chunk`` frames at a time through the result's public :meth:`render`."""
-    n = len(result)
-    times = [1.0 if k == n - 1 else k / (n - 1) for k in range(n)]
-    for start in range(0, n, chunk):
-        part = result.render(times[start : start + chunk])
+    for start in range(0, len(result), chunk):
+        part = result.render(result.frame_ts(start, start + chunk))
         yield from zip(part.frames.unbind(0), part.maps_a.unbind(0), part.maps_b.unbind(0))
 
 

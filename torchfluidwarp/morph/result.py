@@ -77,11 +77,12 @@ class MorphResult:
     def times(self) -> Tensor:
         """``(N,)`` the fluid time of each frame, in steps ``0..T`` (the shape's schedule of its ``t``)."""
         steps, motion = self._scene.steps, self._scene.motion
-        return torch.tensor([steps * motion(self._time(k)) for k in range(self._count)], dtype=torch.float64)
+        return torch.tensor([steps * motion(t) for t in self.frame_ts(0, self._count)], dtype=torch.float64)
 
-    def _time(self, k: int) -> float:
-        """Frame ``k``'s time ``t`` in ``[0, 1]``: the frames are evenly spaced, ending exactly at 1."""
-        return 1.0 if k == self._count - 1 else k / (self._count - 1)
+    def frame_ts(self, start: int, stop: int) -> list[float]:
+        """The morph times ``t`` in ``[0, 1]`` of frames ``start`` to ``stop - 1``: the ``N`` frames are evenly
+        spaced, frame ``k`` at ``k / (N - 1)``, the last exactly at 1 (what :meth:`render` takes)."""
+        return [1.0 if k == self._count - 1 else k / (self._count - 1) for k in range(start, min(stop, self._count))]
 
     def _render(self, ts: list[float], keep: bool = True) -> MorphFrames:
         with torch.no_grad():
@@ -119,7 +120,7 @@ class MorphResult:
             return
         folded = 0
         for start in range(0, self._count, chunk):
-            part = self._render([self._time(k) for k in range(start, min(start + chunk, self._count))], keep=False)
+            part = self._render(self.frame_ts(start, start + chunk), keep=False)
             folded += part.folded
             frames = part.frames.to(self._dtype)
             del part  # hold the frames only while they are handed out
@@ -158,7 +159,7 @@ class MorphResult:
                 "morph(max_memory=...), or stream them with result.iter_frames()",
             )
             t0 = time.perf_counter()
-            self._all = self._render([self._time(k) for k in range(self._count)])
+            self._all = self._render(self.frame_ts(0, self._count))
             self.seconds["render"] = time.perf_counter() - t0
             self._set_folded(self._all.folded)
         return self
