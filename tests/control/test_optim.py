@@ -1,4 +1,6 @@
 import math
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -117,3 +119,54 @@ def test_bad_arguments(params, kwargs, error, match):
     x = torch.zeros(2, requires_grad=True)
     with pytest.raises(error, match=match):
         minimize(lambda: (x**2).sum(), [x] if params is None else params, **{"max_iter": 5, **kwargs})
+
+
+def _rosenbrock(x):
+    return (1 - x[0]) ** 2 + 100 * (x[1] - x[0] ** 2) ** 2
+
+
+def test_the_iterates_are_those_of_torch_optim_lbfgs():
+    x = torch.tensor([-1.2, 1.0], dtype=torch.float64, requires_grad=True)
+    res = minimize(lambda: _rosenbrock(x), [x], max_iter=15, history_size=10)
+
+    y = torch.tensor([-1.2, 1.0], dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS(
+        [y],
+        lr=1.0,
+        max_iter=15,
+        max_eval=30,
+        history_size=10,
+        tolerance_grad=1e-12,
+        tolerance_change=1e-14,
+        line_search_fn="strong_wolfe",
+    )
+    losses = []
+
+    def closure():
+        opt.zero_grad()
+        loss = _rosenbrock(y)
+        loss.backward()
+        losses.append(float(loss))
+        return loss
+
+    opt.step(closure)
+    assert res.loss_history == pytest.approx(losses, rel=1e-12, abs=1e-300)
+    best = min(range(len(losses)), key=losses.__getitem__)
+    assert res.best_loss == pytest.approx(losses[best], rel=1e-12)
+
+
+def test_a_fit_does_not_import_torch_dynamo():
+    # the first torch.optim optimiser of a process would import torch._dynamo (about 1 s, more than a fit)
+    code = (
+        "import sys, torch\n"
+        "from torchfluidwarp.control import fit_images, fit_keyframes\n"
+        "src = torch.tensor([[10.0, 10.0], [20.0, 15.0]])\n"
+        "fit = fit_keyframes(src, src + 2.0, image_size=(32, 32), grid=16, steps=4, control=3, progress=False)\n"
+        "assert fit.reached, fit.message\n"
+        "img = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))\n"
+        "fit_images(img, img.roll(1, -1), grid=8, levels=None, steps=2, control=2, max_iter=3, progress=False)\n"
+        "print('torch._dynamo' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"

@@ -2,7 +2,7 @@
 :func:`~torchfluidwarp.control.images.fit_images`.
 
 :func:`minimize` builds ``torch.optim.LBFGS`` with a strong-Wolfe line search and one history size, runs the
-closure (zero the gradients, evaluate under ``enable_grad``, backpropagate), keeps the best iterate and puts it
+closure (clear the gradients, evaluate under ``enable_grad``, backpropagate), keeps the best iterate and puts it
 back at the end, and shows one tqdm bar that counts L-BFGS iterations up to ``max_iter``. Its NaN policy: a
 non-finite loss, or non-finite parameters after a line-search step, ends the fit with ``converged=False`` and a
 message saying so, and the best finite iterate is restored. An optional ``stop`` callback ends the fit early
@@ -41,8 +41,7 @@ class OptimResult:
             its tolerance) before ``max_iter`` iterations and ``max_eval`` evaluations. False when the fit ran
             out of iterations or evaluations, or met a non-finite loss or parameter.
         message: a one-line reason for stopping.
-        seconds: wall time of the fit, from after the optimiser is built (the first ``torch.optim`` optimiser
-            of a process takes about a second to build, importing ``torch._dynamo``).
+        seconds: wall time of the fit, from after the optimiser is built.
         best_loss: the smallest finite loss seen, that of the restored parameters (``inf`` if none was finite).
     """
 
@@ -53,6 +52,22 @@ class OptimResult:
     message: str
     seconds: float
     best_loss: float
+
+
+class _LBFGS(torch.optim.LBFGS):
+    """``torch.optim.LBFGS`` itself, built without importing ``torch._dynamo``.
+
+    ``Optimizer.add_param_group`` (called by the constructor) and ``zero_grad`` are wrapped in torch's
+    ``_disable_dynamo``, whose first call in a process imports ``torch._dynamo``: about 1.2 s, more than a whole
+    warm keyframe fit, paid by every CLI run and demo. The wrapper only keeps ``torch.compile`` from tracing the
+    method, and nothing here is compiled, so the group is added by the undecorated method (``functools.wraps``
+    keeps it as ``__wrapped__``) and :func:`minimize` clears gradients itself. L-BFGS' step and line search are
+    torch's, unchanged. Should a future torch drop ``__wrapped__``, the decorated method is used.
+    """
+
+    def add_param_group(self, param_group: dict) -> None:  # type: ignore[override]
+        add = getattr(torch.optim.Optimizer.add_param_group, "__wrapped__", torch.optim.Optimizer.add_param_group)
+        add(self, param_group)
 
 
 class _Halt(Exception):
@@ -122,7 +137,7 @@ def minimize(
     check_positive("tolerance_grad", tolerance_grad)
     check_positive("tolerance_change", tolerance_change)
 
-    optimizer = torch.optim.LBFGS(
+    optimizer = _LBFGS(
         params,
         lr=1.0,
         max_iter=max_iter,
@@ -136,7 +151,6 @@ def minimize(
     history: list[float] = []
     best_loss = math.inf
     best_state = [p.detach().clone() for p in params]  # the starting point, should nothing be finite
-    # timed from here: the first optimiser built in a process imports torch._dynamo (about 1 s)
     start = time.perf_counter()
     # each L-BFGS iteration is one or more evaluations (its line search)
     bar = tqdm(total=max_iter, desc=desc, unit="iter", disable=not progress, leave=False)
@@ -144,7 +158,8 @@ def minimize(
     @torch.enable_grad()
     def closure() -> Tensor:
         nonlocal best_loss, best_state
-        optimizer.zero_grad()
+        for p in params:  # optimizer.zero_grad() would import torch._dynamo (see _LBFGS)
+            p.grad = None
         if not all(all_finite(p) for p in params):
             raise _Halt("the parameters became non-finite (a line-search step overflowed)")
         loss = objective()
