@@ -25,12 +25,16 @@ def describe(x: object) -> str:
 def all_finite(x: Tensor) -> bool:
     """Whether every element of ``x`` is finite.
 
-    A NaN or inf anywhere makes the float64 sum non-finite, and one reduction is several times cheaper than
-    ``isfinite(x).all()`` on the small tensors checked once per fluid step. Only when the sum is not finite is
-    the elementwise test run, so a sum that merely overflows cannot raise a false alarm.
+    A NaN or inf anywhere makes the sum non-finite, and one reduction is several times cheaper than
+    ``isfinite(x).all()`` on the small tensors checked once per fluid step. The sum runs in ``x``'s own dtype, so a
+    large frame is checked without a converted copy (a float64 sum of a 6000 x 6000 RGB frame would allocate
+    0.8 GB). Only when the sum is not finite is the elementwise test run, so a sum that merely overflows cannot
+    raise a false alarm.
     """
     x = x.detach()
-    return math.isfinite(float(x.sum(dtype=torch.float64))) or bool(torch.isfinite(x).all())
+    if x.is_complex():
+        return bool(torch.isfinite(x).all())
+    return math.isfinite(float(x.sum())) or bool(torch.isfinite(x).all())
 
 
 def check_tensor(

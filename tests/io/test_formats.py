@@ -32,7 +32,7 @@ def rgba_morph():
     pb = torch.tensor([[15.0, 11.0], [25.0, 10.0], [21.0, 21.0]])
     result = morph(a, b, pa, pb, frames=4, **FAST)
     frames = result.frames
-    expect = frames.clamp(0, 1).mul(255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    expect = frames.double().clamp(0, 1).mul(255).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()  # as the writer
     return frames, expect
 
 

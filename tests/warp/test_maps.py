@@ -108,3 +108,33 @@ def test_the_layer_passes_its_map_config_on(gen):
         streamed = torch.stack(list(warp.iter_frames(image, forces)), dim=1)
     torch.testing.assert_close(streamed, frames, rtol=0, atol=1e-4)  # two float32 paths
     assert not torch.equal(frames, FluidWarp((10, 12), steps=3)(image, forces))  # the config mattered
+
+
+@pytest.mark.parametrize("to_end", [False, True])
+def test_raster_displacements_read_at_the_pixel_centres_are_the_maps(to_end):
+    size = (70, 84)  # larger than the 4-per-cell raster of a 10 x 12 fluid
+    brush = Brushes([[40.0, 30.0]], [[1.0, 0.3]], radius=12.0, amplitude=0.8).to(torch.float64)
+    with torch.no_grad():
+        v = FluidSimulator((10, 12))(brush((10, 12), 3, 1.0, size)).velocities
+    times = [0.0, 1.5, 3.0]
+    full = (maps_to_end if to_end else backward_maps)(v, size, times=times)  # (1, 3, H, W, 2)
+    disp = maps.raster_displacements(v, size, times=times, to_end=to_end)
+    assert disp.shape == (1, 3, 2, 40, 48)  # the raster, not the image
+    ident = identity_map(size, dtype=torch.float64)
+    assert float((full[0] - ident).abs().max()) > 1.0  # pixels: the maps moved
+    for k in range(len(times)):
+        read = ident + maps.read_displacement(disp[:, k], size, ident)
+        torch.testing.assert_close(read, full[:, k], rtol=0, atol=1e-9)
+
+
+def test_read_displacement_is_bilinear_inside_and_held_beyond_the_raster():
+    # a linear field is reproduced exactly between the samples and held at the outermost ones beyond them
+    size = (40, 60)
+    ident = identity_map((4, 6), dtype=torch.float64)  # raster pixel centres
+    field = (ident * ident.new_tensor([0.5, -2.0])).permute(0, 3, 1, 2)  # linear in the raster's pixels
+    at = torch.tensor([[[[12.3, 7.9], [55.0, 38.0], [-30.0, 50.0]]]], dtype=torch.float64)  # image pixels
+    got = maps.read_displacement(field, size, at)[0, 0]
+    on_raster = (at[0, 0] + 0.5) / 10 - 0.5
+    held = torch.stack([on_raster[:, 0].clamp(0, 5), on_raster[:, 1].clamp(0, 3)], dim=-1)
+    torch.testing.assert_close(got, held * held.new_tensor([0.5, -2.0]), rtol=0, atol=1e-12)
+    assert float(on_raster[0, 0]) == pytest.approx(0.78) and float(held[2, 0]) == 0.0

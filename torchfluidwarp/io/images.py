@@ -284,13 +284,20 @@ def _tensor_from_array(array: np.ndarray, source: str, channels: int | None, dty
         array = array[..., None]
     if array.ndim != 3 or not 1 <= array.shape[-1] <= 4:
         raise ValueError(f"cannot read {source}: unsupported pixel layout {array.shape}")
-    if array.dtype == np.bool_:
-        values = array.astype(np.float64)
-    elif np.issubdtype(array.dtype, np.integer):
-        values = array.astype(np.float64) / np.iinfo(array.dtype).max
+    # channels first while still in the file's dtype (a 6000 x 6000 RGB photo: 108 MB as uint8), then one
+    # conversion to the working float dtype, scaled in place: no float64 or non-contiguous float copy
+    planar = np.ascontiguousarray(array.transpose(2, 0, 1))  # (C, H, W)
+    del array
+    work = np.float64 if dtype == torch.float64 else np.float32
+    if planar.dtype == np.bool_:
+        values = planar.astype(work)
+    elif np.issubdtype(planar.dtype, np.integer):
+        values = planar.astype(work)
+        values /= work(np.iinfo(planar.dtype).max)
     else:
-        values = np.clip(np.nan_to_num(array.astype(np.float64)), 0.0, 1.0)
-    image = torch.from_numpy(values).permute(2, 0, 1).unsqueeze(0)  # (1, C, H, W)
+        values = np.clip(np.nan_to_num(planar.astype(np.float64)), 0.0, 1.0).astype(work)
+    del planar
+    image = torch.from_numpy(values).unsqueeze(0)  # (1, C, H, W)
     if image.shape[1] == 2:  # gray + alpha: keep the alpha, as RGBA
         image = torch.cat([image[:, :1].expand(-1, 3, -1, -1), image[:, 1:]], dim=1)
     return _convert_channels(image, channels).to(dtype).contiguous()
@@ -314,7 +321,8 @@ def _convert_channels(image: Tensor, channels: int | None) -> Tensor:
 
 _CONVERT_BYTES = 64 * 2**20
 """Frames are converted to uint8 in chunks of about this many bytes of float64, not all at once (300 frames
-of 1920 x 1080 RGB would take 15 GB as float64)."""
+of 1920 x 1080 RGB would take 15 GB as float64, one 6000 x 6000 RGB frame 0.86 GB): whole frames when they
+are small, bands of rows of one frame when they are large."""
 
 
 def _uint8_frames(frames: Tensor, name: str) -> np.ndarray:
@@ -325,7 +333,10 @@ def _uint8_frames(frames: Tensor, name: str) -> np.ndarray:
         raise ValueError(f"{name} must have C in 1, 3, 4 and non-empty T, H, W; got shape {tuple(frames.shape)}")
     out = torch.empty(t, h, w, c, dtype=torch.uint8)
     chunk = max(1, _CONVERT_BYTES // (8 * c * h * w))  # frames per float64 chunk: memory stays bounded
+    rows = h if chunk > 1 else max(1, _CONVERT_BYTES // (8 * c * w))  # rows per chunk of one large frame
     for i in range(0, t, chunk):
-        part = frames[i : i + chunk].detach().to("cpu", torch.float64).clamp(0.0, 1.0).mul(255.0).round()
-        out[i : i + chunk] = part.to(torch.uint8).permute(0, 2, 3, 1)
+        for r in range(0, h, rows):
+            part = frames[i : i + chunk, :, r : r + rows].detach().to("cpu", torch.float64, copy=True)  # not in place
+            part = part.clamp_(0.0, 1.0).mul_(255.0).round_()
+            out[i : i + chunk, r : r + rows] = part.to(torch.uint8).permute(0, 2, 3, 1)
     return out.numpy()

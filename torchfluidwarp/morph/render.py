@@ -19,7 +19,8 @@ from torch import Tensor
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
 from torchfluidwarp.morph.regions import composite
-from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant, maps_to_end
+from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant
+from torchfluidwarp.warp.maps import raster_displacements, read_displacement
 
 InverseMethod = Literal["flow", "paper"]
 
@@ -74,8 +75,9 @@ def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     The map's displacement is what is interpolated (and held constant beyond the map's grid), so outside the
     grid the map continues as a translation instead of collapsing onto the edge: the composite stays a proper,
     fold-free map, without a kink where the grid (a fluid box) ends."""
-    disp = coords - identity_map((coords.shape[1], coords.shape[2]), device=coords.device, dtype=coords.dtype)
-    return at + _warp_image(disp.permute(0, 3, 1, 2), at, "bilinear").permute(0, 2, 3, 1)
+    size = (coords.shape[1], coords.shape[2])
+    disp = coords - identity_map(size, device=coords.device, dtype=coords.dtype)
+    return at + read_displacement(disp.permute(0, 3, 1, 2), size, at)
 
 
 def paper_flows(fit: KeyframeFit, size: tuple[int, int], kwargs: dict) -> list[tuple[Tensor, float]]:
@@ -160,16 +162,17 @@ class MorphFrames:
     folded: int
 
 
-BAND_PIXELS = 2**21
+BAND_PIXELS = 2**20
 """Output pixels rendered at once: a frame larger than this is rendered in bands of rows, so that its
-float64 coordinates and temporaries stay bounded (about 0.3 GB) whatever the picture's size."""
+float64 coordinates and temporaries stay bounded (about 0.15 GB) whatever the picture's size."""
 
 
-def _band(scene: Scene, g: Tensor, k_map: Tensor, unalign: Tensor, w: float, rows: tuple[int, int]) -> list[Tensor]:
-    """One band of rows ``[r0, r1)`` of a frame whose pre-alignment is undone by ``unalign`` ``(3, 3)`` and whose
-    colour weight is ``w``: the frame, A and B warped ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded
-    pixel count, over the rows ``r0 - 1`` to ``r1`` (one more row each side, where the picture has one, for the
-    Jacobian's central differences)."""
+def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: tuple[int, int]) -> list[Tensor]:
+    """One band of rows ``[r0, r1)`` of a frame whose pre-alignment is undone by ``unalign`` ``(3, 3)``, whose
+    maps ``g_s`` and ``K_s`` minus the identity are ``g`` and ``k`` ``(1, 2, h_r, w_r)`` (box pixels, on rasters
+    over the box) and whose colour weight is ``w``: the frame, A and B warped ``(1, C, n, W)``, the maps
+    ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to ``r1`` (one more row each side,
+    where the picture has one, for the Jacobian's central differences)."""
     a, b = scene.a, scene.b
     H, W = scene.size
     lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
@@ -177,8 +180,8 @@ def _band(scene: Scene, g: Tensor, k_map: Tensor, unalign: Tensor, w: float, row
     ident = identity_map((hi - lo, W), device=a.device, dtype=torch.float64)
     ident = ident + ident.new_tensor([0.0, float(lo)])
     z = apply_alignment(unalign, ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
-    map_a = _sample_map(g, z) + offset
-    map_b = apply_alignment(scene.M, (_sample_map(k_map, z) + offset).double()).to(a.dtype)
+    map_a = z + read_displacement(g, scene.roi, z) + offset
+    map_b = apply_alignment(scene.M, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
     fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
     det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, n, W) each
     frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, (H, W), scene.feather)
@@ -208,13 +211,15 @@ def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
     a, steps = scene.a, scene.steps
     roi, (H, W), dt = scene.roi, scene.size, scene.dt
     times = [steps * scene.motion(t) for t in ts]  # fluid times, steps
-    # the maps live on the fluid's box (box pixels); each frame reads them where its pixels come from
-    g = backward_maps(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, h_r, w_r, 2)
+    # the maps live on the fluid's box (box pixels), as displacements on their working rasters (a few MB
+    # whatever the picture's size); each frame reads them where its pixels come from
+    g = raster_displacements(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, 2, h_r, w_r)
     if scene.inverse == "flow":
-        k_maps = maps_to_end(scene.velocities, roi, dt, times)[0].unsqueeze(1)
+        k = raster_displacements(scene.velocities, roi, dt, times, to_end=True)[0].unsqueeze(1)
     else:
         assert scene.flows is not None
-        k_maps = torch.cat(_paper_inverse(scene.flows, times, roi)).to(a.dtype).unsqueeze(1)
+        ident = identity_map(roi, device=a.device, dtype=a.dtype)
+        k = torch.stack([(m.to(a.dtype) - ident).permute(0, 3, 1, 2) for m in _paper_inverse(scene.flows, times, roi)])
     n, C = len(ts), a.shape[1]
     rows = max(2, BAND_PIXELS // W)
     frames = a.new_empty(n, C, H, W)
@@ -226,18 +231,18 @@ def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
         a.new_empty(kept, H, W, 2),
     ]
     folded = 0
-    for k, s in enumerate(times):
+    for i, s in enumerate(times):
         unalign = torch.linalg.inv(interpolate_alignment(scene.M, s / steps, scene.center))  # the frame's M_s^-1
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
-            frame, *parts, count = _band(scene, g[k], k_maps[k], unalign, scene.blend(ts[k]), (r0, r1))
-            frames[k, :, r0:r1] = frame[0]
+            frame, *parts, count = _band(scene, g[i], k[i], unalign, scene.blend(ts[i]), (r0, r1))
+            frames[i, :, r0:r1] = frame[0]
             if keep:
                 fa, fb, map_a, map_b = parts
-                rest[0][k, :, r0:r1], rest[1][k, :, r0:r1] = fa[0], fb[0]  # images (n, C, H, W)
-                rest[2][k, r0:r1], rest[3][k, r0:r1] = map_a[0], map_b[0]  # maps (n, H, W, 2)
+                rest[0][i, :, r0:r1], rest[1][i, :, r0:r1] = fa[0], fb[0]  # images (n, C, H, W)
+                rest[2][i, r0:r1], rest[3][i, r0:r1] = map_a[0], map_b[0]  # maps (n, H, W, 2)
             folded += int(count)
-        if scene.masks is None and ts[k] in (0, 1):
+        if scene.masks is None and ts[i] in (0, 1):
             # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-            frames[k] = (a if ts[k] == 0 else scene.b)[0]
+            frames[i] = (a if ts[i] == 0 else scene.b)[0]
     return MorphFrames(frames, rest[0], rest[1], rest[2], rest[3], folded)

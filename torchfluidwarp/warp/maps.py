@@ -52,6 +52,8 @@ __all__ = [
     "iter_backward_maps",
     "forward_maps",
     "maps_to_end",
+    "raster_displacements",
+    "read_displacement",
     "jacobian_determinant",
     "OVERSAMPLE",
     "TRACE_OVERSAMPLE",
@@ -193,7 +195,7 @@ def _map_composer(
     hi = torch.tensor([Wr - 0.5, Hr - 0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
     scale, shift = (a.view(1, 2, 1) for a in normalized_affine(raster, device=like.device, dtype=like.dtype))
     ratio = scale_factor(raster, size, device=like.device, dtype=like.dtype).view(1, 1, 1, 2)  # raster px -> image px
-    ident = identity_map(size, device=like.device, dtype=like.dtype)  # (1, H, W, 2)
+    ident: list[Tensor] = []  # the image's identity map (1, H, W, 2), built by the first to_map only
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
         n = substeps(velocities[:, t], dt * duration, config.max_strain, config.max_substeps)
@@ -204,7 +206,9 @@ def _map_composer(
         return disp
 
     def to_map(disp: Tensor) -> Tensor:  # one pass, (B, H, W, 2) contiguous (ratio is 1 when raster == size)
-        return torch.addcmul(ident, upsample_raster(disp, size).permute(0, 2, 3, 1), ratio)
+        if not ident:
+            ident.append(identity_map(size, device=like.device, dtype=like.dtype))
+        return torch.addcmul(ident[0], upsample_raster(disp, size).permute(0, 2, 3, 1), ratio)
 
     return compose, to_map, raster
 
@@ -212,7 +216,9 @@ def _map_composer(
 class _Maps:
     """The checked arguments of a map computation and its composer (see :func:`_map_composer`)."""
 
-    def __init__(self, velocities: Tensor, size: tuple[int, int], dt: float, times: Times, config: MapConfig) -> None:
+    def __init__(
+        self, velocities: Tensor, size: tuple[int, int], dt: float, times: Times, config: MapConfig, held: str = "size"
+    ) -> None:
         check_tensor("velocities", velocities, ndim=5)
         size = check_size("size", size)
         dt = check_real("dt", dt)
@@ -220,7 +226,10 @@ class _Maps:
             raise TypeError(f"config must be a MapConfig, got {type(config).__name__}")
         self.T = velocities.shape[1]
         self.times = _frame_times(self.T, times)
-        config.check_memory(velocities, size, len(self.times))
+        h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
+        config.check_memory(
+            velocities, size if held == "size" else _raster(size, h, w, config.oversample), len(self.times)
+        )
         self.compose, self.to_map, self.raster = _map_composer(velocities, size, dt, config)
         self.zero = velocities.new_zeros(velocities.shape[0], 2, *self.raster)  # the identity's displacement
 
@@ -230,18 +239,18 @@ def _iter_displacements(
 ) -> tuple[Iterator[Tensor], Callable[[Tensor], Tensor], tuple[int, int]]:
     """The backward maps as raster displacements (see :func:`iter_backward_maps`), and ``to_map`` and the raster."""
     maps = _Maps(velocities, size, dt, times, config)
-    advance = maps.compose
+    return _backward_displacements(maps), maps.to_map, maps.raster
 
-    def run() -> Iterator[Tensor]:
-        disp = maps.zero  # g_t(x) - x at integer step `done`, raster pixels
-        done = 0
-        for s in maps.times:
-            while done + 1 <= s:
-                disp = advance(disp, done, 1.0)
-                done += 1
-            yield disp if s == done else advance(disp, done, s - done)
 
-    return run(), maps.to_map, maps.raster
+def _backward_displacements(maps: _Maps) -> Iterator[Tensor]:
+    """``g_s(x) - x`` on the raster (raster pixels), one per time of ``maps``, in order."""
+    disp = maps.zero  # g_t(x) - x at integer step `done`, raster pixels
+    done = 0
+    for s in maps.times:
+        while done + 1 <= s:
+            disp = maps.compose(disp, done, 1.0)
+            done += 1
+        yield disp if s == done else maps.compose(disp, done, s - done)
 
 
 def iter_backward_maps(
@@ -307,6 +316,11 @@ def maps_to_end(
         config: the rasters' resolutions and the sub-steps' strain (:class:`MapConfig`).
     """
     maps = _Maps(velocities, size, dt, times, config)
+    return torch.stack([maps.to_map(d) for d in _to_end_displacements(maps)], dim=1)
+
+
+def _to_end_displacements(maps: _Maps) -> list[Tensor]:
+    """``K_s(z) - z`` on the raster (raster pixels), one per time of ``maps``, in order (see :func:`maps_to_end`)."""
 
     def pull(disp: Tensor, t: int, fraction: float) -> Tensor:
         return maps.compose(disp, t, -fraction)  # read ahead: trace forward over the step's remaining time
@@ -318,8 +332,56 @@ def maps_to_end(
         while done - 1 >= s:
             disp = pull(disp, done - 1, 1.0)
             done -= 1
-        out.append(maps.to_map(disp if s == done else pull(disp, done - 1, done - s)))
-    return torch.stack(out[::-1], dim=1)
+        out.append(disp if s == done else pull(disp, done - 1, done - s))
+    return out[::-1]
+
+
+def raster_displacements(
+    velocities: Tensor,
+    size: tuple[int, int],
+    dt: float = 1.0,
+    times: Times = None,
+    *,
+    to_end: bool = False,
+    config: MapConfig = MapConfig(),
+) -> Tensor:
+    """The maps of :func:`backward_maps` (or of :func:`maps_to_end` with ``to_end=True``) before their one resize:
+    each map minus the identity on the maps' working raster, ``(B, len(times), 2, H_r, W_r)``, channel 0 = x, in
+    pixels of the image of ``size``.
+
+    The raster (``config.oversample`` points per fluid cell and axis, or the image when smaller) holds all the
+    detail the fluid makes, so a large image's maps cost the raster's memory, not the image's: a morph of a
+    6000 x 6000 pair reads each frame's maps from rasters of about 2 MB instead of two 0.45 GB maps. Read them at
+    any pixel positions with :func:`read_displacement`; the maps of :func:`backward_maps` are those readings at
+    the pixel centres.
+    """
+    maps = _Maps(velocities, size, dt, times, config, held="raster")
+    if to_end:
+        disps = _to_end_displacements(maps)
+    else:
+        disps = list(_backward_displacements(maps))
+    ratio = scale_factor(maps.raster, size, device=velocities.device, dtype=velocities.dtype).view(1, 2, 1, 1)
+    return torch.stack([d * ratio for d in disps], dim=1)
+
+
+def read_displacement(displacement: Tensor, size: tuple[int, int], at: Tensor) -> Tensor:
+    """Read a displacement field on a raster covering an image of ``size`` at pixel positions of that image.
+
+    Args:
+        displacement: ``(B, 2, H_r, W_r)`` (channel 0 = x), e.g. a frame of :func:`raster_displacements`, its
+            samples at the centres of an ``H_r x W_r`` raster over the image's rectangle; any unit.
+        size: ``(H, W)`` of the image.
+        at: ``(B, H', W', 2)`` positions in the image's pixels, ``(x, y)``, pixel centres at integers.
+
+    Returns:
+        ``(B, H', W', 2)`` the displacement at ``at``, bilinear between the raster's samples and held constant
+        beyond its outermost ones (as :func:`upsample_raster` holds it), so ``at + result`` continues as a
+        translation beyond the raster instead of collapsing onto its edge.
+    """
+    Hr, Wr = displacement.shape[-2:]
+    ratio = at.new_tensor([Wr / size[1], Hr / size[0]])
+    on_raster = (at + 0.5) * ratio - 0.5  # the same point in raster pixels
+    return _warp_image(displacement, on_raster, "bilinear").permute(0, 2, 3, 1)
 
 
 def forward_maps(
