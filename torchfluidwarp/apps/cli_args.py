@@ -59,9 +59,23 @@ def first_line(message: object) -> str:
     return text[0] if text else type(message).__name__
 
 
+LIBRARY_HINTS = (
+    ("morph(max_memory=...)", "--max-memory GIB"),
+    (", or raise the limit with max_substeps (MapConfig(max_substeps=...) for FluidWarp and the maps)", ""),
+    (" (MapConfig(max_substeps=...) for FluidWarp and the maps)", ""),
+)
+"""Phrases of the library's errors that name a Python argument, and what the command line says instead: its
+flag, or nothing where the command line has no setting for it."""
+
+
 def fail(command: str, message: object) -> int:
-    """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr; returns exit status 2."""
-    print(f"{PROG} {command}: error: {first_line(message)}", file=sys.stderr)
+    """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr; returns exit status 2.
+
+    The library's hints at its own arguments are put in the command line's terms (:data:`LIBRARY_HINTS`)."""
+    text = first_line(message)
+    for library, cli in LIBRARY_HINTS:
+        text = text.replace(library, cli)
+    print(f"{PROG} {command}: error: {text}", file=sys.stderr)
     return EXIT_BAD_INPUT
 
 

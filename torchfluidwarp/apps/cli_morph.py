@@ -203,10 +203,7 @@ def _run_morph(
     held = _held_out(args)
     progress = not args.quiet and sys.stderr.isatty()
     options = {**morph_options(args), **result_options(args)}
-    try:
-        result = morph(image_a, image_b, points_a, points_b, progress=progress, **options)
-    except ValueError as exc:  # name the command line's option, not the library's argument
-        raise ValueError(str(exc).replace("morph(max_memory=...)", "--max-memory GIB")) from None
+    result = morph(image_a, image_b, points_a, points_b, progress=progress, **options)  # errors: see fail()
     path = write_result(result, args)
     if args.report:
         report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
