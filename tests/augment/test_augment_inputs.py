@@ -73,3 +73,10 @@ def test_the_v2_transform_names_the_sample_when_torchvision_cannot_size_it():
 def test_an_empty_batch_names_the_image_not_the_keypoints():
     with pytest.raises(ValueError, match="image must be real, non-empty"):
         random_fluid_warp(torch.rand(0, 3, 8, 8), keypoints=torch.zeros(2, 3, 2), **SMALL)
+
+
+@pytest.mark.parametrize("name,value", [("keypoints", torch.rand(2, 4, 2)), ("boxes", torch.rand(2, 1, 4))])
+def test_a_batch_that_does_not_match_the_images_names_both(name, value):
+    # found by the fuzz suite (seed 3): an image of batch 4 with keypoints of batch 2
+    with pytest.raises(ValueError, match=rf"{name} has a batch of 2 but image has 4"):
+        random_fluid_warp(torch.rand(4, 1, 19, 24), **{name: value})

@@ -233,6 +233,12 @@ class FluidWarpAugment(nn.Module):
                     f"{tuple(image.shape)}, got shape {tuple(x.shape)}"
                 )
             x = x.unsqueeze(0) if unbatched else x
+            if x.shape[0] != B:
+                raise ValueError(
+                    f"{name} has a batch of {x.shape[0]} but image has {B}: {name} must have shape "
+                    f"({B}, {', '.join('*' if t is None else str(t) for t in tail)}) to go with an image of shape "
+                    f"{tuple(image.shape)}, got shape {tuple(x.shape)}"
+                )
             return check_tensor(name, x, shape=[B, *tail], floating=floating)
 
         kp = batched("keypoints", keypoints, [None, 2], True)
