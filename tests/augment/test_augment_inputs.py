@@ -80,3 +80,9 @@ def test_a_batch_that_does_not_match_the_images_names_both(name, value):
     # found by the fuzz suite (seed 3): an image of batch 4 with keypoints of batch 2
     with pytest.raises(ValueError, match=rf"{name} has a batch of 2 but image has 4"):
         random_fluid_warp(torch.rand(4, 1, 19, 24), **{name: value})
+
+
+def test_a_brush_count_beyond_memory_is_refused_before_drawing():
+    # found by the fuzz suite (seed 4): count=10**9 with a huge radius passes the shear bound and used to hang
+    with pytest.raises(ValueError, match=r"count=1000000000 brushes .* above the limit"):
+        random_fluid_warp(torch.rand(1, 1, 14, 16), count=(1, 10**9), radius=(1e30, 1e30), grid=6)

@@ -99,3 +99,14 @@ def test_an_empty_image_is_named_by_forward_and_iter_frames(shape):
         warp(torch.rand(shape), forces(1, 2, 2, 8, 8))
     with pytest.raises(ValueError, match="image must have B, H and W >= 1"):
         list(warp.iter_frames(torch.rand(shape), forces(1, 2, 2, 8, 8)))
+
+
+@pytest.mark.parametrize("path", ["forward", "iter_frames"])
+def test_velocities_that_overflow_are_refused_naming_the_forces_and_dt(path):
+    # found by the fuzz suite (seed 4): dt = 1e30 overflowed float32, and the error named internal velocities
+    gen = torch.Generator().manual_seed(0)
+    forces = torch.rand(1, 2, 2, 6, 6, generator=gen).half()  # half forces: the roll-out overflows
+    image = torch.rand(1, 3, 9, 22, generator=gen)
+    with pytest.raises(ValueError, match=r"forces overflowed .* dt 1e\+30"):
+        out = getattr(FluidWarp(6, 2, dt=1e30), path)(image, forces)
+        list(out) if path == "iter_frames" else out

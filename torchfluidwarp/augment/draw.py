@@ -197,9 +197,11 @@ def draw_fluid_warp(
     if min(H, W) < 2:  # a fluid warp needs a pixel's neighbours: refuse, naming the image, instead of an IndexError
         raise ValueError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
     (h, w), itemsize = settings.grid.shape, dtype.itemsize
-    T = settings.steps[1]
-    nbytes = 3 * B * (T * 2 * (h + 1) * (w + 1) + 2 * H * W) * itemsize  # roll-out and maps, a few copies of each
-    what = f"a fluid warp of {B} images of size {(H, W)} on a grid of {h} x {w} cells for {T} steps"
+    T, K = settings.steps[1], settings.count[1]
+    # roll-out and maps, a few copies of each, and each brush's force field on the grid
+    nbytes = 3 * B * (T * 2 * (h + 1) * (w + 1) + 2 * H * W + K * h * w) * itemsize
+    what = f"a fluid warp of {B} images of size {(H, W)} with up to count={K} brushes"
+    what += f" on a grid of {h} x {w} cells for {T} steps"
     check_memory(what, nbytes, settings.max_memory, "max_memory (FluidWarpSettings)")
     device = torch.device("cpu") if device is None else torch.device(device)
     g = generator

@@ -16,7 +16,7 @@ from contextlib import closing, nullcontext
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_int, check_memory, check_size, check_tensor
+from torchfluidwarp._checks import all_finite, check_int, check_memory, check_size, check_tensor
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, normalized_affine, pixel_to_normalized
 from torchfluidwarp.core.linalg import CGConfig
@@ -161,11 +161,20 @@ class FluidWarp(nn.Module):
         size = self._size(size)
         return self.simulator(self.resolve_forces(forces, size), points, image_size=size)
 
-    def _velocities(self, forces: ForceSource, size: tuple[int, int], batch: int, name: str) -> Tensor:
-        """The roll-out's velocities ``(batch, T, 2, h + 1, w + 1)``: a batch of one is shared."""
+    def _velocities(
+        self, forces: ForceSource, size: tuple[int, int], batch: int, name: str, dtype: torch.dtype | None = None
+    ) -> Tensor:
+        """The roll-out's velocities ``(batch, T, 2, h + 1, w + 1)`` (in ``dtype`` if given): a batch of one is
+        shared. Velocities that overflowed (in the roll-out, or on the way to ``dtype``) are refused by name."""
         vel = self.rollout(forces, size).velocities
         if vel.shape[0] not in (1, batch):
             raise ValueError(f"forces have batch {vel.shape[0]}, but {name} has batch {batch} (or give forces batch 1)")
+        vel = vel if dtype is None else vel.to(dtype)
+        if not all_finite(vel):
+            raise ValueError(
+                f"the flow of these forces overflowed {vel.dtype} (non-finite velocities, dt {self.dt!r}): "
+                "use smaller forces or dt, or a wider dtype"
+            )
         return vel.expand(batch, *vel.shape[1:])
 
     def forward(self, image: Tensor, forces: ForceSource) -> Tensor:
@@ -177,7 +186,7 @@ class FluidWarp(nn.Module):
         """
         check_image(image)
         size = (image.shape[-2], image.shape[-1])
-        vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
+        vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
             frames = self._resampled(image, vel, _prefetch(size, None))
             return torch.stack([image, *frames], dim=1)  # autograd keeps each frame
@@ -207,7 +216,7 @@ class FluidWarp(nn.Module):
         """
         check_image(image)
         size = (image.shape[-2], image.shape[-1])
-        vel = self._velocities(forces, size, image.shape[0], "image").to(image.dtype)
+        vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         yield image
         # closing: a caller that stops early stops the worker
         with closing(self._resampled(image, vel, _prefetch(size, prefetch))) as frames:
