@@ -34,8 +34,8 @@ def tensor_variant(v: str, x: Tensor) -> Any:
         return x.to(dtypes[v])
     if v == "booldtype":
         return x > x.mean() if x.numel() else x.bool()
-    if v == "drop_dim":
-        return x[0] if x.ndim else x
+    if v == "drop_dim":  # an empty first dimension has no x[0]: sum it away instead (zeros of the rest)
+        return (x[0] if x.shape[0] else x.sum(0)) if x.ndim else x
     if v == "add_dim":
         return x.unsqueeze(-1)
     if v == "zero_first":
