@@ -115,7 +115,7 @@ def _tv_sample(a: Args) -> Any:
     from torchvision import tv_tensors
 
     image = a["image"]
-    img = image[0] if isinstance(image, Tensor) and image.ndim == 4 else image
+    img = image[0] if isinstance(image, Tensor) and image.ndim == 4 and len(image) else image
     h, w = (img.shape[-2], img.shape[-1]) if isinstance(img, Tensor) and img.ndim >= 2 else (8, 8)
     # tv_tensors.Image itself refuses tensors under 2-D: such an image goes in as a plain tensor
     as_image = isinstance(img, Tensor) and img.ndim >= 2
