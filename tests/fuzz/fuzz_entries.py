@@ -122,7 +122,7 @@ def _tv_sample(a: Args) -> Any:
     sample: dict[str, Any] = {"image": tv_tensors.Image(img) if as_image else img, "label": 3}
     mask, boxes = a["mask"], a["boxes"]
     sample["mask"] = tv_tensors.Mask(mask) if isinstance(mask, Tensor) else mask
-    if isinstance(boxes, Tensor) and boxes.ndim >= 2:
+    if isinstance(boxes, Tensor) and boxes.ndim in (2, 3):  # tv_tensors.BoundingBoxes itself refuses other ranks
         boxes = boxes[0] if boxes.ndim == 3 else boxes
         sample["boxes"] = tv_tensors.BoundingBoxes(boxes, format="XYXY", canvas_size=(h, w))
     else:
