@@ -1,3 +1,4 @@
+import importlib
 import math
 import sys
 import warnings
@@ -309,3 +310,24 @@ def test_the_shape_can_lead_the_colour(pair):
         morph(a, b, POINTS_A, POINTS_B, frames=3, motion=[(0, 0), (0.5, 0.9)], **KW)
     with pytest.raises(ValueError, match="blend must be one of"):
         morph(a, b, POINTS_A, POINTS_B, frames=3, blend="bouncy", **KW)
+
+
+@pytest.mark.parametrize("inverse", ["flow", "paper"])
+def test_a_box_over_map_pixels_reads_the_map_rasters_and_stays_close(pair, inverse, monkeypatch):
+    # large pictures read each frame's maps from their rasters instead of maps resized to the fluid box (memory);
+    # grid 8 makes a raster (4 points a cell) coarser than the box, so the two ways really differ
+    render_module = importlib.import_module("torchfluidwarp.morph.render")  # the package's `morph` is a function
+    a = pair[0]
+    turn = torch.tensor([[math.cos(0.3), -math.sin(0.3)], [math.sin(0.3), math.cos(0.3)]])
+    points_b = (POINTS_B - 32.0) @ turn.T * 1.2 + 32.0  # B turned and magnified: the frames read between pixels
+    b = _blobs((64, 64), points_b.tolist(), torch.Generator().manual_seed(1))
+    kw = {**KW, "grid": 8, "frames": 3, "inverse": inverse}
+    box = morph(a, b, POINTS_A, points_b, **kw)
+    box_maps, box_folded = box.maps, box.folded  # rendered now: the result renders on demand
+    monkeypatch.setattr(render_module, "MAP_PIXELS", 0)
+    raster = morph(a, b, POINTS_A, points_b, **kw)
+    torch.testing.assert_close(raster.fit.error, box.fit.error, rtol=0, atol=0)  # the same fit
+    diff = (raster.maps - box_maps).abs()
+    assert 0 < float(diff.max()) < 0.1  # pixels (0.03 here): another interpolation of the same maps
+    assert float(diff.mean()) < 0.005
+    assert raster.folded == box_folded == 0

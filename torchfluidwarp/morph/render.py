@@ -20,7 +20,7 @@ from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignm
 from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
 from torchfluidwarp.morph.regions import composite
 from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant
-from torchfluidwarp.warp.maps import raster_displacements, read_displacement
+from torchfluidwarp.warp.maps import raster_displacements, read_displacement, upsample_raster
 
 InverseMethod = Literal["flow", "paper"]
 
@@ -162,6 +162,12 @@ class MorphFrames:
     folded: int
 
 
+MAP_PIXELS = 2**23
+"""The largest fluid box, in pixels, whose maps are resized to the box's pixels before a frame reads them (2 maps
+of 64 MB each at float32). Bilinear reading of the resized map is what the morph's seam figure was tuned on (the
+raster's cell edges are blended over a pixel); a larger box reads the maps' rasters directly, which bounds a
+6000 x 6000 morph's memory and leaves the maps within a fraction of a pixel of the resized ones."""
+
 BAND_PIXELS = 2**20
 """Output pixels rendered at once: a frame larger than this is rendered in bands of rows, so that its
 float64 coordinates and temporaries stay bounded (about 0.15 GB) whatever the picture's size."""
@@ -170,9 +176,9 @@ float64 coordinates and temporaries stay bounded (about 0.15 GB) whatever the pi
 def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: tuple[int, int]) -> list[Tensor]:
     """One band of rows ``[r0, r1)`` of a frame whose pre-alignment is undone by ``unalign`` ``(3, 3)``, whose
     maps ``g_s`` and ``K_s`` minus the identity are ``g`` and ``k`` ``(1, 2, h_r, w_r)`` (box pixels, on rasters
-    over the box) and whose colour weight is ``w``: the frame, A and B warped ``(1, C, n, W)``, the maps
-    ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to ``r1`` (one more row each side,
-    where the picture has one, for the Jacobian's central differences)."""
+    over the box, or on the box's pixels) and whose colour weight is ``w``: the frame, A and B warped
+    ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to ``r1``
+    (one more row each side, where the picture has one, for the Jacobian's central differences)."""
     a, b = scene.a, scene.b
     H, W = scene.size
     lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
@@ -211,11 +217,15 @@ def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
     a, steps = scene.a, scene.steps
     roi, (H, W), dt = scene.roi, scene.size, scene.dt
     times = [steps * scene.motion(t) for t in ts]  # fluid times, steps
-    # the maps live on the fluid's box (box pixels), as displacements on their working rasters (a few MB
-    # whatever the picture's size); each frame reads them where its pixels come from
-    g = raster_displacements(scene.velocities, roi, dt, times)[0].unsqueeze(1)  # (n, 1, 2, h_r, w_r)
+    # the maps live on the fluid's box (box pixels), as displacements: resized once from their working rasters
+    # to the box's pixels, or, for a box over MAP_PIXELS, read from the rasters themselves (a few MB whatever the
+    # picture's size); each frame reads them where its pixels come from
+    box_maps = roi[0] * roi[1] <= MAP_PIXELS
+    g = raster_displacements(scene.velocities, roi, dt, times)[0]  # (n, 2, h_r, w_r)
+    g = (upsample_raster(g, roi) if box_maps else g).unsqueeze(1)  # (n, 1, 2, h, w)
     if scene.inverse == "flow":
-        k = raster_displacements(scene.velocities, roi, dt, times, to_end=True)[0].unsqueeze(1)
+        k = raster_displacements(scene.velocities, roi, dt, times, to_end=True)[0]
+        k = (upsample_raster(k, roi) if box_maps else k).unsqueeze(1)
     else:
         assert scene.flows is not None
         ident = identity_map(roi, device=a.device, dtype=a.dtype)
