@@ -14,8 +14,9 @@ Run from the repository root::
 
 from __future__ import annotations
 
-import math
+import sys
 import time
+from pathlib import Path
 
 import torch
 from _common import describe_load, machine, machine_load, table
@@ -24,25 +25,9 @@ from torchfluidwarp.correspond import match_features
 from torchfluidwarp.data import POINT_LABELS, load_sample, load_sample_points
 from torchfluidwarp.warp.maps import identity_map, warp_image
 
-SIZE = 512
-
-
-def similarity(y: torch.Tensor) -> torch.Tensor:
-    """Rotate by 8 degrees and scale by 1.1 about the centre, then shift by (6, -4) pixels."""
-    c, t = (SIZE - 1) / 2, math.radians(8.0)
-    rotation = torch.tensor([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]], dtype=y.dtype)
-    return c + 1.1 * (y - c) @ rotation.T + torch.tensor([6.0, -4.0], dtype=y.dtype)
-
-
-def smooth(y: torch.Tensor) -> torch.Tensor:
-    """Sine displacements of 8 pixels' amplitude."""
-    u = y / (SIZE - 1) * 2 * math.pi
-    dx = 8.0 * torch.sin(u[..., 1]) * torch.cos(0.5 * u[..., 0])
-    dy = 8.0 * torch.sin(u[..., 0]) * torch.cos(0.5 * u[..., 1])
-    return y + torch.stack([dx, dy], -1)
-
-
-MAPS = {"similarity": similarity, "smooth": smooth, "similarity+smooth": lambda y: smooth(similarity(y))}
+# the known maps are those of the tests (tests/correspond/test_features.py), so one definition serves both
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "correspond"))
+from test_features import MAPS, SIZE  # noqa: E402
 
 # the hand-marked labels whose face-mesh counterparts sit at the same feature (index into the 63 points is
 # found as the nearest detected point: this measures how close the detector comes, not a fixed pairing)
