@@ -93,18 +93,18 @@ def make_pairs(folder: Path, n: int, size: int) -> Path:
     from torchfluidwarp.io import write_image, write_points
 
     rows = ["image_a,image_b,points_a,points_b,name"]
+    points = {}
     for name in ("astronaut", "cat"):
         image = load_sample(name)
         small = F.interpolate(image, size=(size, size), mode="bilinear", antialias=True, align_corners=False)
         write_image(folder / f"{name}.png", small[0].clamp(0, 1))
+        scale = scale_factor(tuple(image.shape[-2:]), (size, size), dtype=torch.float64)
+        points[name] = rescale_points(load_sample_points(name).double(), scale)
     for k in range(n):
         gen = torch.Generator().manual_seed(k)
-        for name in ("astronaut", "cat"):
-            image = load_sample(name)
-            scale = scale_factor(tuple(image.shape[-2:]), (size, size), dtype=torch.float64)
-            pts = rescale_points(load_sample_points(name).double(), scale)
-            pts = (pts + (torch.rand(pts.shape, generator=gen, dtype=torch.float64) * 4 - 2)).clamp(2, size - 3)
-            write_points(folder / f"{name}{k}.json", pts)
+        for name, pts in points.items():
+            jittered = (pts + (torch.rand(pts.shape, generator=gen, dtype=torch.float64) * 4 - 2)).clamp(2, size - 3)
+            write_points(folder / f"{name}{k}.json", jittered)
         rows.append(f"astronaut.png,cat.png,astronaut{k}.json,cat{k}.json,pair{k}")
     (folder / "pairs.csv").write_text("\n".join(rows) + "\n")
     return folder / "pairs.csv"

@@ -62,7 +62,6 @@ def first_line(message: object) -> str:
 LIBRARY_HINTS = (
     ("morph(max_memory=...)", "--max-memory GIB"),
     (", or raise the limit with max_substeps (MapConfig(max_substeps=...) for FluidWarp and the maps)", ""),
-    (" (MapConfig(max_substeps=...) for FluidWarp and the maps)", ""),
 )
 """Phrases of the library's errors that name a Python argument, and what the command line says instead: its
 flag, or nothing where the command line has no setting for it."""
