@@ -138,3 +138,18 @@ def test_read_displacement_is_bilinear_inside_and_held_beyond_the_raster():
     held = torch.stack([on_raster[:, 0].clamp(0, 5), on_raster[:, 1].clamp(0, 3)], dim=-1)
     torch.testing.assert_close(got, held * held.new_tensor([0.5, -2.0]), rtol=0, atol=1e-12)
     assert float(on_raster[0, 0]) == pytest.approx(0.78) and float(held[2, 0]) == 0.0
+
+
+@pytest.mark.parametrize(
+    "field,size,at,match",
+    [
+        (torch.zeros(1, 3, 4, 6), (40, 60), torch.zeros(1, 2, 2, 2), "2 channels"),
+        (torch.zeros(2, 4, 6), (40, 60), torch.zeros(1, 2, 2, 2), "displacement must have 4 dimensions"),
+        (torch.zeros(1, 2, 4, 6), (40, 60), torch.zeros(2, 2, 2, 2), r"at must have shape \(1, "),
+        (torch.zeros(1, 2, 4, 6), (0, 60), torch.zeros(1, 2, 2, 2), "size must be"),
+        (torch.zeros(1, 2, 4, 6), (40, 60), torch.full((1, 2, 2, 2), float("nan")), "non-finite .* from at"),
+    ],
+)
+def test_read_displacement_refuses_bad_input_by_name(field, size, at, match):
+    with pytest.raises(ValueError, match=match):
+        maps.read_displacement(field, size, at)

@@ -377,11 +377,21 @@ def read_displacement(displacement: Tensor, size: tuple[int, int], at: Tensor) -
         ``(B, H', W', 2)`` the displacement at ``at``, bilinear between the raster's samples and held constant
         beyond its outermost ones (as :func:`upsample_raster` holds it), so ``at + result`` continues as a
         translation beyond the raster instead of collapsing onto its edge.
+
+    Raises:
+        ValueError, TypeError: shapes other than the above, a batch of ``at`` other than the field's, a bad
+            ``size``, or non-finite positions ``at`` (refused by the sampler, naming ``at``).
     """
+    # shapes only: the sampler refuses non-finite positions itself, and NaN in the field stays NaN in the result
+    check_tensor("displacement", displacement, ndim=4, finite=False)
+    check_tensor("at", at, shape=[displacement.shape[0], None, None, 2], finite=False)
+    size = check_size("size", size)
+    if displacement.shape[1] != 2:
+        raise ValueError(f"displacement must have 2 channels (x, y), got shape {tuple(displacement.shape)}")
     Hr, Wr = displacement.shape[-2:]
     ratio = at.new_tensor([Wr / size[1], Hr / size[0]])
     on_raster = (at + 0.5) * ratio - 0.5  # the same point in raster pixels
-    return _warp_image(displacement, on_raster, "bilinear").permute(0, 2, 3, 1)
+    return _warp_image(displacement, on_raster, "bilinear", check="at").permute(0, 2, 3, 1)
 
 
 def forward_maps(
