@@ -6,9 +6,11 @@ import warnings
 import pytest
 import torch
 
+from torchfluidwarp.core.advection import substeps
 from torchfluidwarp.core.simulator import FluidSimulator
 from torchfluidwarp.warp import layer, maps
 from torchfluidwarp.warp.forces import Brushes
+from torchfluidwarp.warp.frames import warp_image
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps, identity_map, maps_to_end, upsample_raster
 
@@ -153,3 +155,24 @@ def test_read_displacement_is_bilinear_inside_and_held_beyond_the_raster():
 def test_read_displacement_refuses_bad_input_by_name(field, size, at, match):
     with pytest.raises(ValueError, match=match):
         maps.read_displacement(field, size, at)
+
+
+@pytest.mark.parametrize("duration", [1.0, -1.0])  # backward maps and maps to the end share the composer
+def test_a_step_of_several_substeps_is_its_substeps_composed_one_by_one(gen, duration):
+    # a strong flow: several sub-steps per step. The composer traces the step's velocity once for all of them;
+    # here each sub-step is traced and composed on its own, as the definition reads: g <- g(x - d_sub(x))
+    v = _velocities(gen, strength=3.0)
+    size = (50, 60)
+    n = [substeps(v[:, t], duration, maps.MAX_STRAIN_PER_SUBSTEP) for t in range(v.shape[1])]
+    assert max(n) >= 3
+    compose, _, raster = maps._map_composer(v, size, 1.0)
+    pix = identity_map(raster, dtype=v.dtype).permute(0, 3, 1, 2)  # (1, 2, Hr, Wr) raster pixels
+    lo = torch.tensor([-0.5, -0.5], dtype=v.dtype).view(1, 2, 1, 1)
+    hi = torch.tensor([raster[1] - 0.5, raster[0] - 0.5], dtype=v.dtype).view(1, 2, 1, 1)
+    disp = want = torch.zeros(1, 2, *raster, dtype=v.dtype)
+    for t in range(v.shape[1]):
+        disp = compose(disp, t, duration)
+        for _ in range(n[t]):
+            at = torch.clamp(pix - maps._displacement(v[:, t], raster, duration / n[t]), lo, hi)
+            want = at - pix + warp_image(want, at.permute(0, 2, 3, 1))
+        torch.testing.assert_close(disp, want, rtol=0, atol=1e-12)

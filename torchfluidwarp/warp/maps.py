@@ -199,10 +199,12 @@ def _map_composer(
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
         n = substeps(velocities[:, t], dt * duration, config.max_strain, config.max_substeps)
+        # every sub-step traces the same velocity over the same time: one back-trace serves them all
+        back = _displacement(velocities[:, t], raster, dt * duration / n, config.trace_oversample)
+        at = torch.clamp(pix - back, lo, hi)
+        step, at = at - pix, at.view(B, 2, -1)
         for _ in range(n):
-            back = _displacement(velocities[:, t], raster, dt * duration / n, config.trace_oversample)
-            at = torch.clamp(pix - back, lo, hi)
-            disp = at - pix + _sample(disp, at.view(B, 2, -1), scale, shift, align_corners=False).view(B, 2, Hr, Wr)
+            disp = step + _sample(disp, at, scale, shift, align_corners=False).view(B, 2, Hr, Wr)
         return disp
 
     def to_map(disp: Tensor) -> Tensor:  # one pass, (B, H, W, 2) contiguous (ratio is 1 when raster == size)
