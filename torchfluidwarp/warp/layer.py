@@ -190,13 +190,12 @@ class FluidWarp(nn.Module):
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
             frames = self._resampled(image, vel, _prefetch(size, None))
             return torch.stack([image, *frames], dim=1)  # autograd keeps each frame
-        out = image.new_empty(image.shape[0], self.steps + 1, *image.shape[1:])
+        # new memory costs about 0.5 ms a MB to map in on first write on some machines (a 600 x 600 RGB frame is
+        # 4.3 MB): zeroing the output first maps it in on all of torch's threads at once, instead of page by
+        # page in the frame loop (docs/benchmarks.md, issue #20)
+        out = image.new_zeros(image.shape[0], self.steps + 1, *image.shape[1:])
         out[:, 0] = image
-
-        def touch(t: int) -> None:  # the worker maps frame t's pages in (one write per 4 KiB) while it waits
-            out[:, t].flatten(1)[:, :: 4096 // out.element_size()].zero_()
-
-        for t, frame in enumerate(self._resampled(image, vel, _prefetch(size, None), touch), start=1):
+        for t, frame in enumerate(self._resampled(image, vel, _prefetch(size, None)), start=1):
             out[:, t] = frame
         return out
 
@@ -223,14 +222,12 @@ class FluidWarp(nn.Module):
             for frame in frames:
                 yield frame.contiguous()
 
-    def _resampled(
-        self, image: Tensor, vel: Tensor, prefetch: bool, touch: Callable[[int], None] | None = None
-    ) -> Generator[Tensor, None, None]:
+    def _resampled(self, image: Tensor, vel: Tensor, prefetch: bool) -> Generator[Tensor, None, None]:
         """Frames 1 to ``T`` of ``image`` through the backward maps of ``vel``, one ``grid_sample`` each.
 
         The sampling grids are built straight from the maps' raster (identity + upsampled displacement, in
-        normalised coordinates, one pass), by a worker thread one frame ahead when ``prefetch``, which then
-        calls ``touch(t)`` (if given) for the frame ``t`` of that grid. A frame may come back channels-last.
+        normalised coordinates, one pass), by a worker thread one frame ahead when ``prefetch``. A frame may come
+        back channels-last.
         """
         size = (image.shape[-2], image.shape[-1])
         displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None, self.map_config)
@@ -256,8 +253,6 @@ class FluidWarp(nn.Module):
                 out = buffers[frame % 2] if buffers else None
                 grid = torch.addcmul(ident, upsample_raster(disp, size), ratio, out=out).permute(0, 2, 3, 1)
             frame += 1
-            if touch is not None:
-                touch(frame)
             return grid
 
         # grid_sample reads a channels-last image about 1.5x faster on some CPUs, which repays the one copy
