@@ -42,7 +42,10 @@ A failure on one device (an exception in its set-up or in any repeat) prints its
 device from that measurement only; the others, and the later measurements, still run. With ``--json PATH`` the
 results so far are written after every measurement, so a run cut short keeps what it measured. ``--quick`` is a
 smoke test: 64x64 and 96x128 images over 8 fluid steps, the fit on a 32x32 fluid over 5 steps, a 128x128 morph
-of 5 frames. Run ``PYTHONPATH=$PWD python benchmarks/bench_device.py --help`` for the options.
+of 5 frames. ``--only`` picks measurements. On CUDA a roll-out of at least ``GRAPH_MIN_STEPS`` steps replays its
+step from a captured CUDA graph (:mod:`torchfluidwarp.core.simulator`); ``--no-cuda-graphs`` rolls it out step
+by step instead, for comparison. Run ``PYTHONPATH=$PWD python benchmarks/bench_device.py --help`` for the
+options.
 """
 
 from __future__ import annotations
@@ -68,6 +71,7 @@ from bench_warp import FLUID, make_brushes, make_image
 from torch import Tensor
 
 from torchfluidwarp import FluidWarp, fit_keyframes, morph
+from torchfluidwarp.core import simulator
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.warp import iter_backward_maps
 
@@ -90,6 +94,7 @@ class Config:
 
 FULL = Config(((600, 600), (1080, 1920)), 60, (64, 64), 10, 1024, 30)
 QUICK = Config(((64, 64), (96, 128)), 8, (32, 32), 5, 128, 5)
+SECTIONS = ("frames", "fit", "morph")
 
 # ----------------------------------------------------------------------------------------------- timing
 
@@ -557,6 +562,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--json", metavar="PATH", help="also write the results as JSON to PATH (after every measurement)"
     )
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        choices=SECTIONS,
+        default=list(SECTIONS),
+        help="measure only these (default: all of frames, fit, morph)",
+    )
+    parser.add_argument(
+        "--no-cuda-graphs",
+        action="store_true",
+        help="roll the fluid out step by step on CUDA too (torchfluidwarp.core.simulator.GRAPH_MIN_STEPS raised "
+        "out of reach), to compare with the default replay of a captured step",
+    )
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
@@ -569,6 +587,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     cfg = QUICK if args.quick else FULL
+    if args.no_cuda_graphs:
+        simulator.GRAPH_MIN_STEPS = sys.maxsize
 
     info = machine()
     info["threads_from"] = "--threads" if args.threads is not None else "torch's default"
@@ -578,7 +598,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"bench_device: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
         f"{info['torch_threads']} CPU thread(s) ({info['threads_from']}), Python {info['python']}, {info['date']}"
-        + (" [--quick]" if args.quick else ""),
+        + (" [--quick]" if args.quick else "")
+        + (" [--no-cuda-graphs]" if args.no_cuda_graphs else ""),
         flush=True,
     )
     for d in devices:
@@ -632,7 +653,7 @@ def main(argv: list[str] | None = None) -> int:
     t_start = time.perf_counter()
 
     # 1. frames
-    for size in cfg.frame_sizes:
+    for size in cfg.frame_sizes if "frames" in args.only else []:
         what = f"frames {size[1]}x{size[0]}"
         runs = interleaved(what, devices, frames_setup(size, cfg.frame_steps), frames_once, args.repeats, log)
         summaries = summarise(runs, lambda r: frames_summary(r, cfg.frame_steps))
@@ -641,8 +662,10 @@ def main(argv: list[str] | None = None) -> int:
         record(what, runs)
 
     # 2. keyframe fit
-    log("  fit: building the flow instance ...")
-    inst = shared("fit", lambda: flow_instance(FIT_SEED, FIT_POINTS, cfg.fit_grid, cfg.fit_steps))
+    inst = None
+    if "fit" in args.only:
+        log("  fit: building the flow instance ...")
+        inst = shared("fit", lambda: flow_instance(FIT_SEED, FIT_POINTS, cfg.fit_grid, cfg.fit_steps))
     if inst is not None:
         runs = interleaved("fit", devices, fit_setup(inst, cfg), fit_once(cfg), args.repeats, log)
         summaries = summarise(runs, fit_summary)
@@ -651,7 +674,7 @@ def main(argv: list[str] | None = None) -> int:
         record("fit", runs)
 
     # 3. morph
-    pair = shared("morph", lambda: load_pair(cfg.morph_size))
+    pair = shared("morph", lambda: load_pair(cfg.morph_size)) if "morph" in args.only else None
     if pair is not None:
         once = lambda s: morph_run(s, cfg.morph_frames)  # noqa: E731
         runs = interleaved("morph", devices, morph_setup(pair), once, args.repeats, log)

@@ -122,3 +122,37 @@ def test_float64_and_batch_follow_inputs(gen):
     out = sim(torch.randn(3, 2, 2, 9, 6, generator=gen, dtype=torch.float64), torch.rand(3, 4, 2, dtype=torch.float64))
     assert out.velocities.dtype == torch.float64 and out.velocities.shape == (3, 2, 2, 10, 7)
     assert out.points.shape == (3, 3, 4, 2)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("viscosity", [0.0, 0.3])
+def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_one_by_one(gen, viscosity):
+    from torchfluidwarp.core import simulator
+
+    forces = (torch.randn(2, simulator.GRAPH_MIN_STEPS + 2, 2, 12, 14, generator=gen) * 0.3).cuda()
+    sim = FluidSimulator((12, 14), viscosity=viscosity).cuda()
+    captured = []
+    real = simulator._GraphedStep
+
+    class Spy(real):  # type: ignore[misc, valid-type]
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            captured.append(self)
+
+    simulator._GraphedStep = Spy
+    try:
+        with torch.no_grad():
+            out = sim(forces)
+    finally:
+        simulator._GraphedStep = real
+    assert len(captured) == 1  # the roll-out took the graph
+    v, want = torch.zeros(2, 2, 13, 15, device="cuda"), []
+    with torch.no_grad():
+        for force in simulator.faces_from_cells(forces.flatten(0, 1)).view(*forces.shape[:2], 2, 13, 15).unbind(1):
+            v, _ = sim.step(v, force, viscosity, staggered=True)
+            want.append(v)
+    torch.testing.assert_close(out.velocities, torch.stack(want, 1), rtol=1e-5, atol=1e-6)
+    assert float(out.velocities.abs().max()) > 0.1  # the forces moved the fluid
+    with torch.enable_grad():  # a roll-out to differentiate runs step by step
+        sim(forces.clone().requires_grad_())
+    assert len(captured) == 1

@@ -3,6 +3,7 @@ import torch
 from conftest import gradcheck64
 
 from torchfluidwarp.core.linalg import CGConfig
+from torchfluidwarp.warp import layer
 from torchfluidwarp.warp.forces import Brushes
 from torchfluidwarp.warp.layer import FluidWarp, identity_map, jacobian_determinant, warp_image
 
@@ -167,6 +168,23 @@ def test_prefetched_frames_equal_the_plain_loop_and_stop_early(gen):
     last = list(warp.iter_frames(image, brushes))[-1]
     last.sum().backward()
     assert image.grad is not None and float(image.grad.abs().sum()) > 0
+
+
+@pytest.mark.parametrize(
+    "size,device,asked,want",
+    [
+        ((600, 600), "cpu", None, True),  # large frames on the CPU: the worker pays
+        ((200, 200), "cpu", None, False),  # small ones: the hand-over costs more than it overlaps
+        ((600, 600), "cuda", None, False),  # a GPU runs asynchronously anyway: the worker only adds the hand-over
+        ((1080, 1920), "cuda", None, False),
+        ((200, 200), "cpu", True, True),  # asked for, or refused, by name
+        ((600, 600), "cuda", True, True),
+        ((600, 600), "cpu", False, False),
+    ],
+)
+def test_the_default_prefetch_follows_the_frame_size_on_the_cpu_and_is_off_on_a_gpu(size, device, asked, want):
+    # the policy alone (torch.device("cuda") needs no GPU); that both ways give the same frames is tested above
+    assert layer._prefetch(size, asked, torch.device(device)) is want
 
 
 @pytest.mark.parametrize("grad", [False, True])

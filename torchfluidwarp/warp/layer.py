@@ -50,13 +50,17 @@ def check_image(image: object) -> Tensor:
 
 
 PREFETCH_PIXELS = 2**17
-"""Frames over this many pixels (about 362 x 362) build their next sampling grid in a worker thread by default:
-measured on a 2-core AMD EPYC, a 256 x 256 frame ran 1.6x slower with the worker (the hand-over costs more than
-the overlap gains) and a 600 x 600 frame 1.3x faster."""
+"""Frames over this many pixels (about 362 x 362) build their next sampling grid in a worker thread by default,
+on the CPU: measured on a 2-core AMD EPYC, a 256 x 256 frame ran 1.6x slower with the worker (the hand-over costs
+more than the overlap gains) and a 600 x 600 frame 1.3x faster. On a GPU, whose work runs asynchronously anyway,
+the worker only adds the hand-over: on an H100, ``iter_frames`` ran 1.3x faster at 600 x 600 and 1.2x at
+1920 x 1080 without it (``benchmarks/bench_device.py``), so there it is off by default."""
 
 
-def _prefetch(size: tuple[int, int], prefetch: bool | None) -> bool:
-    return size[0] * size[1] > PREFETCH_PIXELS if prefetch is None else bool(prefetch)
+def _prefetch(size: tuple[int, int], prefetch: bool | None, device: torch.device) -> bool:
+    if prefetch is not None:
+        return bool(prefetch)
+    return device.type == "cpu" and size[0] * size[1] > PREFETCH_PIXELS
 
 
 class FluidWarp(nn.Module):
@@ -188,14 +192,14 @@ class FluidWarp(nn.Module):
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
-            frames = self._resampled(image, vel, _prefetch(size, None))
+            frames = self._resampled(image, vel, _prefetch(size, None, image.device))
             return torch.stack([image, *frames], dim=1)  # autograd keeps each frame
         # new memory costs about 0.5 ms a MB to map in on first write on some machines (a 600 x 600 RGB frame is
         # 4.3 MB): zeroing the output first maps it in on all of torch's threads at once, instead of page by
         # page in the frame loop (docs/benchmarks.md, issue #20)
         out = image.new_zeros(image.shape[0], self.steps + 1, *image.shape[1:])
         out[:, 0] = image
-        for t, frame in enumerate(self._resampled(image, vel, _prefetch(size, None)), start=1):
+        for t, frame in enumerate(self._resampled(image, vel, _prefetch(size, None, image.device)), start=1):
             out[:, t] = frame
         return out
 
@@ -211,14 +215,15 @@ class FluidWarp(nn.Module):
             prefetch: build the next frame's sampling grid in a worker thread while this frame is resampled and
                 consumed (PyTorch releases the GIL inside its operators, so on two cores the two overlap).
                 ``False`` does everything in the calling thread. ``None`` (default): prefetch for frames over
-                :data:`PREFETCH_PIXELS` pixels, where the overlap pays for the hand-over between threads.
+                :data:`PREFETCH_PIXELS` pixels on the CPU, where the overlap pays for the hand-over between
+                threads; not on a GPU.
         """
         check_image(image)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         yield image
         # closing: a caller that stops early stops the worker
-        with closing(self._resampled(image, vel, _prefetch(size, prefetch))) as frames:
+        with closing(self._resampled(image, vel, _prefetch(size, prefetch, image.device))) as frames:
             for frame in frames:
                 yield frame.contiguous()
 
