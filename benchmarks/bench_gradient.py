@@ -61,14 +61,22 @@ The viscosity is zero, so the step's diffusion is the identity and costs nothing
    faster: in the run that recorded it, it needed about as many evaluations in all (fewer on some instances,
    more on others) and more time, before the Jacobian's cost of some 15 gradients per instance.
 
+6. *Trial C: ``torch.compile``* (with ``--compile-trial``; off by default: it compiles for about half a minute
+   and needs a C++ compiler). The self-advection compiled by inductor for the CPU against eager, forward and
+   forward + backward on every step's velocity, and the first call's time, compilation included. The issue asks
+   for ``torch.compile`` only where it helps without slowing the first call; the trial shows whether it helps at
+   all.
+
 Run ``python benchmarks/bench_gradient.py --help`` for the options.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -925,6 +933,63 @@ def report_trial_b(rows: list[TrialBRow], gradient_ms: float) -> str:
     )
 
 
+# ----------------------------------------------------------------------------------------------- 6. trial C
+
+
+def trial_c(rec: Recorded, repeats: int) -> dict[str, float]:
+    """``torch.compile`` (inductor, CPU) of ``_advect_velocity``: its first call (compilation included) and the
+    medians, over every step's velocity, of forward and forward + backward against eager."""
+    gen = torch.Generator().manual_seed(2)
+    inputs = [x.detach().clone().requires_grad_() for x in rec.entering]
+    rs = [torch.randn(x.shape, generator=gen, dtype=x.dtype) for x in inputs]
+    # a cache of its own, empty: the first call compiles as it would in a user's first run
+    os.environ["TORCHINDUCTOR_CACHE_DIR"] = tempfile.mkdtemp(prefix="bench_gradient_inductor_")
+    compiled = torch.compile(_advect_velocity)
+    t0 = time.perf_counter()
+    (compiled(inputs[0], DT) * rs[0]).sum().backward()
+    first_s = time.perf_counter() - t0
+    impls = {"eager": _advect_velocity, "compiled": compiled}
+    times: dict[tuple[str, str], list[float]] = {(k, m): [] for k in impls for m in ("fwd", "grad")}
+    for _ in range(repeats + 1):  # the first round warms up (and compiles the no-grad graph)
+        for v, r in zip(inputs, rs):
+            for k, fn in impls.items():
+                t1 = time.perf_counter()
+                with torch.no_grad():
+                    fn(v, DT)
+                t2 = time.perf_counter()
+                v.grad = None
+                (fn(v, DT) * r).sum().backward()
+                t3 = time.perf_counter()
+                times[(k, "fwd")].append(t2 - t1)
+                times[(k, "grad")].append(t3 - t2)
+    m = {f"{k}_{w}_ms": median_ms(v[STEPS:]) for (k, w), v in times.items()}
+    return {"first_call_s": first_s, **m}
+
+
+def report_trial_c(c: dict[str, float], repeats: int) -> str:
+    head = (
+        "6. Trial C: torch.compile (inductor, CPU) of the self-advection against eager, per step (ms, medians over "
+        f"the 10 steps' velocities and {repeats} interleaved repeats)"
+    )
+    row = [
+        f"{c['first_call_s']:.1f}",
+        f"{c['eager_fwd_ms']:.3f}",
+        f"{c['compiled_fwd_ms']:.3f}",
+        f"{c['eager_grad_ms']:.3f}",
+        f"{c['compiled_grad_ms']:.3f}",
+        f"{c['compiled_grad_ms'] / c['eager_grad_ms']:.2f}x",
+    ]
+    cols = [
+        "first call s (compiling)",
+        "eager fwd",
+        "compiled fwd",
+        "eager fwd+bwd",
+        "compiled fwd+bwd",
+        "compiled / eager",
+    ]
+    return head + "\n" + table(cols, [row])
+
+
 # ----------------------------------------------------------------------------------------------- main
 
 
@@ -944,6 +1009,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profiled", type=int, default=5, help="gradients and forwards profiled in 3. (default 5)")
     parser.add_argument("--trial-seeds", type=int, default=5, help="flow instances of trial B (default 5)")
     parser.add_argument("--no-trials", action="store_true", help="skip the trials (4. and 5.)")
+    parser.add_argument(
+        "--compile-trial",
+        action="store_true",
+        help="also run trial C, torch.compile of the self-advection (about 30 s of compiling; needs a C++ compiler)",
+    )
     args = parser.parse_args(argv)
     if min(args.threads, args.repeats, args.profiled, args.trial_seeds) < 1:
         parser.error("--threads, --repeats, --profiled and --trial-seeds must be >= 1")
@@ -1002,6 +1072,11 @@ def main(argv: list[str] | None = None) -> int:
         print("\n" + report_trial_b(b_rows, obj.gradient_ms), flush=True)
         result["trial_a"] = {"rows": [asdict(r) for r in a_rows], "autograd_nodes": nodes}
         result["trial_b"] = [asdict(r) for r in b_rows]
+    if args.compile_trial:
+        log("  6. trial C (compiling) ...")
+        c = trial_c(rec, args.repeats)
+        print("\n" + report_trial_c(c, args.repeats), flush=True)
+        result["trial_c"] = c
 
     total = time.perf_counter() - t_start
     info["load_end"] = machine_load()
