@@ -1,4 +1,5 @@
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -156,3 +157,45 @@ def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_o
     with torch.enable_grad():  # a roll-out to differentiate runs step by step
         sim(forces.clone().requires_grad_())
     assert len(captured) == 1
+
+
+def _stand_in(cuda: bool = True, requires_grad: bool = False):
+    # what _graphable reads of a tensor, without a GPU
+    return SimpleNamespace(is_cuda=cuda, requires_grad=requires_grad)
+
+
+@pytest.mark.parametrize(
+    "kwargs,want",
+    [
+        ({}, True),  # on CUDA, long enough, nothing to record, a constant viscosity
+        ({"cuda": False}, False),  # the CPU has no launches to save
+        ({"steps": 7}, False),  # a short roll-out does not repay the capture
+        ({"viscosity": torch.ones(1, 1, 4, 4)}, False),  # a viscosity field's CG reads its residual on the host
+        ({"requires_grad": True}, False),  # a roll-out to differentiate: autograd records every step
+        ({"requires_grad": True, "grad_mode": False}, True),  # ...unless grad is off
+        ({"capturing": True}, False),  # inside a caller's own capture: theirs records the steps
+    ],
+)
+def test_which_rollouts_replay_a_captured_step(kwargs, want, monkeypatch):
+    from torchfluidwarp.core import simulator
+
+    # the policy alone: stand-ins for CUDA tensors, and the capture state (asking it needs a CUDA driver)
+    monkeypatch.setattr(torch.cuda, "is_current_stream_capturing", lambda: kwargs.get("capturing", False))
+    steps = kwargs.get("steps", simulator.GRAPH_MIN_STEPS)
+    velocity = _stand_in(kwargs.get("cuda", True), kwargs.get("requires_grad", False))
+    with torch.set_grad_enabled(kwargs.get("grad_mode", True)):
+        got = simulator._graphable(_stand_in(), velocity, kwargs.get("viscosity", 0.5), steps)
+    assert got is want
+
+
+def test_a_step_that_cannot_be_captured_runs_step_by_step_with_a_warning(monkeypatch, gen):
+    from torchfluidwarp.core import simulator
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("operation not permitted when stream is capturing")
+
+    monkeypatch.setattr(simulator, "_GraphedStep", refuse)
+    step = simulator.StableFluidsStep()
+    with pytest.warns(UserWarning, match="could not be captured in a CUDA graph.*step by step"):
+        got = simulator._graphed(step, torch.zeros(1, 2, 9, 9), torch.zeros(1, 2, 9, 9), 0.0)
+    assert got is step
