@@ -43,7 +43,7 @@ device from that measurement only; the others, and the later measurements, still
 results so far are written after every measurement, so a run cut short keeps what it measured. ``--quick`` is a
 smoke test: 64x64 and 96x128 images over 8 fluid steps, the fit on a 32x32 fluid over 5 steps, a 128x128 morph
 of 5 frames. ``--only`` picks measurements. On CUDA a roll-out of at least ``GRAPH_MIN_STEPS`` steps replays its
-step from a captured CUDA graph (:mod:`torchfluidwarp.core.simulator`); ``--no-cuda-graphs`` rolls it out step
+step from a captured CUDA graph (:mod:`torchfluidwarp.core.graphs`); ``--no-cuda-graphs`` rolls it out step
 by step instead, for comparison. Run ``PYTHONPATH=$PWD python benchmarks/bench_device.py --help`` for the
 options.
 """
@@ -71,7 +71,7 @@ from bench_warp import FLUID, make_brushes, make_image
 from torch import Tensor
 
 from torchfluidwarp import FluidWarp, fit_keyframes, morph
-from torchfluidwarp.core import simulator
+from torchfluidwarp.core import graphs
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.warp import iter_backward_maps
 
@@ -572,7 +572,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-cuda-graphs",
         action="store_true",
-        help="roll the fluid out step by step on CUDA too (torchfluidwarp.core.simulator.GRAPH_MIN_STEPS raised "
+        help="roll the fluid out step by step on CUDA too (torchfluidwarp.core.graphs.GRAPH_MIN_STEPS raised "
         "out of reach), to compare with the default replay of a captured step",
     )
     args = parser.parse_args(argv)
@@ -588,7 +588,7 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     cfg = QUICK if args.quick else FULL
     if args.no_cuda_graphs:
-        simulator.GRAPH_MIN_STEPS = sys.maxsize
+        graphs.GRAPH_MIN_STEPS = sys.maxsize
 
     info = machine()
     info["threads_from"] = "--threads" if args.threads is not None else "torch's default"

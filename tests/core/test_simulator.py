@@ -126,76 +126,140 @@ def test_float64_and_batch_follow_inputs(gen):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
-@pytest.mark.parametrize("viscosity", [0.0, 0.3])
-def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_one_by_one(gen, viscosity):
-    from torchfluidwarp.core import simulator
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {},
+        {"viscosity": 0.3},
+        {"dtype": torch.float64},
+        {"compressible": 0.5, "points": True, "velocity": True},
+    ],
+)
+def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_one_by_one(gen, settings, monkeypatch):
+    from torchfluidwarp.core import graphs
 
-    forces = (torch.randn(2, simulator.GRAPH_MIN_STEPS + 2, 2, 12, 14, generator=gen) * 0.3).cuda()
-    sim = FluidSimulator((12, 14), viscosity=viscosity).cuda()
+    dtype = settings.get("dtype", torch.float32)
+    B, T = 2, graphs.GRAPH_MIN_STEPS + 2
+    forces = (torch.randn(B, T, 2, 12, 14, generator=gen, dtype=dtype) * 0.3).cuda()
+    given = {}
+    if "velocity" in settings:
+        given["velocity"] = (torch.randn(B, 2, 13, 15, generator=gen, dtype=dtype) * 0.1).cuda()
+    if "points" in settings:
+        given["points"] = torch.tensor([[[4.0, 5.0], [9.5, 7.0]]], dtype=dtype).expand(B, 2, 2).cuda()
+    keep = settings.get("compressible", False)
+    sim = FluidSimulator((12, 14), viscosity=settings.get("viscosity", 0.0), compressible=keep).cuda()
     captured = []
-    real = simulator._GraphedStep
+    real = graphs._GraphedStep
 
     class Spy(real):  # type: ignore[misc, valid-type]
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             captured.append(self)
 
-    simulator._GraphedStep = Spy
-    try:
-        with torch.no_grad():
-            out = sim(forces)
-    finally:
-        simulator._GraphedStep = real
-    assert len(captured) == 1  # the roll-out took the graph
-    v, want = torch.zeros(2, 2, 13, 15, device="cuda"), []
+    monkeypatch.setattr(graphs, "_GraphedStep", Spy)
     with torch.no_grad():
-        for force in simulator.faces_from_cells(forces.flatten(0, 1)).view(*forces.shape[:2], 2, 13, 15).unbind(1):
-            v, _ = sim.step(v, force, viscosity, staggered=True)
-            want.append(v)
-    torch.testing.assert_close(out.velocities, torch.stack(want, 1), rtol=1e-5, atol=1e-6)
+        out = sim(forces, **given)
+        again = sim(forces, **given)  # a second roll-out captures afresh
+        assert len(captured) == 2  # both roll-outs took the graph
+        monkeypatch.setattr(graphs, "GRAPH_MIN_STEPS", 10**9)
+        want = sim(forces, **given)  # step by step
+    assert len(captured) == 2
+    torch.testing.assert_close(out.velocities, want.velocities, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(again.velocities, out.velocities, rtol=0, atol=0)
+    assert out.iterations == want.iterations
+    if "points" in given:
+        torch.testing.assert_close(out.points, want.points, rtol=1e-5, atol=1e-5)
     assert float(out.velocities.abs().max()) > 0.1  # the forces moved the fluid
+    monkeypatch.setattr(graphs, "GRAPH_MIN_STEPS", T)
     with torch.enable_grad():  # a roll-out to differentiate runs step by step
         sim(forces.clone().requires_grad_())
-    assert len(captured) == 1
+    assert len(captured) == 2
+    assert not graphs._ONE_AT_A_TIME.locked()
 
 
-def _stand_in(cuda: bool = True, requires_grad: bool = False):
-    # what _graphable reads of a tensor, without a GPU
-    return SimpleNamespace(is_cuda=cuda, requires_grad=requires_grad)
+def _stand_in(cuda: bool = True, requires_grad: bool = False, index: int = 0):
+    # what graphable reads of a tensor, without a GPU
+    return SimpleNamespace(is_cuda=cuda, requires_grad=requires_grad, device=SimpleNamespace(index=index))
 
 
 @pytest.mark.parametrize(
     "kwargs,want",
     [
-        ({}, True),  # on CUDA, long enough, nothing to record, a constant viscosity
+        ({}, True),  # on the current CUDA device, long enough, nothing to record, a float viscosity, exact solves
         ({"cuda": False}, False),  # the CPU has no launches to save
+        ({"index": 1}, False),  # another device than the current one
         ({"steps": 7}, False),  # a short roll-out does not repay the capture
         ({"viscosity": torch.ones(1, 1, 4, 4)}, False),  # a viscosity field's CG reads its residual on the host
         ({"requires_grad": True}, False),  # a roll-out to differentiate: autograd records every step
         ({"requires_grad": True, "grad_mode": False}, True),  # ...unless grad is off
         ({"capturing": True}, False),  # inside a caller's own capture: theirs records the steps
+        ({"pressure": CGConfig(verify_exact=True)}, False),  # the pressure solve runs its CG loop
+        ({"pressure": CGConfig(precondition=False)}, False),
+        ({"pressure": CGConfig(verify_exact=True), "compressible": True}, True),  # no projection, no solve
+        ({"diffusion": CGConfig(verify_exact=True), "viscosity": 0.3}, False),  # the viscosity solve's CG loop
+        ({"diffusion": CGConfig(verify_exact=True)}, True),  # zero viscosity: no viscosity solve
     ],
 )
 def test_which_rollouts_replay_a_captured_step(kwargs, want, monkeypatch):
-    from torchfluidwarp.core import simulator
+    from torchfluidwarp.core import graphs
 
-    # the policy alone: stand-ins for CUDA tensors, and the capture state (asking it needs a CUDA driver)
+    # the policy alone: stand-ins for CUDA tensors, and the device's state (asking it needs a CUDA driver)
     monkeypatch.setattr(torch.cuda, "is_current_stream_capturing", lambda: kwargs.get("capturing", False))
-    steps = kwargs.get("steps", simulator.GRAPH_MIN_STEPS)
-    velocity = _stand_in(kwargs.get("cuda", True), kwargs.get("requires_grad", False))
+    monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
+    settings = {k: kwargs[k] for k in ("pressure", "diffusion", "compressible") if k in kwargs}
+    step = StableFluidsStep(**settings)
+    steps = kwargs.get("steps", graphs.GRAPH_MIN_STEPS)
+    velocity = _stand_in(kwargs.get("cuda", True), kwargs.get("requires_grad", False), kwargs.get("index", 0))
     with torch.set_grad_enabled(kwargs.get("grad_mode", True)):
-        got = simulator._graphable(_stand_in(), velocity, kwargs.get("viscosity", 0.5), steps)
+        got = graphs.graphable(step, _stand_in(), velocity, kwargs.get("viscosity", 0.0), steps)
     assert got is want
 
 
-def test_a_step_that_cannot_be_captured_runs_step_by_step_with_a_warning(monkeypatch, gen):
-    from torchfluidwarp.core import simulator
+def _graphable_everywhere(monkeypatch):
+    """Make rollout_step believe every roll-out can be captured, and stand in for the CUDA stream calls."""
+    from torchfluidwarp.core import graphs
+
+    streams = []
+    monkeypatch.setattr(graphs, "graphable", lambda *args: True)
+    monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: "the caller's stream")
+    monkeypatch.setattr(torch.cuda, "set_stream", streams.append)
+    return graphs, streams
+
+
+def test_a_step_that_cannot_be_captured_runs_step_by_step_with_a_warning(monkeypatch):
+    graphs, streams = _graphable_everywhere(monkeypatch)
 
     def refuse(*args, **kwargs):
         raise RuntimeError("operation not permitted when stream is capturing")
 
-    monkeypatch.setattr(simulator, "_GraphedStep", refuse)
-    step = simulator.StableFluidsStep()
-    with pytest.warns(UserWarning, match="could not be captured in a CUDA graph.*step by step"):
-        got = simulator._graphed(step, torch.zeros(1, 2, 9, 9), torch.zeros(1, 2, 9, 9), 0.0)
-    assert got is step
+    monkeypatch.setattr(graphs, "_GraphedStep", refuse)
+    step, v = StableFluidsStep(), torch.zeros(1, 2, 9, 9)
+    with pytest.warns(graphs.GraphCaptureWarning, match="could not be captured in a CUDA graph.*step by step"):
+        with graphs.rollout_step(step, v.unsqueeze(1).expand(1, 8, 2, 9, 9), v, 0.0, 8) as got:
+            assert got is step
+    assert streams == ["the caller's stream"]  # the caller's stream is current again
+    assert not graphs._ONE_AT_A_TIME.locked()
+
+
+def test_one_graphed_rollout_at_a_time_the_others_run_step_by_step(monkeypatch):
+    graphs, _ = _graphable_everywhere(monkeypatch)
+    made = []
+
+    class Captured:
+        def __init__(self, *args):
+            made.append(self)
+            self.closed = False
+
+        def close(self):
+            self.closed = True
+
+    monkeypatch.setattr(graphs, "_GraphedStep", Captured)
+    step, v = StableFluidsStep(), torch.zeros(1, 2, 9, 9)
+    forces = v.unsqueeze(1).expand(1, 8, 2, 9, 9)
+    with graphs.rollout_step(step, forces, v, 0.0, 8) as first:
+        assert first is made[0]
+        with graphs.rollout_step(step, forces, v, 0.0, 8) as second:  # another thread's, say
+            assert second is step and len(made) == 1
+        assert not made[0].closed
+    assert made[0].closed  # freed on leaving the roll-out
+    assert not graphs._ONE_AT_A_TIME.locked()

@@ -7,8 +7,6 @@ and carries passive points along.
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypedDict, cast
 
@@ -24,6 +22,7 @@ from torchfluidwarp.core.fluid import (
     faces_from_cells,
     project,
 )
+from torchfluidwarp.core.graphs import rollout_step
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.core.linalg import CGConfig
 
@@ -265,83 +264,20 @@ class FluidSimulator(nn.Module):
         # all steps' forces onto the faces at once, then unbind: one backward node each for the whole schedule
         # (per-step selects would each scatter their gradient into a full-size zero tensor)
         on_faces = faces_from_cells(forces.flatten(0, 1)).view(B, T, 2, h + 1, w + 1)
-        step: Callable[..., tuple[Tensor, tuple[int, int]]] = self.step
-        if _graphable(on_faces, velocity, mu, T):
-            step = _graphed(self.step, velocity, on_faces[:, 0], mu)
-        for t, force in enumerate(on_faces.unbind(1)):
-            velocity, it = step(velocity, force, mu, staggered=True)
-            vels.append(velocity)
-            iters.append(it)
-            if points is not None:
-                traj.append(_advect_points(traj[-1], velocity, self.dt))
-            if not all_finite(velocity):
-                raise FlowBlewUp(
-                    f"the flow blew up at step {t}: non-finite velocity (forces, velocity or dt too large)"
-                )
+        # on a GPU, where it can, each step is one replay of a captured step (core.graphs)
+        with rollout_step(self.step, on_faces, velocity, mu, T) as step:
+            for t, force in enumerate(on_faces.unbind(1)):
+                velocity, it = step(velocity, force, mu, staggered=True)
+                vels.append(velocity)
+                iters.append(it)
+                if points is not None:
+                    traj.append(_advect_points(traj[-1], velocity, self.dt))
+                if not all_finite(velocity):
+                    raise FlowBlewUp(
+                        f"the flow blew up at step {t}: non-finite velocity (forces, velocity or dt too large)"
+                    )
         pts = torch.stack(traj, 1).transpose(2, 3).to(out_dtype) if points is not None else None
         return FluidRollout(torch.stack(vels, 1).to(out_dtype), pts, iters)
-
-
-GRAPH_MIN_STEPS = 8
-"""A roll-out on a CUDA device of at least this many steps, with no gradient to record and a constant viscosity,
-replays its step from a CUDA graph (:class:`_GraphedStep`); shorter ones do not repay the capture."""
-
-
-def _graphable(forces: Tensor, velocity: Tensor, viscosity: Viscosity, steps: int) -> bool:
-    """Whether a roll-out can replay its steps from a CUDA graph: on CUDA, long enough, nothing to differentiate,
-    and no variable viscosity (its CG loop reads its residual on the host every iteration)."""
-    recording = torch.is_grad_enabled() and (forces.requires_grad or velocity.requires_grad)
-    return (
-        velocity.is_cuda
-        and steps >= GRAPH_MIN_STEPS
-        and not recording
-        and not isinstance(viscosity, Tensor)
-        and not torch.cuda.is_current_stream_capturing()
-    )
-
-
-class _GraphedStep:
-    """A :class:`StableFluidsStep` without grad, captured once in a CUDA graph and replayed for every step.
-
-    On a GPU a step of a 64 x 64 fluid is some 240 small operators whose launches, not their arithmetic, set its
-    time (about 1 ms a step on an H100, ``benchmarks/bench_device.py``); a replay launches them as one. The graph
-    reads its inputs from, and writes its output to, fixed buffers: each call copies the velocity and force in
-    and the new velocity out. It is captured after two warm-up steps on a side stream (as ``torch.cuda.graphs``
-    asks), which also fill the library's caches of grid constants outside the capture.
-    """
-
-    def __init__(self, step: StableFluidsStep, velocity: Tensor, force: Tensor, viscosity: Viscosity) -> None:
-        self.velocity, self.force = velocity.clone(), force.clone()
-        side = torch.cuda.Stream(device=velocity.device)
-        side.wait_stream(torch.cuda.current_stream(velocity.device))
-        with torch.no_grad(), torch.cuda.stream(side):
-            for _ in range(2):
-                step(self.velocity, self.force, viscosity, staggered=True)
-        torch.cuda.current_stream(velocity.device).wait_stream(side)
-        self.graph = torch.cuda.CUDAGraph()
-        # thread_local: other threads' CUDA work (a frame worker, a server's other jobs) may go on meanwhile
-        with torch.no_grad(), torch.cuda.graph(self.graph, capture_error_mode="thread_local"):
-            self.out, self.iterations = step(self.velocity, self.force, viscosity, staggered=True)
-
-    def __call__(
-        self, velocity: Tensor, force: Tensor, viscosity: Viscosity, staggered: bool = True
-    ) -> tuple[Tensor, tuple[int, int]]:
-        self.velocity.copy_(velocity)
-        self.force.copy_(force)
-        self.graph.replay()
-        return self.out.clone(), self.iterations
-
-
-def _graphed(
-    step: StableFluidsStep, velocity: Tensor, force: Tensor, viscosity: Viscosity
-) -> Callable[..., tuple[Tensor, tuple[int, int]]]:
-    """:class:`_GraphedStep` of ``step``, or ``step`` itself, with a warning, where this CUDA set-up cannot capture it
-    (the roll-out is the same either way, only slower)."""
-    try:
-        return _GraphedStep(step, velocity, force, viscosity)
-    except RuntimeError as e:
-        warnings.warn(f"the fluid step could not be captured in a CUDA graph ({e}); it runs step by step", stacklevel=3)
-        return step
 
 
 def _same_batch(name: str, x: object, batch: int) -> int:

@@ -53,8 +53,9 @@ PREFETCH_PIXELS = 2**17
 """Frames over this many pixels (about 362 x 362) build their next sampling grid in a worker thread by default,
 on the CPU: measured on a 2-core AMD EPYC, a 256 x 256 frame ran 1.6x slower with the worker (the hand-over costs
 more than the overlap gains) and a 600 x 600 frame 1.3x faster. On a GPU, whose work runs asynchronously anyway,
-the worker only adds the hand-over: on an H100, ``iter_frames`` ran 1.3x faster at 600 x 600 and 1.2x at
-1920 x 1080 without it (``benchmarks/bench_device.py``), so there it is off by default."""
+the worker mostly adds the hand-over: on an H100 with the fluid step replayed from a CUDA graph, ``iter_frames``
+ran 1.3x faster at 600 x 600 and 1.2x at 1920 x 1080 without it (``benchmarks/bench_device.py``; step by step,
+the result was mixed), so there it is off by default."""
 
 
 def _prefetch(size: tuple[int, int], prefetch: bool | None, device: torch.device) -> bool:
