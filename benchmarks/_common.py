@@ -6,6 +6,7 @@ The scripts run as ``python benchmarks/bench_*.py``, so this module is importabl
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import os
@@ -15,6 +16,7 @@ from typing import Any
 import torch
 
 __all__ = [
+    "add_threads_argument",
     "machine",
     "machine_load",
     "describe_load",
@@ -108,6 +110,17 @@ def reset_peak() -> bool:
         return True
     except OSError:
         return False
+
+
+def add_threads_argument(parser: argparse.ArgumentParser) -> None:
+    """The benchmarks' ``--threads``: torch CPU threads, default 1."""
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall for a scheduler "
+        "slice whenever another process holds a core)",
+    )
 
 
 def table(headers: list[str], rows: list[list[str]]) -> str:

@@ -39,6 +39,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
+from _common import add_threads_argument
 from torch import Tensor
 from torchvision import tv_tensors
 from torchvision.transforms import v2
@@ -253,7 +254,7 @@ def bench_registration(max_iter: tuple[int, ...]) -> dict[str, Any]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1: see docs/benchmarks.md)")
+    add_threads_argument(parser)
     parser.add_argument("--batch", type=int, default=8, help="batch size of the batched RandomFluidWarp timing")
     parser.add_argument("--repeats", type=int, default=10, help="timing repeats at 224 (half at 512)")
     parser.add_argument("--draws", type=int, default=32, help="draws per setting for the fold statistics")

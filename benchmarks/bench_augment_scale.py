@@ -30,7 +30,7 @@ from collections.abc import Callable
 from typing import Any
 
 import torch
-from _common import describe_load, machine, machine_load, table, write_json
+from _common import add_threads_argument, describe_load, machine, machine_load, table, write_json
 from bench_augment import SEED, interleaved_ms, photo
 from torchvision import tv_tensors
 from torchvision.transforms import v2
@@ -80,7 +80,7 @@ def bench(device: str, batch: int, size: int, repeats: int) -> list[dict[str, An
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1, as bench_augment.py)")
+    add_threads_argument(parser)
     parser.add_argument("--batch", type=int, default=64, help="images per batch (default 64)")
     parser.add_argument("--size", type=int, default=224, help="image side in pixels (default 224)")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds after the warm-up (default 3)")

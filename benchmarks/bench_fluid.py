@@ -53,7 +53,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import machine, reset_peak, save_figure, status_kib, table, verdict, write_json
+from _common import add_threads_argument, machine, reset_peak, save_figure, status_kib, table, verdict, write_json
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, FluidSimulator
@@ -598,13 +598,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smoke mode: small grids, few steps and repeats")
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
     parser.add_argument("--plot", metavar="PATH.png", help="also plot ms per step against grid size to PATH.png")
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: on a small shared machine, multi-threaded BLAS calls "
-        "stall for a scheduler slice whenever another process holds a core)",
-    )
+    add_threads_argument(parser)
     parser.add_argument(
         "--mem-budget-gib",
         type=float,

@@ -84,7 +84,16 @@ from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
-from _common import describe_load, machine, machine_load, source_fingerprint, table, verdict, write_json
+from _common import (
+    add_threads_argument,
+    describe_load,
+    machine,
+    machine_load,
+    source_fingerprint,
+    table,
+    verdict,
+    write_json,
+)
 from bench_keyframes import flow_instance
 from torch import Tensor
 from torch.autograd.function import once_differentiable
@@ -998,13 +1007,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall "
-        "for a scheduler slice whenever another process holds a core)",
-    )
+    add_threads_argument(parser)
     parser.add_argument("--repeats", type=int, default=40, help="interleaved repeats of 1., 2. and 4. (default 40)")
     parser.add_argument("--profiled", type=int, default=5, help="gradients and forwards profiled in 3. (default 5)")
     parser.add_argument("--trial-seeds", type=int, default=5, help="flow instances of trial B (default 5)")

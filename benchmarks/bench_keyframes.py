@@ -55,6 +55,7 @@ from typing import Any
 
 import torch
 from _common import (
+    add_threads_argument,
     describe_load,
     machine,
     machine_load,
@@ -847,13 +848,7 @@ def main(argv: list[str] | None = None) -> int:
         "--quick", action="store_true", help="smoke mode: 32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat"
     )
     parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1: on a small shared machine, multi-threaded kernels stall "
-        "for a scheduler slice whenever another process holds a core)",
-    )
+    add_threads_argument(parser)
     parser.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
     parser.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
     parser.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")

@@ -69,8 +69,8 @@ from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
+from _common import add_threads_argument, status_kib, table, verdict, write_json
 from _common import machine as common_machine
-from _common import status_kib, table, verdict, write_json
 from kornia.geometry.transform import get_tps_transform, warp_image_tps, warp_points_tps
 from torch import Tensor
 
@@ -716,13 +716,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="L-BFGS iterations of each fit (default: morph's, per method; 15 with --quick)",
     )
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=1,
-        help="torch CPU threads (default 1, as bench_fluid.py: on a small shared machine, "
-        "multi-threaded calls stall whenever another process holds a core)",
-    )
+    add_threads_argument(parser)
     args = parser.parse_args(argv)
     size, frames, repeats, max_iter = (128, 6, 1, 15) if args.quick else (None, 30, 3, None)  # None: morph's
     max_iter = args.max_iter if args.max_iter is not None else max_iter
