@@ -38,14 +38,16 @@ def test_gradient_matches_central_finite_differences(gen):
     assert rel < 1e-6, f"relative error {rel:.2e}"
 
 
-def test_small_fit_reaches_its_targets(gen):
+@pytest.mark.parametrize("method", ["auto", "lbfgs"])
+def test_small_fit_reaches_its_targets(gen, method):
     src = torch.tensor([[10.0, 10.0], [21.0, 11.0], [12.0, 22.0], [20.0, 20.0]])
     angles = torch.rand(4, generator=gen) * 2 * torch.pi
     tgt = src + 3.0 * torch.stack([torch.cos(angles), torch.sin(angles)], -1)
-    fit = fit_keyframes(src, tgt, image_size=(32, 32), grid=32, steps=5, control=(4, 4), progress=False)
+    fit = fit_keyframes(src, tgt, image_size=(32, 32), grid=32, steps=5, control=(4, 4), progress=False, method=method)
     assert fit.error.mean() < 0.05 and fit.reached and fit.converged
     assert fit.points.shape == (1, 4, 2) and fit.trajectories.shape == (1, 6, 4, 2)
-    assert fit.evaluations == len(fit.loss_history) > 0 and fit.seconds > 0
+    assert fit.forwards + fit.evaluations == len(fit.loss_history) > 0 and fit.seconds > 0
+    assert (fit.forwards > 0) == (method == "auto")
     assert fit.loss_history[-1] < fit.loss_history[0]
 
 

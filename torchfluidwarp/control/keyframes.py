@@ -31,6 +31,7 @@ from torchfluidwarp._checks import (
     compute_dtype,
     describe,
 )
+from torchfluidwarp.control.newton import newton_start
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
@@ -54,8 +55,12 @@ class KeyframeFit:
         trajectories: ``(B, T + 1, M, 2)`` their paths, pixels.
         error: ``(B, M)`` distance in pixels from each point to its target at the last keyframe.
         keyframe_errors: per keyframe ``(time_step, (B, M) errors)``.
-        loss_history: the objective at every evaluation (pixels^2).
-        evaluations: number of objective-and-gradient evaluations.
+        loss_history: the objective (pixels^2) after every roll-out of the quasi-Newton start, then at every
+            L-BFGS evaluation.
+        evaluations: number of objective-and-gradient evaluations (L-BFGS'; 0 when the quasi-Newton start
+            met the targets on its own).
+        forwards: roll-outs without autograd run by the quasi-Newton start (``method="auto"``), about a third
+            of an evaluation each; 0 without it.
         seconds: wall time of the fit.
         converged: the fit stopped on its own criterion (targets met, or L-BFGS made no further progress)
             before ``max_iter`` iterations; False also when a non-finite loss stopped it
@@ -72,6 +77,7 @@ class KeyframeFit:
     keyframe_errors: list[tuple[int, Tensor]]
     loss_history: list[float] = field(default_factory=list)
     evaluations: int = 0
+    forwards: int = 0
     seconds: float = 0.0
     converged: bool = False
     reached: bool = False
@@ -200,6 +206,7 @@ def fit_keyframes(
     dtype: torch.dtype = torch.float32,
     progress: bool = True,
     max_memory: float | None = None,
+    method: str = "auto",
 ) -> KeyframeFit:
     """Fit forces so that ``source`` points reach ``target`` at the keyframe(s).
 
@@ -232,6 +239,13 @@ def fit_keyframes(
         progress: show a tqdm bar of L-BFGS iterations with the loss.
         max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
+        method: ``"auto"`` (the default): when the objective is the points' alone (the default control grid,
+            no ``regularization`` or ``smoothness``, ``viscosity=0``, ``compressible`` ``False`` or ``True``),
+            start with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
+            Jacobian that cost one roll-out without autograd each, and hand over to L-BFGS only if it stalls
+            (on the paper's set-up it meets the targets alone in most instances, at about a fifth of L-BFGS'
+            time: ``benchmarks/bench_keyframes.py``). Other objectives, and ``"lbfgs"``, run L-BFGS from the
+            start. The two may settle on different controls that both meet the targets.
 
     Returns:
         a :class:`KeyframeFit`.
@@ -253,8 +267,10 @@ def fit_keyframes(
     regularization = check_positive("regularization", regularization, allow_zero=True)
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)
     dt = check_positive("dt", dt)
-    check_fraction("compressible", compressible)
+    keep = check_fraction("compressible", compressible)
     check_instance("forces", forces, nn.Module, optional=True)
+    if method not in ("auto", "lbfgs"):
+        raise ValueError(f"method must be 'auto' or 'lbfgs', got {method!r}")
     dtype = compute_dtype(check_float_dtype("dtype", dtype))  # half precision is fitted in float32
     src = check_points("source", source, (H, W))
     keyframes = _keyframes(target, steps, (H, W), src.shape[1], src.shape[0])
@@ -298,8 +314,21 @@ def fit_keyframes(
         paths = last["paths"]
         return max(float((paths[:, t] - q).norm(dim=-1).max()) for t, q in keyframes) <= tolerance
 
-    result = minimize(objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes")
     start = time.perf_counter()
+    inviscid = isinstance(viscosity, (int, float)) and not isinstance(viscosity, bool) and viscosity == 0
+    points_only = forces is None and regularization == smoothness == 0 and inviscid and keep in (0, 1)
+    newton = None
+    if method == "auto" and points_only and isinstance(module, ControlGrid):
+        newton = newton_start(warp, module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1)
+    if newton is not None and newton.reached:
+        history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
+    else:
+        result = minimize(
+            objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes"
+        )
+        history = ([] if newton is None else newton.loss_history) + list(result.loss_history)
+        evaluations, converged = result.evaluations, result.converged
+        how = result.message if newton is None else f"{newton.message}; {result.message}"
     with torch.no_grad():
         paths = warp.carry_points(src, module)
     kf_err = [(t, (paths[:, t] - q).norm(dim=-1)) for t, q in keyframes]
@@ -307,7 +336,7 @@ def fit_keyframes(
     err = kf_err[-1][1]
     message = (
         f"{'reached' if reached else 'did not reach'} the targets: mean error {float(err.mean()):.4f} px, "
-        f"max {float(err.max()):.4f} px; {result.message}"
+        f"max {float(err.max()):.4f} px; {how}"
     )
     return KeyframeFit(
         forces=module,
@@ -316,10 +345,11 @@ def fit_keyframes(
         trajectories=paths,
         error=err,
         keyframe_errors=kf_err,
-        loss_history=list(result.loss_history),
-        evaluations=result.evaluations,
-        seconds=result.seconds + time.perf_counter() - start,
-        converged=result.converged,
+        loss_history=history,
+        evaluations=evaluations,
+        forwards=0 if newton is None else newton.forwards,
+        seconds=time.perf_counter() - start,
+        converged=converged,
         reached=reached,
         message=message,
     )

@@ -1,0 +1,144 @@
+import pytest
+import torch
+
+from torchfluidwarp.control.keyframes import fit_keyframes, keyframe_loss
+from torchfluidwarp.control.newton import model_jacobian, newton_start, rest_response
+from torchfluidwarp.warp.forces import Brushes, ControlGrid
+from torchfluidwarp.warp.layer import FluidWarp
+
+SIZE = (32, 32)
+SRC = torch.tensor([[[9.0, 10.0], [21.5, 11.0], [12.0, 22.5], [22.0, 20.0], [16.0, 15.5]]], dtype=torch.float64)
+
+
+def _autograd_jacobian(warp, forces, src, times):
+    """Rows d p_i(t)/d weight, (K, M, 2, P), through the whole solver by autograd."""
+    paths = warp.carry_points(src, forces)
+    rows = torch.stack([paths[0, t] for t in times])  # (K, M, 2)
+    flat = rows.flatten()
+    jac = [torch.autograd.grad(flat[i], forces.weight, retain_graph=True)[0].flatten() for i in range(flat.numel())]
+    return torch.stack(jac).view(*rows.shape, -1), paths.detach()
+
+
+def _model(warp, forces, paths, times, compressible=False):
+    response = rest_response(warp, tuple(forces.weight.shape[-2:]), compressible, dtype=torch.float64)
+    with torch.no_grad():
+        vel = warp.rollout(forces, SIZE).velocities
+    return model_jacobian(response, vel, paths, times, SIZE, warp.dt)[0]
+
+
+@pytest.mark.parametrize("compressible", [False, True])
+def test_the_model_jacobian_is_exact_at_rest(compressible):
+    warp = FluidWarp(16, steps=4, image_size=SIZE, compressible=compressible).double()
+    forces = ControlGrid(4, (3, 3)).double()
+    times = [2, 4]
+    exact, paths = _autograd_jacobian(warp, forces, SRC, times)
+    model = _model(warp, forces, paths, times, compressible)
+    assert exact.abs().max() > 0.05  # the points do respond
+    torch.testing.assert_close(model, exact, atol=1e-10, rtol=1e-8)
+
+
+def test_the_model_jacobian_follows_a_moving_flow(gen):
+    """Away from rest the model re-linearises the points' transport along their paths, and comes closer to
+    the true Jacobian than the Jacobian at rest does (what it leaves out, the flow's self-advection, Broyden's
+    updates correct in the start)."""
+    warp = FluidWarp(32, steps=4, image_size=SIZE).double()
+    forces = ControlGrid(4, (4, 4)).double()
+    rest, _ = _autograd_jacobian(warp, forces, SRC, [4])
+    pattern = torch.randn(1, 1, 2, 4, 4, generator=gen, dtype=torch.float64)
+    with torch.no_grad():  # a steady kick at step 0 that moves the points by pixels
+        forces.weight.copy_(0.6 * pattern.expand_as(forces.weight) / pattern.abs().max())
+    exact, paths = _autograd_jacobian(warp, forces, SRC, [4])
+    assert float((paths[0, -1] - SRC[0]).norm(dim=-1).max()) > 1.0
+    model = _model(warp, forces, paths, [4])
+    err_model = float((model - exact).norm() / exact.norm())
+    err_rest = float((rest - exact).norm() / exact.norm())
+    assert err_model < 0.8 * err_rest, (err_model, err_rest)
+
+
+def _flow_targets(steps=5, grid=32):
+    """Targets that an incompressible flow reaches: where a brush-driven flow carries the sources."""
+    brushes = Brushes(
+        torch.tensor([[12.0, 12.0], [21.0, 20.0]]), torch.tensor([[1.0, 0.3], [-0.4, 1.0]]), radius=7.0, amplitude=0.5
+    ).double()
+    warp = FluidWarp(grid, steps, image_size=SIZE).double()
+    with torch.no_grad():
+        end = warp.carry_points(SRC, brushes)[:, -1]
+    assert float((end - SRC).norm(dim=-1).min()) > 1.0
+    return end
+
+
+def test_the_start_meets_reachable_targets_with_roll_outs_only():
+    tgt = _flow_targets()
+    kw = dict(image_size=SIZE, grid=32, steps=5, control=(4, 4), progress=False, dtype=torch.float64)
+    fit = fit_keyframes(SRC, tgt, **kw)
+    assert fit.reached and fit.converged and fit.evaluations == 0 and float(fit.error.max()) <= 0.01
+    assert len(fit.loss_history) == fit.forwards and "quasi-Newton start: targets met" in fit.message
+    with torch.no_grad():  # the returned forces are the ones that met the targets
+        replay = fit.warp.carry_points(SRC, fit.forces)[:, -1]
+    assert float((replay - tgt).norm(dim=-1).max()) <= 0.01
+    plain = fit_keyframes(SRC, tgt, method="lbfgs", **kw)
+    assert plain.reached and plain.forwards == 0
+    assert fit.forwards < plain.evaluations  # each a roll-out without autograd, against a roll-out with its adjoint
+
+
+def test_a_batch_starts_its_problems_independently():
+    tgt = _flow_targets()
+    tgt2 = SRC + torch.tensor([1.5, -1.0], dtype=torch.float64)
+    fit = fit_keyframes(
+        SRC.expand(2, -1, -1), torch.cat([tgt, tgt2]), image_size=SIZE, grid=32, steps=5, control=(4, 4),
+        progress=False, dtype=torch.float64,
+    )  # fmt: skip
+    assert fit.reached and fit.forwards > 0 and fit.error.shape == (2, 5) and float(fit.error.max()) <= 0.01
+
+
+def test_unreachable_targets_are_handed_to_lbfgs_from_the_best_start():
+    src = torch.tensor([[16.0, 16.0], [16.0, 16.0], [8.0, 8.0]], dtype=torch.float64)
+    tgt = torch.tensor([[19.0, 16.0], [13.0, 16.0], [9.0, 8.0]], dtype=torch.float64)
+    fit = fit_keyframes(
+        src, tgt, image_size=SIZE, grid=16, steps=4, control=3, progress=False, max_iter=20, dtype=torch.float64
+    )
+    assert not fit.reached and fit.forwards > 0 and fit.evaluations > 0 and "handed over to L-BFGS" in fit.message
+    final = float(keyframe_loss(fit.trajectories, [(4, tgt[None])]))
+    assert final <= min(fit.loss_history[: fit.forwards]) * (1 + 1e-9)
+    assert final == pytest.approx(min(fit.loss_history), rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"method": "lbfgs"},
+        {"smoothness": 1.0},
+        {"regularization": 1e-3},
+        {"viscosity": 0.1},
+        {"compressible": 0.5},
+        {"forces": ControlGrid(4, 3)},
+    ],
+)
+def test_other_objectives_run_lbfgs_alone(kwargs):
+    src = SRC[0].float()
+    fit = fit_keyframes(
+        src, src + 1.0, image_size=SIZE, grid=16, steps=4, control=3, progress=False, tolerance=0.05, **kwargs
+    )
+    assert fit.forwards == 0 and fit.evaluations == len(fit.loss_history) > 0
+
+
+def test_an_unknown_method_is_refused_by_name():
+    with pytest.raises(ValueError, match="method must be 'auto' or 'lbfgs', got 'newton'"):
+        fit_keyframes(SRC[0], SRC[0] + 1.0, image_size=SIZE, grid=16, steps=4, progress=False, method="newton")
+
+
+def test_a_step_whose_flow_blows_up_is_rejected(monkeypatch):
+    tgt = _flow_targets()
+    rollout, calls = FluidWarp.rollout, []
+
+    def flaky(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:  # the first trial step
+            raise ValueError("the flow blew up at step 3")
+        return rollout(self, *args, **kwargs)
+
+    monkeypatch.setattr(FluidWarp, "rollout", flaky)
+    warp = FluidWarp(32, 5, image_size=SIZE).double()
+    forces = ControlGrid(5, (4, 4)).double()
+    start = newton_start(warp, forces, SRC, [(5, tgt)], torch.ones(1, 5, dtype=torch.float64), 0.01, SIZE, False)
+    assert start.reached and start.forwards == len(start.loss_history) + 1
