@@ -2,6 +2,8 @@
 
 * :mod:`~torchfluidwarp.control.optim`: :func:`minimize`, the one optimiser loop (closure, tolerance, NaN
   policy, progress, history) that every fit runs through;
+* :mod:`~torchfluidwarp.control.newton`: the quasi-Newton start of a points-only keyframe fit (damped
+  Gauss-Newton on a model Jacobian, roll-outs without autograd);
 * :mod:`~torchfluidwarp.control.keyframes`: :func:`fit_keyframes`, marked points to their targets, with
   adjoint gradients;
 * :mod:`~torchfluidwarp.control.images`: :func:`fit_images`, one image onto another by its pixels, with the
