@@ -17,9 +17,10 @@ The model Jacobian (:func:`model_jacobian`), for the default control (a cumulati
   ``I + dt grad v(mid) (I + dt/2 grad v(p))`` of the current flow (gradients by central differences over half
   a cell).
 
-What the model leaves out (self-advection of a moving flow) is corrected along each rejected step by Broyden's
-rank-one update; an accepted step re-linearises. A step that does not lower the objective is rejected and the
-damping raised. The start stops when every point is within ``tolerance`` of its target at every keyframe, or
+What the model leaves out (self-advection of a moving flow) is learnt from the roll-outs themselves: every
+step adds Broyden's rank-one update along its direction to a correction term. An accepted step re-linearises
+the model, and the correction carries over to it. A step that does not lower the objective is rejected and
+the damping raised. The start stops when every point is within ``tolerance`` of its target at every keyframe, or
 when it stalls: :func:`~torchfluidwarp.control.keyframes.fit_keyframes` then hands its best iterate to
 L-BFGS, so the start never makes a fit fail that L-BFGS alone would finish.
 """
@@ -198,6 +199,7 @@ def newton_start(
     lam = torch.full((B,), 0.1, dtype=lm, device=u.device)
     best, stalled = float(loss.sum()), 0
     J = jacobian(vel, paths)
+    correction = torch.zeros_like(J)
     eye = torch.eye(r.shape[1], dtype=lm, device=u.device)
     while not bool(met.all()) and result.forwards < max_forwards and stalled < patience:
         A = J @ J.transpose(1, 2)
@@ -214,17 +216,20 @@ def newton_start(
         else:
             r_new, loss_new, met_new = residual(paths)
             result.loss_history.append(float(loss_new.sum()))
-            accepted = loss_new < loss
-            # Broyden's rank-one correction along the step (kept for a rejected one, whose step is retried)
-            J = J + ((r_new - r - (J @ du.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1) * du.unsqueeze(1)) / (
-                (du**2).sum(1).clamp_min(torch.finfo(lm).tiny).view(B, 1, 1)
-            )
+            accepted = loss_new < loss  # False for a NaN
+            # Broyden's rank-one update along the step (where the roll-out gave finite residuals), kept as a
+            # correction to the model that outlives its re-linearisation
+            finite = torch.isfinite(r_new).all(1).view(B, 1, 1)
+            miss = torch.nan_to_num(r_new - r - (J @ du.unsqueeze(-1)).squeeze(-1), nan=0.0, posinf=0.0, neginf=0.0)
+            step2 = (du**2).sum(1).clamp_min(torch.finfo(lm).tiny).view(B, 1, 1)
+            update = torch.where(finite, miss.unsqueeze(-1) * du.unsqueeze(1) / step2, 0.0)
+            J, correction = J + update, correction + update
         lam = torch.where(accepted, lam / 3, lam * 4)
         if r_new is not None and bool(accepted.any()):  # the problems of the batch that moved on re-linearise
             keep = accepted.view(B, 1)
             u, r = torch.where(keep, u + du, u), torch.where(keep, r_new, r)
             loss, met = torch.where(accepted, loss_new, loss), torch.where(accepted, met_new, met)
-            J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths), J)
+            J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths) + correction, J)
         total = float(loss.sum())
         if total < 0.9 * best:
             best, stalled = total, 0
