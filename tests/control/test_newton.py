@@ -19,20 +19,28 @@ def _autograd_jacobian(warp, forces, src, times):
     return torch.stack(jac).view(*rows.shape, -1), paths.detach()
 
 
-def _model(warp, forces, paths, times, compressible=False):
+def _model(warp, forces, paths, times, compressible=False, size=SIZE):
     response = rest_response(warp, tuple(forces.weight.shape[-2:]), compressible, dtype=torch.float64)
     with torch.no_grad():
-        vel = warp.rollout(forces, SIZE).velocities
-    return model_jacobian(response, vel, paths, times, SIZE, warp.dt)[0]
+        vel = warp.rollout(forces, size).velocities
+    return model_jacobian(response, vel, paths, times, size, warp.dt)[0]
 
 
-@pytest.mark.parametrize("compressible", [False, True])
-def test_the_model_jacobian_is_exact_at_rest(compressible):
-    warp = FluidWarp(16, steps=4, image_size=SIZE, compressible=compressible).double()
-    forces = ControlGrid(4, (3, 3)).double()
+@pytest.mark.parametrize(
+    "compressible,grid,size,control,dt",
+    [
+        (False, 16, SIZE, (3, 3), 1.0),
+        (True, 16, SIZE, (3, 3), 1.0),
+        (False, (12, 20), (30, 44), (3, 4), 0.7),  # nothing square: x and y kept apart
+    ],
+)
+def test_the_model_jacobian_is_exact_at_rest(compressible, grid, size, control, dt):
+    warp = FluidWarp(grid, steps=4, dt=dt, image_size=size, compressible=compressible).double()
+    forces = ControlGrid(4, control).double()
     times = [2, 4]
-    exact, paths = _autograd_jacobian(warp, forces, SRC, times)
-    model = _model(warp, forces, paths, times, compressible)
+    src = SRC * torch.tensor([size[1] / SIZE[1], size[0] / SIZE[0]], dtype=torch.float64)
+    exact, paths = _autograd_jacobian(warp, forces, src, times)
+    model = _model(warp, forces, paths, times, compressible, size)
     assert exact.abs().max() > 0.05  # the points do respond
     torch.testing.assert_close(model, exact, atol=1e-10, rtol=1e-8)
 
