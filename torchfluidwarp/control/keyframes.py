@@ -186,6 +186,14 @@ def velocity_gradient_energy(velocities: Tensor) -> Tensor:
     return torch.stack([(d**2).sum() for d in terms]).sum() / (h * w)
 
 
+def _modelled_control(module: nn.Module, batch: int) -> ControlGrid | None:
+    """``module`` if the quasi-Newton start's model knows it: a plain cumulative control grid of ``batch``
+    problems (the default, or a previous fit's to warm-start); otherwise None."""
+    if type(module) is ControlGrid and module.cumulative and module.weight.shape[0] == batch:
+        return module
+    return None
+
+
 def fit_keyframes(
     source: Tensor,
     target: Keyframes,
@@ -222,7 +230,9 @@ def fit_keyframes(
             parameters; (5, 5) over 10 steps is the paper's 500).
         dt: time step. viscosity: as for :class:`~torchfluidwarp.warp.layer.FluidWarp`.
         forces: a force module to fit instead of the control grid (its parameters are optimised, starting
-            from their current values: pass a previous fit's ``forces`` to warm-start).
+            from their current values: pass a previous fit's ``forces`` to warm-start; a
+            :class:`~torchfluidwarp.warp.forces.ControlGrid` with ``cumulative=True`` keeps the quasi-Newton start
+            of ``method="auto"``).
         weights: optional ``(M,)`` or ``(B, M)`` per-point weights (default 1).
         regularization: weight on ``||u||^2`` (default 0: off). The default control grid's ``u`` holds running
             sums of the forces (:class:`ControlGrid`), so this penalises the speed the forces build up.
@@ -239,7 +249,7 @@ def fit_keyframes(
         progress: show a tqdm bar of L-BFGS iterations with the loss.
         max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
-        method: ``"auto"`` (the default): when the objective is the points' alone (the default control grid,
+        method: ``"auto"`` (the default): when the objective is the points' alone (a control grid,
             no ``regularization`` or ``smoothness``, ``viscosity=0``, ``compressible`` ``False`` or ``True``),
             start with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
             Jacobian that cost one roll-out without autograd each, and hand over to L-BFGS only if it stalls
@@ -316,10 +326,11 @@ def fit_keyframes(
 
     start = time.perf_counter()
     inviscid = isinstance(viscosity, (int, float)) and not isinstance(viscosity, bool) and viscosity == 0
-    points_only = forces is None and regularization == smoothness == 0 and inviscid and keep in (0, 1)
+    points_only = regularization == smoothness == 0 and inviscid and keep in (0, 1)
     newton = None
-    if method == "auto" and points_only and isinstance(module, ControlGrid):
-        newton = newton_start(warp, module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1)
+    grid_module = _modelled_control(module, B)
+    if method == "auto" and points_only and grid_module is not None:
+        newton = newton_start(warp, grid_module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1)
     if newton is not None and newton.reached:
         history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
     else:
