@@ -160,12 +160,28 @@ def newton_start(
     max_forwards: int = MAX_FORWARDS,
     patience: int = PATIENCE,
 ) -> NewtonStart:
-    """Move ``module.weight`` ``(B, T, 2, K_y, K_x)`` in place towards controls that carry ``source``
-    ``(B, M, 2)`` (pixels) onto the keyframes' targets ``(B, M, 2)`` within ``tolerance`` pixels.
+    """Move ``module.weight`` in place towards controls that carry ``source`` onto the keyframes' targets.
 
-    Damped Gauss-Newton steps on the model Jacobian (see the module doc), one roll-out without autograd each;
-    at the end ``module.weight`` holds the best iterate (the one with the smallest objective). ``weights``
-    ``(B, M)`` weigh the residuals as in the objective. Roll-outs that blow up count as rejected steps.
+    Damped Gauss-Newton steps on the model Jacobian (see the module doc), one roll-out without autograd each.
+    Each problem of the batch accepts or rejects its own steps and keeps its own damping. At the end
+    ``module.weight`` holds each problem's best iterate (the one with the smallest objective). Roll-outs that
+    blow up count as rejected steps. Inputs are not checked: :func:`~torchfluidwarp.control.keyframes.fit_keyframes`
+    validates them and calls this.
+
+    Args:
+        warp: the fit's :class:`~torchfluidwarp.warp.layer.FluidWarp` (its grid, steps and ``dt``).
+        module: a cumulative :class:`~torchfluidwarp.warp.forces.ControlGrid`, ``weight`` ``(B, T, 2, K_y, K_x)``
+            in cells per time unit^2, the starting controls.
+        source: ``(B, M, 2)`` points ``(x, y)`` in pixels of an image of ``size``.
+        keyframes: ``(time_step, targets (B, M, 2))`` pairs, pixels, ``1 <= time_step <= T``.
+        weights: ``(B, M)`` non-negative weights of the points in the objective.
+        tolerance: pixels; the start stops once every point is this close to its target at every keyframe.
+        size: ``(H, W)`` pixels. compressible: the warp skips the projection.
+        max_forwards: roll-outs at most (:data:`MAX_FORWARDS`).
+        patience: roll-outs in a row without a 10% lower objective before it gives up (:data:`PATIENCE`).
+
+    Returns:
+        a :class:`NewtonStart`.
     """
     B, T = module.weight.shape[:2]
     dt = warp.dt
