@@ -165,3 +165,10 @@ def test_a_previous_fit_warm_starts_the_start():
     assert cold.reached and warm.reached and warm.evaluations == 0
     assert 0 < warm.forwards <= cold.forwards
     assert warm.loss_history[0] < 0.05 * cold.loss_history[0]
+
+
+def test_max_iter_bounds_the_start_too():
+    tgt = _flow_targets()
+    kw = dict(image_size=SIZE, grid=32, steps=5, control=(4, 4), progress=False, dtype=torch.float64)
+    fit = fit_keyframes(SRC, tgt, max_iter=2, tolerance=1e-6, **kw)
+    assert fit.forwards == 3 and not fit.reached and fit.evaluations > 0  # then L-BFGS, with its own max_iter

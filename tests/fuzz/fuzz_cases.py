@@ -75,7 +75,7 @@ ENTRIES: dict[str, dict[str, str]] = {
     "fit_keyframes": {"source": "points", "target": "points", "image_size": "size", "grid": "size", "steps": "int",
                       "control": "size", "dt": "number", "regularization": "number", "smoothness": "number",
                       "max_iter": "int", "tolerance": "number", "compressible": "fraction", "dtype": "dtype",
-                      "weights": "tensor", "forces": "module"},
+                      "weights": "tensor", "forces": "module", "method": "choice"},
     "fit_images": {"source": "tensor", "target": "tensor", "loss": "choice", "grid": "size", "steps": "int",
                    "control": "size", "max_iter": "int", "compressible": "fraction", "dtype": "dtype",
                    "regularization": "number", "point_weight": "number", "viscosity": "number"},

@@ -68,7 +68,8 @@ def _keyframes(d: dict, g: torch.Generator, f: Path) -> Args:
     src = spread_points(M, H, W, g)
     return {"source": src, "target": src + 1.0, "image_size": (H, W), "grid": d["g"], "steps": d["T"],
             "control": 2, "dt": 1.0, "regularization": 0.0, "smoothness": 0.0, "max_iter": 1, "tolerance": 0.01,
-            "compressible": False, "dtype": torch.float32, "weights": torch.ones(M), "forces": MISSING}  # fmt: skip
+            "compressible": False, "dtype": torch.float32, "weights": torch.ones(M), "forces": MISSING,
+            "method": "auto"}  # fmt: skip
 
 
 def _images(d: dict, g: torch.Generator, f: Path) -> Args:
@@ -179,7 +180,7 @@ def call(entry: str, a: Args, folder: Path) -> Any:
         return tfw.jacobian_determinant(a["coords"])
     if entry == "fit_keyframes":
         names = ("image_size", "grid", "steps", "control", "dt", "regularization", "smoothness", "max_iter",
-                 "tolerance", "compressible", "dtype", "weights", "forces")  # fmt: skip
+                 "tolerance", "compressible", "dtype", "weights", "forces", "method")  # fmt: skip
         return tfw.fit_keyframes(a["source"], a["target"], **kw(a, *names), progress=False)
     if entry == "fit_images":
         names = ("loss", "grid", "steps", "control", "max_iter", "compressible", "dtype", "regularization",

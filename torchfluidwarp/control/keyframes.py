@@ -31,7 +31,7 @@ from torchfluidwarp._checks import (
     compute_dtype,
     describe,
 )
-from torchfluidwarp.control.newton import newton_start
+from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
@@ -239,7 +239,9 @@ def fit_keyframes(
         smoothness: weight on :func:`velocity_gradient_energy` of the flow (pixels^2 per 1 / time unit^2;
             default 0: off). It trades accuracy at the points for a calmer flow without vortices; the morph
             uses it to keep its maps fold-free.
-        max_iter: maximum L-BFGS iterations (see :func:`~torchfluidwarp.control.optim.minimize`).
+        max_iter: maximum L-BFGS iterations (see :func:`~torchfluidwarp.control.optim.minimize`); the
+            quasi-Newton start of ``method="auto"`` takes at most as many steps too (and at most
+            :data:`~torchfluidwarp.control.newton.MAX_FORWARDS` roll-outs).
         tolerance: pixels; the fit stops once every point is this close to its target.
         compressible: skip (``True``) or weight the pressure projection (see
             :class:`~torchfluidwarp.warp.layer.FluidWarp`).
@@ -330,7 +332,11 @@ def fit_keyframes(
     newton = None
     grid_module = _modelled_control(module, B)
     if method == "auto" and points_only and grid_module is not None:
-        newton = newton_start(warp, grid_module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1)
+        # max_iter bounds the start too: one roll-out per iteration, the first one's included
+        forwards = min(MAX_FORWARDS, max_iter + 1)
+        newton = newton_start(
+            warp, grid_module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1, max_forwards=forwards
+        )
     if newton is not None and newton.reached:
         history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
     else:
