@@ -172,3 +172,35 @@ def test_max_iter_bounds_the_start_too():
     kw = dict(image_size=SIZE, grid=32, steps=5, control=(4, 4), progress=False, dtype=torch.float64)
     fit = fit_keyframes(SRC, tgt, max_iter=2, tolerance=1e-6, **kw)
     assert fit.forwards == 3 and not fit.reached and fit.evaluations > 0  # then L-BFGS, with its own max_iter
+
+
+@pytest.mark.parametrize("shape", [(2, 6, 9), (2, 9, 6)])
+def test_the_damped_step_is_the_same_in_either_space(gen, shape):
+    """Fewer residuals than controls: solved among the residuals; more: among the controls. Both are the
+    minimiser of |r + J du|^2 + mu |du|^2."""
+    from torchfluidwarp.control.newton import _damped_step
+
+    J = torch.randn(shape, generator=gen, dtype=torch.float64)
+    r = torch.randn(shape[:2], generator=gen, dtype=torch.float64)
+    lam = torch.tensor([0.1, 2.0], dtype=torch.float64)
+    du = _damped_step(J, r, lam)
+    mu = lam * (J**2).sum((1, 2)) / shape[1]
+    normal = J.transpose(1, 2) @ J + mu.view(-1, 1, 1) * torch.eye(shape[2], dtype=torch.float64)
+    torch.testing.assert_close(normal @ du.unsqueeze(-1), -(J.transpose(1, 2) @ r.unsqueeze(-1)))
+
+
+def test_more_residuals_than_controls(gen):
+    """24 points (48 residuals) against a 3 x 3 control grid over 2 steps (36 controls): targets that such
+    controls reach are met."""
+    warp = FluidWarp(16, 2, image_size=SIZE).double()
+    made = ControlGrid(2, (3, 3)).double()
+    with torch.no_grad():
+        made.weight.copy_(torch.randn(made.weight.shape, generator=gen, dtype=torch.float64) * 0.5)
+    src = 6.0 + 20.0 * torch.rand(1, 24, 2, generator=gen, dtype=torch.float64)
+    with torch.no_grad():
+        tgt = warp.carry_points(src, made)[:, -1]
+    assert float((tgt - src).norm(dim=-1).max()) > 0.5
+    fit = fit_keyframes(
+        src, tgt, image_size=SIZE, grid=16, steps=2, control=(3, 3), progress=False, dtype=torch.float64
+    )
+    assert fit.reached and fit.evaluations == 0 and fit.forwards > 1

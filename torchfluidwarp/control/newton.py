@@ -148,6 +148,20 @@ def model_jacobian(
     return (J / c.view(1, 1, 1, 2, 1, 1)).flatten(-2)  # pixels
 
 
+def _damped_step(J: Tensor, r: Tensor, lam: Tensor) -> Tensor:
+    """The Levenberg-Marquardt step ``du = -(J^T J + mu I)^-1 J^T r = -J^T (J J^T + mu I)^-1 r`` ``(B, P)`` of
+    ``J`` ``(B, R, P)`` and ``r`` ``(B, R)``, with ``mu = lam ||J||_F^2 / R``: solved in the residuals' space when
+    there are fewer residuals than controls (the usual case), in the controls' otherwise."""
+    R, P = J.shape[1:]
+    mu = (lam * (J**2).sum((1, 2)) / R).clamp_min(torch.finfo(J.dtype).tiny).view(-1, 1, 1)
+    Jt = J.transpose(1, 2)
+    if R <= P:
+        eye = torch.eye(R, dtype=J.dtype, device=J.device)
+        return -(Jt @ torch.linalg.solve(J @ Jt + mu * eye, r.unsqueeze(-1))).squeeze(-1)
+    eye = torch.eye(P, dtype=J.dtype, device=J.device)
+    return -torch.linalg.solve(Jt @ J + mu * eye, Jt @ r.unsqueeze(-1)).squeeze(-1)
+
+
 def newton_start(
     warp: FluidWarp,
     module: ControlGrid,
@@ -216,11 +230,8 @@ def newton_start(
     best, stalled = float(loss.sum()), 0
     J = jacobian(vel, paths)
     correction = torch.zeros_like(J)
-    eye = torch.eye(r.shape[1], dtype=lm, device=u.device)
     while not bool(met.all()) and result.forwards < max_forwards and stalled < patience:
-        A = J @ J.transpose(1, 2)
-        damp = lam * A.diagonal(dim1=1, dim2=2).mean(1).clamp_min(torch.finfo(lm).tiny)
-        du = -(J.transpose(1, 2) @ torch.linalg.solve(A + damp.view(B, 1, 1) * eye, r.unsqueeze(-1))).squeeze(-1)
+        du = _damped_step(J, r, lam)
         with torch.no_grad():
             module.weight.copy_((u + du).view_as(module.weight))
         result.forwards += 1
