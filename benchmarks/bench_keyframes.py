@@ -255,6 +255,8 @@ def run_fit(
         dtype=dtype,
         progress=False,
         method=method,
+        viscosity=cfg["viscosity"],
+        compressible=cfg["compressible"],
     )
     cpu = time.process_time() - cpu0
     run = FitRun(
@@ -417,6 +419,8 @@ def child_fit_kwargs(spec: dict[str, Any], dtype: torch.dtype) -> dict[str, Any]
         tolerance=spec["tolerance"],
         dtype=dtype,
         progress=False,
+        viscosity=spec["viscosity"],
+        compressible=spec["compressible"],
     )
 
 
@@ -912,6 +916,18 @@ def main(argv: list[str] | None = None) -> int:
         default=list(METHODS),
         help="fit_keyframes methods of the fits, interleaved (default: both, auto and lbfgs)",
     )
+    parser.add_argument(
+        "--viscosity",
+        type=float,
+        default=0.0,
+        help="the fits' viscosity (default 0, the paper's; the instances are made by an inviscid flow either way)",
+    )
+    parser.add_argument(
+        "--compressible",
+        type=float,
+        default=0.0,
+        help="the fits' compressible weight in [0, 1] (default 0, the paper's incompressible fluid)",
+    )
     parser.add_argument("--_child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args._child:
@@ -940,7 +956,13 @@ def main(argv: list[str] | None = None) -> int:
             repeats=args.repeats or 3,
             grad_repeats=args.grad_repeats or 9,
         )
-    cfg.update(tolerance=args.tolerance, max_iter=args.max_iter, methods=args.methods)
+    cfg.update(
+        tolerance=args.tolerance,
+        max_iter=args.max_iter,
+        methods=args.methods,
+        viscosity=args.viscosity,
+        compressible=args.compressible,
+    )
     control = (5, 5)
     controls = args.controls or [(3, 3), (5, 5), (8, 8)]
     if min(cfg["repeats"], cfg["grad_repeats"], cfg["seeds"]) < 1:
@@ -963,7 +985,7 @@ def main(argv: list[str] | None = None) -> int:
         f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {cfg['steps']} steps, {cfg['points']} points in a "
         f"{FRAME[1]}x{FRAME[0]} px frame, control {control[0]}x{control[1]} "
         f"({2 * cfg['steps'] * control[0] * control[1]} parameters), tolerance {cfg['tolerance']:g} px, "
-        f"max_iter {cfg['max_iter']}",
+        f"max_iter {cfg['max_iter']}, viscosity {cfg['viscosity']:g}, compressible {cfg['compressible']:g}",
         flush=True,
     )
     log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
@@ -1037,6 +1059,8 @@ def main(argv: list[str] | None = None) -> int:
         "control": control,
         "max_iter": cfg["max_iter"],
         "tolerance": cfg["tolerance"],
+        "viscosity": cfg["viscosity"],
+        "compressible": cfg["compressible"],
     }
     # 4. memory, each dtype in its own process
     mem_runs = []

@@ -19,28 +19,31 @@ def _autograd_jacobian(warp, forces, src, times):
     return torch.stack(jac).view(*rows.shape, -1), paths.detach()
 
 
-def _model(warp, forces, paths, times, compressible=False, size=SIZE):
-    response = rest_response(warp, tuple(forces.weight.shape[-2:]), compressible, dtype=torch.float64)
+def _model(warp, forces, paths, times, viscosity=0.0, size=SIZE):
+    response = rest_response(warp, tuple(forces.weight.shape[-2:]), viscosity, dtype=torch.float64)
     with torch.no_grad():
         vel = warp.rollout(forces, size).velocities
     return model_jacobian(response, vel, paths, times, size, warp.dt)[0]
 
 
 @pytest.mark.parametrize(
-    "compressible,grid,size,control,dt",
+    "compressible,viscosity,grid,size,control,dt",
     [
-        (False, 16, SIZE, (3, 3), 1.0),
-        (True, 16, SIZE, (3, 3), 1.0),
-        (False, (12, 20), (30, 44), (3, 4), 0.7),  # nothing square: x and y kept apart
+        (False, 0.0, 16, SIZE, (3, 3), 1.0),
+        (True, 0.0, 16, SIZE, (3, 3), 1.0),
+        (0.5, 0.0, 16, SIZE, (3, 3), 1.0),  # the step's linear part is no projection: every lag counts
+        (False, 0.3, 16, SIZE, (3, 3), 1.0),
+        (0.3, 0.2, (12, 20), (30, 44), (3, 4), 0.7),  # nothing square: x and y kept apart
     ],
 )
-def test_the_model_jacobian_is_exact_at_rest(compressible, grid, size, control, dt):
-    warp = FluidWarp(grid, steps=4, dt=dt, image_size=size, compressible=compressible).double()
+def test_the_model_jacobian_is_exact_at_rest(compressible, viscosity, grid, size, control, dt):
+    warp = FluidWarp(grid, steps=4, dt=dt, viscosity=viscosity, image_size=size, compressible=compressible)
+    warp = warp.double()
     forces = ControlGrid(4, control).double()
     times = [2, 4]
     src = SRC * torch.tensor([size[1] / SIZE[1], size[0] / SIZE[0]], dtype=torch.float64)
     exact, paths = _autograd_jacobian(warp, forces, src, times)
-    model = _model(warp, forces, paths, times, compressible, size)
+    model = _model(warp, forces, paths, times, viscosity, size)
     assert exact.abs().max() > 0.05  # the points do respond
     torch.testing.assert_close(model, exact, atol=1e-10, rtol=1e-8)
 
@@ -63,21 +66,23 @@ def test_the_model_jacobian_follows_a_moving_flow(gen):
     assert err_model < 0.8 * err_rest, (err_model, err_rest)
 
 
-def _flow_targets(steps=5, grid=32):
-    """Targets that an incompressible flow reaches: where a brush-driven flow carries the sources."""
+def _flow_targets(steps=5, grid=32, **fluid):
+    """Targets that a flow reaches: where a brush-driven flow (incompressible and inviscid by default) carries
+    the sources."""
     brushes = Brushes(
         torch.tensor([[12.0, 12.0], [21.0, 20.0]]), torch.tensor([[1.0, 0.3], [-0.4, 1.0]]), radius=7.0, amplitude=0.5
     ).double()
-    warp = FluidWarp(grid, steps, image_size=SIZE).double()
+    warp = FluidWarp(grid, steps, image_size=SIZE, **fluid).double()
     with torch.no_grad():
         end = warp.carry_points(SRC, brushes)[:, -1]
     assert float((end - SRC).norm(dim=-1).min()) > 1.0
     return end
 
 
-def test_the_start_meets_reachable_targets_with_roll_outs_only():
-    tgt = _flow_targets()
-    kw = dict(image_size=SIZE, grid=32, steps=5, control=(4, 4), progress=False, dtype=torch.float64)
+@pytest.mark.parametrize("fluid", [{}, {"viscosity": 0.3}, {"compressible": 0.5}], ids=str)
+def test_the_start_meets_reachable_targets_with_roll_outs_only(fluid):
+    tgt = _flow_targets(**fluid)
+    kw = dict(image_size=SIZE, grid=32, steps=5, control=(4, 4), progress=False, dtype=torch.float64, **fluid)
     fit = fit_keyframes(SRC, tgt, **kw)
     assert fit.reached and fit.converged and fit.evaluations == 0 and float(fit.error.max()) <= 0.01
     assert len(fit.loss_history) == fit.forwards and "quasi-Newton start: targets met" in fit.message
@@ -117,8 +122,7 @@ def test_unreachable_targets_are_handed_to_lbfgs_from_the_best_start():
         {"method": "lbfgs"},
         {"smoothness": 1.0},
         {"regularization": 1e-3},
-        {"viscosity": 0.1},
-        {"compressible": 0.5},
+        {"viscosity": torch.full((1, 1, 16, 16), 0.1)},
         {"forces": ControlGrid(4, 3, cumulative=False)},
     ],
 )
@@ -148,7 +152,7 @@ def test_a_step_whose_flow_blows_up_is_rejected(monkeypatch):
     monkeypatch.setattr(FluidWarp, "rollout", flaky)
     warp = FluidWarp(32, 5, image_size=SIZE).double()
     forces = ControlGrid(5, (4, 4)).double()
-    start = newton_start(warp, forces, SRC, [(5, tgt)], torch.ones(1, 5, dtype=torch.float64), 0.01, SIZE, False)
+    start = newton_start(warp, forces, SRC, [(5, tgt)], torch.ones(1, 5, dtype=torch.float64), 0.01, SIZE)
     assert start.reached and start.forwards == len(start.loss_history) + 1
 
 

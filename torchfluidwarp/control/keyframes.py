@@ -251,8 +251,8 @@ def fit_keyframes(
         progress: show a tqdm bar of L-BFGS iterations with the loss.
         max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
-        method: ``"auto"`` (the default): when the objective is the points' alone (a control grid,
-            no ``regularization`` or ``smoothness``, ``viscosity=0``, ``compressible`` ``False`` or ``True``),
+        method: ``"auto"`` (the default): when the objective is the points' alone (a control grid, no
+            ``regularization`` or ``smoothness``, a viscosity that is a number, any ``compressible``),
             start with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
             Jacobian that cost one roll-out without autograd each, and hand over to L-BFGS only if it stalls
             (on the paper's set-up it met the targets alone on all 5 benchmark instances, at about a seventh
@@ -279,7 +279,7 @@ def fit_keyframes(
     regularization = check_positive("regularization", regularization, allow_zero=True)
     smoothness = check_positive("smoothness", smoothness, allow_zero=True)
     dt = check_positive("dt", dt)
-    keep = check_fraction("compressible", compressible)
+    check_fraction("compressible", compressible)
     check_instance("forces", forces, nn.Module, optional=True)
     if method not in ("auto", "lbfgs"):
         raise ValueError(f"method must be 'auto' or 'lbfgs', got {method!r}")
@@ -327,16 +327,14 @@ def fit_keyframes(
         return max(float((paths[:, t] - q).norm(dim=-1).max()) for t, q in keyframes) <= tolerance
 
     start = time.perf_counter()
-    inviscid = isinstance(viscosity, (int, float)) and not isinstance(viscosity, bool) and viscosity == 0
-    points_only = regularization == smoothness == 0 and inviscid and keep in (0, 1)
+    # the start's model: the points' residuals alone, a viscosity that is one number, a control grid
+    uniform = None if isinstance(viscosity, (bool, Tensor, nn.Module)) else float(viscosity)
     newton = None
     grid_module = _modelled_control(module, B)
-    if method == "auto" and points_only and grid_module is not None:
+    if method == "auto" and regularization == smoothness == 0 and uniform is not None and grid_module is not None:
         # max_iter bounds the start too: one roll-out per iteration, the first one's included
         forwards = min(MAX_FORWARDS, max_iter + 1)
-        newton = newton_start(
-            warp, grid_module, src, keyframes, w, tolerance, (H, W), compressible=keep == 1, max_forwards=forwards
-        )
+        newton = newton_start(warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, max_forwards=forwards)
     if newton is not None and newton.reached:
         history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
     else:

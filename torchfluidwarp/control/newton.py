@@ -8,11 +8,13 @@ zeroes the linearised residuals, damped) costs one roll-out without autograd (ab
 and typically meets the 0.05 px tolerance within some 10-15 of them.
 
 The model Jacobian (:func:`model_jacobian`), for the default control (a cumulative
-:class:`~torchfluidwarp.warp.forces.ControlGrid`) in an inviscid fluid:
+:class:`~torchfluidwarp.warp.forces.ControlGrid`) in a fluid whose viscosity is one number:
 
-* the flow's response to the controls is linearised at rest, where self-advection is the identity and the
-  projection ``P`` is idempotent: ``d v_t / d u_s = dt P F`` if ``s = t`` and 0 otherwise (``F`` the control
-  grid's upsampling onto the faces). This part is exact at ``u = 0`` (tested against autograd);
+* the flow's response to the controls is linearised at rest, where self-advection is the identity and a step
+  is its linear part ``S`` alone (diffusion and projection, :func:`rest_response`). In an inviscid,
+  incompressible fluid ``S = P`` is idempotent: ``d v_t / d u_s = dt P F`` if ``s = t`` and 0 otherwise (``F``
+  the control grid's upsampling onto the faces); with a viscosity or a partial projection a control also acts
+  on the later steps' flow. This part is exact at ``u = 0`` (tested against autograd);
 * the points' transport is linearised along their current paths, through each RK2 step's deformation
   ``I + dt grad v(mid) (I + dt/2 grad v(p))`` of the current flow (gradients by central differences over half
   a cell).
@@ -34,7 +36,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp.core.advection import sample_velocity
-from torchfluidwarp.core.fluid import faces_from_cells, project
+from torchfluidwarp.core.fluid import faces_from_cells
 from torchfluidwarp.core.grid import rescale_points
 from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
 from torchfluidwarp.warp.layer import FluidWarp
@@ -69,23 +71,34 @@ class NewtonStart:
 def rest_response(
     warp: FluidWarp,
     control: tuple[int, int],
-    compressible: bool,
+    viscosity: float = 0.0,
     *,
     device: torch.device | None = None,
     dtype: torch.dtype = torch.float32,
 ) -> Tensor:
-    """The flow one step after rest under each unit control value: ``(2 K_y K_x, 2, h + 1, w + 1)``.
+    """How the flow at rest answers each unit control value, step by step: ``(L, 2 K_y K_x, 2, h + 1, w + 1)``.
 
-    Row ``j`` is ``dt P F e_j`` in cells per time unit per unit control (``P`` the projection, skipped when
-    ``compressible``; ``F`` the :class:`~torchfluidwarp.warp.forces.ControlGrid` upsampling of basis vector
-    ``e_j`` onto the faces). Exact at rest, where self-advection is the identity.
+    With ``Z_k = S^k (dt F e_j)``, the flow ``k`` steps after a unit force at rest (``S`` the step's linear
+    part, :meth:`~torchfluidwarp.core.simulator.StableFluidsStep.relax`: diffusion, then the projection as the
+    warp's ``compressible`` weighs it; ``F`` the :class:`~torchfluidwarp.warp.forces.ControlGrid` upsampling of
+    basis vector ``e_j`` onto the faces), entry ``k - 1`` is ``G_k = Z_k - Z_{k-1}``: the change of the flow at
+    step ``t`` per unit change of a cumulative control ``u_s``, ``k = t - s + 1``. Cells per time unit per unit
+    control; exact at rest, where self-advection is the identity. Without viscosity and with a plain or no
+    projection, ``S`` is idempotent and ``L = 1`` (only ``G_1`` is non-zero); otherwise ``L = T`` steps.
     """
     ky, kx = control
     h, w = warp.grid.shape
     basis = torch.eye(2 * ky * kx, device=device, dtype=dtype).view(-1, 2, ky, kx)
     ry, rx = _bicubic_axis(ky, h, basis.device, dtype), _bicubic_axis(kx, w, basis.device, dtype)
-    kick = warp.dt * faces_from_cells(ry @ basis @ rx.T)
-    return kick if compressible else project(kick)  # type: ignore[return-value]
+    step = warp.simulator.step
+    z = step.relax(warp.dt * faces_from_cells(ry @ basis @ rx.T), viscosity)[0]
+    if viscosity == 0 and step.keep_divergence in (0.0, 1.0):
+        return z.unsqueeze(0)
+    lags = [z]
+    for _ in range(warp.steps - 1):
+        lags.append(step.relax(lags[-1], viscosity)[0])
+    zs = torch.stack(lags)
+    return torch.cat([zs[:1], zs.diff(dim=0)])
 
 
 def _velocity_and_gradient(velocity: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
@@ -109,7 +122,7 @@ def model_jacobian(
     """The model Jacobian of the points at ``times`` with respect to a cumulative control grid's weights.
 
     Args:
-        response: :func:`rest_response` ``(P1, 2, h + 1, w + 1)``, ``P1 = 2 K_y K_x``.
+        response: :func:`rest_response` ``(L, P1, 2, h + 1, w + 1)``, ``P1 = 2 K_y K_x``.
         velocities: the current roll-out's staggered velocities ``(B, T, 2, h + 1, w + 1)``.
         paths: the points' current paths ``(B, T + 1, M, 2)``, pixels.
         times: the keyframe steps, each in ``1..T``.
@@ -120,7 +133,8 @@ def model_jacobian(
         ``ControlGrid.weight[b].flatten()``.
     """
     B, T = velocities.shape[:2]
-    M, P1 = paths.shape[2], response.shape[0]
+    L, P1 = response.shape[:2]
+    M = paths.shape[2]
     h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
     c = _cell_scale(size, h, w, paths).view(2)
     p = rescale_points(paths[:, :-1].flatten(0, 1), c)  # (B T, M, 2): where each step starts, cells
@@ -130,17 +144,19 @@ def model_jacobian(
     _, gm = _velocity_and_gradient(flow, mid)
     eye = torch.eye(2, dtype=p.dtype, device=p.device)
     deform = (eye + dt * gm @ (eye + 0.5 * dt * gp)).view(B, T, M, 2, 2)
-    # the unit responses at the starting points and the midpoints of every step: (P1, B T, 2M, 2)
-    z = sample_velocity(response, torch.cat([p, mid], dim=1).flatten(0, 1).expand(P1, -1, -1))
-    z = z.view(P1, B * T, 2, M, 2).permute(1, 2, 3, 4, 0)  # (B T, start|mid, M, 2, P1)
-    source = (dt * (z[:, 1] + 0.5 * dt * gm @ z[:, 0])).view(B, T, M, 2, P1)
-    # forward accumulation of d p_t / d u: D_t = deform_t D_{t-1}, plus the source of step t in its column block
+    # the responses at the starting points and the midpoints of every step: (L P1, B T 2M, 2)
+    z = sample_velocity(response.flatten(0, 1), torch.cat([p, mid], dim=1).flatten(0, 1).expand(L * P1, -1, -1))
+    z = z.view(L * P1, B * T, 2, M, 2).permute(1, 2, 3, 4, 0)  # (B T, start|mid, M, 2, L P1)
+    source = (dt * (z[:, 1] + 0.5 * dt * gm @ z[:, 0])).view(B, T, M, 2, L, P1)
+    # forward accumulation of d p_t / d u: D_t = deform_t D_{t-1}, plus step t's sources, lag k = t - s + 1 in
+    # the column block of control s
     D = p.new_zeros(B, M, 2, T, P1)
     out = []
     wanted = set(times)
     for t in range(T):
         D = torch.einsum("bmij,bmjsp->bmisp", deform[:, t], D)
-        D[:, :, :, t] += source[:, t]
+        lags = min(L, t + 1)
+        D[:, :, :, t + 1 - lags : t + 1] += source[:, t, :, :, :lags].flip(-2)
         if t + 1 in wanted:
             out.append((t + 1, D))
     by_time = dict(out)
@@ -170,7 +186,7 @@ def newton_start(
     weights: Tensor,
     tolerance: float,
     size: tuple[int, int],
-    compressible: bool,
+    viscosity: float = 0.0,
     max_forwards: int = MAX_FORWARDS,
     patience: int = PATIENCE,
 ) -> NewtonStart:
@@ -190,7 +206,7 @@ def newton_start(
         keyframes: ``(time_step, targets (B, M, 2))`` pairs, pixels, ``1 <= time_step <= T``.
         weights: ``(B, M)`` non-negative weights of the points in the objective.
         tolerance: pixels; the start stops once every point is this close to its target at every keyframe.
-        size: ``(H, W)`` pixels. compressible: the warp skips the projection.
+        size: ``(H, W)`` pixels. viscosity: the warp's, a number (cells^2 per time unit).
         max_forwards: roll-outs at most (:data:`MAX_FORWARDS`).
         patience: roll-outs in a row without a 10% lower objective before it gives up (:data:`PATIENCE`).
 
@@ -203,7 +219,7 @@ def newton_start(
     targets = torch.stack([q for _, q in keyframes], dim=1)  # (B, K, M, 2)
     sqrt_w = weights.sqrt().view(B, 1, -1, 1)
     ky, kx = module.weight.shape[-2:]
-    response = rest_response(warp, (ky, kx), compressible, device=source.device, dtype=source.dtype)
+    response = rest_response(warp, (ky, kx), viscosity, device=source.device, dtype=source.dtype)
     lm = torch.float64  # the small linear algebra, whatever the fit's dtype
 
     def roll() -> tuple[Tensor, Tensor]:

@@ -136,8 +136,15 @@ class StableFluidsStep(nn.Module):
         Returns:
             the new staggered velocity and the CG iteration counts ``(viscosity, pressure)``.
         """
-        v = self.advect(self.add_force(velocity, force, staggered))
-        v, it_visc = self.diffuse(v, viscosity)
+        return self.relax(self.advect(self.add_force(velocity, force, staggered)), viscosity)
+
+    def relax(self, velocity: Tensor, viscosity: Viscosity) -> tuple[Tensor, tuple[int, int]]:
+        """The step's linear part, diffusion then projection, of an advected velocity ``(B, 2, h + 1, w + 1)``.
+
+        Returns:
+            the new staggered velocity and the CG iteration counts ``(viscosity, pressure)``.
+        """
+        v, it_visc = self.diffuse(velocity, viscosity)
         it_p = 0
         if self.project is not None:
             projected, it_p = self.project(v)
