@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from torchfluidwarp.core.advection import sample_velocity
+from torchfluidwarp.core.advection import _extend, _geo, _velocity_at
 from torchfluidwarp.core.fluid import faces_from_cells
 from torchfluidwarp.core.grid import rescale_points
 from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
@@ -101,12 +101,20 @@ def rest_response(
     return torch.cat([zs[:1], zs.diff(dim=0)])
 
 
+def _sample(extended: Tensor, points: Tensor) -> Tensor:
+    """Velocities ``(N, M, 2)`` at points ``(N, M, 2)`` in cells, of staggered fields given extended for sampling
+    (:func:`~torchfluidwarp.core.advection._extend` of ``(N, 2, h + 1, w + 1)``). Unchecked: internal, on the
+    roll-outs' finite velocities and points, and on an extension made once for all steps of the start."""
+    h, w = extended.shape[-2] - 1, extended.shape[-1] - 1
+    return _velocity_at(extended, points.transpose(1, 2), _geo(h, w, extended)).transpose(1, 2)
+
+
 def _velocity_and_gradient(velocity: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
     """Velocity ``(N, M, 2)`` and its gradient ``(N, M, 2, 2)`` (``[..., i, j] = d v_i / d x_j``, central
     differences over half a cell) of ``velocity`` ``(N, 2, h + 1, w + 1)`` at points ``(N, M, 2)`` in cells."""
     M = points.shape[1]
     e = points.new_tensor([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
-    at = sample_velocity(velocity, (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2)).unflatten(1, (5, M))
+    at = _sample(_extend(velocity), (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2)).unflatten(1, (5, M))
     grad = torch.stack([at[:, 1] - at[:, 2], at[:, 3] - at[:, 4]], dim=-1)  # the offsets are one cell apart
     return at[:, 0], grad
 
@@ -118,6 +126,7 @@ def model_jacobian(
     times: Sequence[int],
     size: tuple[int, int],
     dt: float,
+    extended: Tensor | None = None,
 ) -> Tensor:
     """The model Jacobian of the points at ``times`` with respect to a cumulative control grid's weights.
 
@@ -127,6 +136,8 @@ def model_jacobian(
         paths: the points' current paths ``(B, T + 1, M, 2)``, pixels.
         times: the keyframe steps, each in ``1..T``.
         size: ``(H, W)`` of the pixel frame. dt: the time step.
+        extended: the response prepared for sampling once (``_extend(response.flatten(0, 1))``), when the
+            same response serves many calls; made here otherwise.
 
     Returns:
         ``(B, len(times), M, 2, T * P1)``: pixels per unit weight, columns in the order of
@@ -145,7 +156,8 @@ def model_jacobian(
     eye = torch.eye(2, dtype=p.dtype, device=p.device)
     deform = (eye + dt * gm @ (eye + 0.5 * dt * gp)).view(B, T, M, 2, 2)
     # the responses at the starting points and the midpoints of every step: (L P1, B T 2M, 2)
-    z = sample_velocity(response.flatten(0, 1), torch.cat([p, mid], dim=1).flatten(0, 1).expand(L * P1, -1, -1))
+    extended = _extend(response.flatten(0, 1)) if extended is None else extended
+    z = _sample(extended, torch.cat([p, mid], dim=1).flatten(0, 1).expand(L * P1, -1, -1))
     z = z.view(L * P1, B * T, 2, M, 2).permute(1, 2, 3, 4, 0)  # (B T, start|mid, M, 2, L P1)
     source = (dt * (z[:, 1] + 0.5 * dt * gm @ z[:, 0])).view(B, T, M, 2, L, P1)
     # forward accumulation of d p_t / d u: D_t = deform_t D_{t-1}, plus step t's sources, lag k = t - s + 1 in
@@ -220,6 +232,7 @@ def newton_start(
     sqrt_w = weights.sqrt().view(B, 1, -1, 1)
     ky, kx = module.weight.shape[-2:]
     response = rest_response(warp, (ky, kx), viscosity, device=source.device, dtype=source.dtype)
+    extended = _extend(response.flatten(0, 1))
     lm = torch.float64  # the small linear algebra, whatever the fit's dtype
 
     def roll() -> tuple[Tensor, Tensor]:
@@ -233,7 +246,7 @@ def newton_start(
         return r, 0.5 * (r**2).sum(1), diff.norm(dim=-1).flatten(1).amax(1) <= tolerance
 
     def jacobian(vel: Tensor, paths: Tensor) -> Tensor:  # (B, residuals, P), weighted as the residuals
-        J = model_jacobian(response, vel.expand(B, *vel.shape[1:]), paths, times, size, dt).to(lm)
+        J = model_jacobian(response, vel.expand(B, *vel.shape[1:]), paths, times, size, dt, extended).to(lm)
         return (J * sqrt_w.unsqueeze(-1).to(lm)).flatten(1, 3)
 
     result = NewtonStart()
