@@ -205,7 +205,8 @@ def newton_start(
     """Move ``module.weight`` in place towards controls that carry ``source`` onto the keyframes' targets.
 
     Damped Gauss-Newton steps on the model Jacobian (see the module doc), one roll-out without autograd each.
-    Each problem of the batch accepts or rejects its own steps and keeps its own damping. At the end
+    Each problem of the batch accepts or rejects its own steps, keeps its own damping, and stops moving once
+    it meets its targets while the others go on. At the end
     ``module.weight`` holds each problem's best iterate (the one with the smallest objective). Roll-outs that
     blow up count as rejected steps. Inputs are not checked: :func:`~torchfluidwarp.control.keyframes.fit_keyframes`
     validates them and calls this.
@@ -260,7 +261,7 @@ def newton_start(
     J = jacobian(vel, paths)
     correction = torch.zeros_like(J)
     while not bool(met.all()) and result.forwards < max_forwards and stalled < patience:
-        du = _damped_step(J, r, lam)
+        du = torch.where(met.view(B, 1), 0.0, _damped_step(J, r, lam))  # a problem that met its targets rests
         with torch.no_grad():
             module.weight.copy_((u + du).view_as(module.weight))
         result.forwards += 1
