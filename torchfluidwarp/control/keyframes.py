@@ -252,12 +252,12 @@ def fit_keyframes(
         max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
         method: ``"auto"`` (the default): when the objective is the points' alone (a control grid, no
-            ``regularization`` or ``smoothness``, a viscosity that is a number, any ``compressible``),
-            start with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
+            ``regularization`` or ``smoothness``, a viscosity that is a number, any ``compressible``), start
+            with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
             Jacobian that cost one roll-out without autograd each, and hand over to L-BFGS only if it stalls
             (on the paper's set-up it met the targets alone on all 5 benchmark instances, at about a seventh
-            of L-BFGS' time: ``benchmarks/bench_keyframes.py``). Other objectives, and ``"lbfgs"``, run L-BFGS from the
-            start. The two may settle on different controls that both meet the targets.
+            of L-BFGS' time: ``benchmarks/bench_keyframes.py``). Other objectives, and ``"lbfgs"``, run
+            L-BFGS from the start. The two may settle on different controls that both meet the targets.
 
     Returns:
         a :class:`KeyframeFit`.
