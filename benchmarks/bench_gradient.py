@@ -1,4 +1,4 @@
-"""Benchmark of one keyframe gradient: what it costs over a forward, where that goes, and two trials that did not help.
+"""Benchmark of one keyframe gradient: what it costs over a forward, where that goes, three trials that did not help.
 
 Issue #20: one gradient of the keyframe objective costs 2.6-3.3x a forward, where the adjoint's theory says about
 2x. This script measures where the time goes, so that what is not inherent can be removed, and it keeps two
@@ -66,6 +66,16 @@ The viscosity is zero, so the step's diffusion is the identity and costs nothing
    forward + backward on every step's velocity, and the first call's time, compilation included. The issue asks
    for ``torch.compile`` only where it helps without slowing the first call; the trial shows whether it helps at
    all.
+
+7. *grid_sample's kernels alone* (always run, after 3.): on the three grids the self-advection of the roll-out's
+   middle step reads with (every face, the midpoints, the feet), ``torch.grid_sampler_2d`` against its backward
+   kernel asked for both gradients, the image's alone and the grid's alone; medians of interleaved repeats. It
+   bounds what any rewrite around the kernel could win: the gradient were each backward kernel no dearer than
+   its read.
+
+Trial B is a fixed preconditioner. The quasi-Newton start that did make the fit faster
+(:mod:`torchfluidwarp.control.newton`) learns its Jacobian as it goes; ``bench_keyframes.py`` measures it. This
+script fits with ``method="lbfgs"``, so the forces it times gradients at are those of earlier runs.
 
 Run ``python benchmarks/bench_gradient.py --help`` for the options.
 """
@@ -1011,6 +1021,80 @@ def report_trial_c(c: dict[str, float], repeats: int) -> str:
 # ----------------------------------------------------------------------------------------------- main
 
 
+# ----------------------------------------------------------------------------------------------- 7. grid_sample
+
+
+@dataclass
+class ReadRow:
+    """One of the self-advection's three ``grid_sample`` reads, its kernels timed alone (us, medians)."""
+
+    read: str
+    points: int
+    forward_us: float
+    backward_both_us: float
+    backward_input_us: float
+    backward_grid_us: float
+
+
+def grid_sample_kernels(rec: Recorded, repeats: int) -> list[ReadRow]:
+    """Time ``grid_sampler_2d`` and its backward kernel, asked for both gradients, the image's alone and the
+    grid's alone, on the three grids the self-advection of the roll-out's middle step reads with (the faces,
+    the midpoints, the feet); interleaved repeats."""
+    velocity = rec.entering[len(rec.entering) // 2]
+    _, (ext, *grids, _) = _fused_forward(velocity, DT)
+    names = ("faces (grid constant)", "midpoints", "feet")
+    grad = [torch.randn(ext.shape[0], 1, g.shape[1], 1, dtype=ext.dtype) for g in grids]
+    back = torch.ops.aten.grid_sampler_2d_backward
+    calls = {
+        "forward": lambda i: torch.grid_sampler_2d(ext, grids[i], 0, 1, True),
+        "both": lambda i: back(grad[i], ext, grids[i], 0, 1, True, [True, True]),
+        "input": lambda i: back(grad[i], ext, grids[i], 0, 1, True, [True, False]),
+        "grid": lambda i: back(grad[i], ext, grids[i], 0, 1, True, [False, True]),
+    }
+    times: dict[tuple[str, int], list[float]] = {}
+    for _ in range(repeats):
+        for i in range(len(grids)):
+            for key, fn in calls.items():
+                fn(i)  # warm
+                t0 = time.perf_counter()
+                for _ in range(20):
+                    fn(i)
+                times.setdefault((key, i), []).append((time.perf_counter() - t0) / 20 * 1e6)
+    return [
+        ReadRow(names[i], int(grids[i].shape[1]), *(statistics.median(times[(k, i)]) for k in calls))
+        for i in range(len(grids))
+    ]
+
+
+def report_grid_sample(rows: list[ReadRow], o: ObjectiveRow) -> str:
+    head = ["read", "points", "forward us", "backward us", "/ forward", "image grad only us", "grid grad only us"]
+    body = [
+        [
+            r.read,
+            str(r.points),
+            f"{r.forward_us:.1f}",
+            f"{r.backward_both_us:.1f}",
+            f"{r.backward_both_us / r.forward_us:.2f}x",
+            f"{r.backward_input_us:.1f}",
+            f"{r.backward_grid_us:.1f}",
+        ]
+        for r in rows
+    ]
+    fwd = sum(r.forward_us for r in rows) * STEPS / 1e3
+    bwd = sum(r.backward_both_us for r in rows) * STEPS / 1e3
+    return "\n".join(
+        [
+            "7. grid_sample's kernels on the self-advection's three reads of the roll-out's middle step (the extended "
+            "velocity, 2 images of the fluid's nodes), each timed alone, us, medians",
+            table(head, body),
+            f"over the {STEPS} steps: forward reads {fwd:.2f} ms, backward kernels {bwd:.2f} ms, against a whole "
+            f"forward of {o.forward_ms:.2f} ms and a gradient of {o.gradient_ms:.2f} ms; were each backward kernel "
+            f"no dearer than its read, the gradient would be {(o.gradient_ms - bwd + fwd) / o.forward_ms:.2f}x the "
+            "forward. Columns 6-7: the backward kernel asked for one of its two gradients only.",
+        ]
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
@@ -1067,6 +1151,10 @@ def main(argv: list[str] | None = None) -> int:
     kernel_rows = profile_kernels(p, args.profiled)
     print("\n" + report_kernels(kernel_rows, args.profiled, obj), flush=True)
 
+    log("  7. grid_sample's kernels ...")
+    read_rows = grid_sample_kernels(rec, max(5, args.repeats // 4))
+    print("\n" + report_grid_sample(read_rows, obj), flush=True)
+
     result: dict[str, Any] = {
         "machine": info,
         "args": vars(args),
@@ -1075,6 +1163,7 @@ def main(argv: list[str] | None = None) -> int:
         "objective": asdict(obj),
         "stages": [asdict(r) for r in stage_rows],
         "kernels": [asdict(r) for r in kernel_rows],
+        "grid_sample": [asdict(r) for r in read_rows],
     }
     if not args.no_trials:
         log("  4. trial A ...")
