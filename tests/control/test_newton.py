@@ -219,3 +219,11 @@ def test_a_problem_of_the_batch_that_met_its_targets_rests():
     both = fit_keyframes(SRC.expand(2, -1, -1), torch.cat([easy, tgt]), **kw)
     assert both.reached and both.forwards > 1 and both.evaluations == 0
     assert bool((both.forces.weight[0] == 0).all()) and bool((both.forces.weight[1] != 0).any())
+
+
+def test_the_start_shows_its_progress(capsys):
+    src = SRC[0].float()
+    fit_keyframes(src, src + 1.0, image_size=SIZE, grid=16, steps=4, control=3, tolerance=0.05, progress=True)
+    assert "quasi-Newton start" in capsys.readouterr().err
+    fit_keyframes(src, src + 1.0, image_size=SIZE, grid=16, steps=4, control=3, tolerance=0.05, progress=False)
+    assert "quasi-Newton start" not in capsys.readouterr().err

@@ -248,7 +248,8 @@ def fit_keyframes(
         dtype: dtype of the fit. float32 (the default) met the same tolerance as float64 on the paper's
             set-up, within 3 evaluations either way, at about 0.8x the time per evaluation
             (``benchmarks/bench_keyframes.py``); float64 is there for tight tolerances and checks.
-        progress: show a tqdm bar of L-BFGS iterations with the loss.
+        progress: show a tqdm bar of the quasi-Newton start's roll-outs, then one of L-BFGS iterations, with the
+            loss.
         max_memory: bytes the fit may set out to hold (its roll-out with autograd); default
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
         method: ``"auto"`` (the default): when the objective is the points' alone (a control grid, no
@@ -334,7 +335,9 @@ def fit_keyframes(
     if method == "auto" and regularization == smoothness == 0 and uniform is not None and grid_module is not None:
         # max_iter bounds the start too: one roll-out per iteration, the first one's included
         forwards = min(MAX_FORWARDS, max_iter + 1)
-        newton = newton_start(warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, max_forwards=forwards)
+        newton = newton_start(
+            warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, max_forwards=forwards, progress=progress
+        )
     if newton is not None and newton.reached:
         history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
     else:

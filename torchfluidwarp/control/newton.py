@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
+from tqdm.auto import tqdm
 
 from torchfluidwarp.core.advection import _extend, _geo, _velocity_at
 from torchfluidwarp.core.fluid import faces_from_cells
@@ -201,6 +202,7 @@ def newton_start(
     viscosity: float = 0.0,
     max_forwards: int = MAX_FORWARDS,
     patience: int = PATIENCE,
+    progress: bool = False,
 ) -> NewtonStart:
     """Move ``module.weight`` in place towards controls that carry ``source`` onto the keyframes' targets.
 
@@ -222,6 +224,7 @@ def newton_start(
         size: ``(H, W)`` pixels. viscosity: the warp's, a number (cells^2 per time unit).
         max_forwards: roll-outs at most (:data:`MAX_FORWARDS`).
         patience: roll-outs in a row without a 10% lower objective before it gives up (:data:`PATIENCE`).
+        progress: show a tqdm bar of roll-outs, with the objective (pixels^2) of the accepted controls.
 
     Returns:
         a :class:`NewtonStart`.
@@ -251,10 +254,12 @@ def newton_start(
         return (J * sqrt_w.unsqueeze(-1).to(lm)).flatten(1, 3)
 
     result = NewtonStart()
+    bar = tqdm(total=max_forwards, desc="quasi-Newton start", unit="roll-out", disable=not progress, leave=False)
     vel, paths = roll()
     result.forwards = 1
     r, loss, met = residual(paths)
     result.loss_history.append(float(loss.sum()))
+    bar.update(1)
     u = module.weight.detach().flatten(1).to(lm, copy=True)  # (B, P), not a view: the weight is written below
     lam = torch.full((B,), 0.1, dtype=lm, device=u.device)
     best, stalled = float(loss.sum()), 0
@@ -288,10 +293,13 @@ def newton_start(
             loss, met = torch.where(accepted, loss_new, loss), torch.where(accepted, met_new, met)
             J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths) + correction, J)
         total = float(loss.sum())
+        bar.update(1)
+        bar.set_postfix(loss=f"{total:.4g}")
         if total < 0.9 * best:
             best, stalled = total, 0
         else:
             stalled += 1
+    bar.close()
     with torch.no_grad():
         module.weight.copy_(u.view_as(module.weight))
     result.reached = bool(met.all())
