@@ -43,13 +43,23 @@ from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import _carry, _cell_scale
 
-__all__ = ["NewtonStart", "rest_response", "model_jacobian", "newton_start"]
+__all__ = ["NewtonStart", "rest_response", "model_jacobian", "newton_start", "jacobian_bytes", "MAX_JACOBIAN_BYTES"]
 
 MAX_FORWARDS = 40
 """Roll-outs the start may spend before it hands over to L-BFGS."""
 
 PATIENCE = 6
 """The start hands over after this many roll-outs in a row without lowering its best objective by 10%."""
+
+MAX_JACOBIAN_BYTES = 256 * 2**20
+"""The most memory the start's Jacobians may take (the model, its correction and their sum, float64, each
+``B x residuals x controls``); :func:`jacobian_bytes` of a larger problem makes the fit run L-BFGS alone."""
+
+
+def jacobian_bytes(batch: int, keyframes: int, points: int, steps: int, control: tuple[int, int]) -> int:
+    """Bytes of the start's three float64 Jacobians for ``batch`` problems of ``points`` points at ``keyframes``
+    keyframes, with a control grid of ``control`` over ``steps`` steps."""
+    return 3 * 8 * batch * (2 * keyframes * points) * (2 * control[0] * control[1] * steps)
 
 
 @dataclass
