@@ -229,15 +229,16 @@ def test_the_start_shows_its_progress(capsys):
     assert "quasi-Newton start" not in capsys.readouterr().err
 
 
-def test_a_start_whose_jacobians_would_not_fit_in_memory_is_skipped(monkeypatch):
+def test_a_start_that_would_not_fit_in_memory_is_skipped(monkeypatch):
     from torchfluidwarp.control import newton
 
     src = SRC[0].float()
     kw = dict(image_size=SIZE, grid=16, steps=4, control=3, tolerance=0.05, progress=False)
-    need = newton.jacobian_bytes(1, 1, 5, 4, (3, 3))
-    assert need == 3 * 8 * 10 * 72
-    monkeypatch.setattr(newton, "MAX_JACOBIAN_BYTES", need)
+    need = newton.start_bytes(1, 1, 5, 4, (3, 3), (16, 16))
+    # three Jacobians, one lag's responses and their copy, and their samples twice
+    assert need == 8 * (3 * 10 * 72 + 2 * 18 * 2 * 17 * 17 + 2 * 18 * 4 * 10 * 2)
+    monkeypatch.setattr(newton, "MAX_START_BYTES", need)
     assert fit_keyframes(src, src + 1.0, **kw).forwards > 0
-    monkeypatch.setattr(newton, "MAX_JACOBIAN_BYTES", need - 1)
+    monkeypatch.setattr(newton, "MAX_START_BYTES", need - 1)
     fit = fit_keyframes(src, src + 1.0, **kw)
     assert fit.forwards == 0 and fit.evaluations > 0 and fit.reached

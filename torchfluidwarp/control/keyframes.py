@@ -32,7 +32,7 @@ from torchfluidwarp._checks import (
     describe,
 )
 from torchfluidwarp.control import newton as _newton
-from torchfluidwarp.control.newton import MAX_FORWARDS, jacobian_bytes, newton_start
+from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, response_lags, start_bytes
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
@@ -187,14 +187,17 @@ def velocity_gradient_energy(velocities: Tensor) -> Tensor:
     return torch.stack([(d**2).sum() for d in terms]).sum() / (h * w)
 
 
-def _modelled_control(module: nn.Module, batch: int, keyframes: int, points: int) -> ControlGrid | None:
+def _modelled_control(
+    module: nn.Module, batch: int, keyframes: int, points: int, grid: tuple[int, int], lags: int
+) -> ControlGrid | None:
     """``module`` if the quasi-Newton start's model knows it (a plain cumulative control grid of ``batch``
-    problems: the default, or a previous fit's to warm-start) and its Jacobians fit in
-    :data:`~torchfluidwarp.control.newton.MAX_JACOBIAN_BYTES`; otherwise None."""
+    problems: the default, or a previous fit's to warm-start) and the start fits in
+    :data:`~torchfluidwarp.control.newton.MAX_START_BYTES`; otherwise None."""
     if not (type(module) is ControlGrid and module.cumulative and module.weight.shape[0] == batch):
         return None
     T, ky, kx = module.weight.shape[1], module.weight.shape[-2], module.weight.shape[-1]
-    return module if jacobian_bytes(batch, keyframes, points, T, (ky, kx)) <= _newton.MAX_JACOBIAN_BYTES else None
+    need = start_bytes(batch, keyframes, points, T, (ky, kx), grid, lags)
+    return module if need <= _newton.MAX_START_BYTES else None
 
 
 def fit_keyframes(
@@ -257,7 +260,7 @@ def fit_keyframes(
             :data:`torchfluidwarp._checks.MAX_BYTES`. A larger fit is refused before any work.
         method: ``"auto"`` (the default): when the objective is the points' alone (a control grid, no
             ``regularization`` or ``smoothness``, a viscosity that is a number, any ``compressible``, and
-            Jacobians within :data:`~torchfluidwarp.control.newton.MAX_JACOBIAN_BYTES`), start
+            a start within :data:`~torchfluidwarp.control.newton.MAX_START_BYTES` of memory), start
             with :func:`~torchfluidwarp.control.newton.newton_start`, damped Gauss-Newton steps on a model
             Jacobian that cost one roll-out without autograd each, and hand over to L-BFGS only if it stalls
             (on the paper's set-up it met the targets alone on all 5 benchmark instances, at about a seventh
@@ -334,9 +337,11 @@ def fit_keyframes(
     start = time.perf_counter()
     # the start's model: the points' residuals alone, a viscosity that is one number, a control grid
     uniform = None if isinstance(viscosity, (bool, Tensor, nn.Module)) else float(viscosity)
-    newton = None
-    grid_module = _modelled_control(module, B, len(keyframes), M)
-    if method == "auto" and regularization == smoothness == 0 and uniform is not None and grid_module is not None:
+    grid_module, newton = None, None
+    if method == "auto" and regularization == smoothness == 0 and uniform is not None:
+        lags = response_lags(warp, uniform)
+        grid_module = _modelled_control(module, B, len(keyframes), M, warp.grid.shape, lags)
+    if grid_module is not None and uniform is not None:
         # max_iter bounds the start too: one roll-out per iteration, the first one's included
         forwards = min(MAX_FORWARDS, max_iter + 1)
         newton = newton_start(

@@ -43,7 +43,15 @@ from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import _carry, _cell_scale
 
-__all__ = ["NewtonStart", "rest_response", "model_jacobian", "newton_start", "jacobian_bytes", "MAX_JACOBIAN_BYTES"]
+__all__ = [
+    "NewtonStart",
+    "rest_response",
+    "response_lags",
+    "model_jacobian",
+    "newton_start",
+    "start_bytes",
+    "MAX_START_BYTES",
+]
 
 MAX_FORWARDS = 40
 """Roll-outs the start may spend before it hands over to L-BFGS."""
@@ -51,15 +59,34 @@ MAX_FORWARDS = 40
 PATIENCE = 6
 """The start hands over after this many roll-outs in a row without lowering its best objective by 10%."""
 
-MAX_JACOBIAN_BYTES = 256 * 2**20
-"""The most memory the start's Jacobians may take (the model, its correction and their sum, float64, each
-``B x residuals x controls``); :func:`jacobian_bytes` of a larger problem makes the fit run L-BFGS alone."""
+MAX_START_BYTES = 256 * 2**20
+"""The most memory the start may hold (:func:`start_bytes`); a larger problem makes the fit run L-BFGS alone."""
 
 
-def jacobian_bytes(batch: int, keyframes: int, points: int, steps: int, control: tuple[int, int]) -> int:
-    """Bytes of the start's three float64 Jacobians for ``batch`` problems of ``points`` points at ``keyframes``
-    keyframes, with a control grid of ``control`` over ``steps`` steps."""
-    return 3 * 8 * batch * (2 * keyframes * points) * (2 * control[0] * control[1] * steps)
+def start_bytes(
+    batch: int,
+    keyframes: int,
+    points: int,
+    steps: int,
+    control: tuple[int, int],
+    grid: tuple[int, int],
+    lags: int = 1,
+) -> int:
+    """Bytes, at 8 a value, that the start holds for ``batch`` problems of ``points`` points at ``keyframes``
+    keyframes, with a control grid of ``control`` over ``steps`` steps on a fluid ``grid`` ``(h, w)``:
+
+    * three Jacobians (the model, its correction and their sum), each ``batch x residuals x controls``;
+    * the ``lags`` rest responses of the unit controls, and their copy laid out for sampling;
+    * those responses sampled at every step's points and midpoints, twice (:func:`model_jacobian`).
+
+    ``lags`` is :func:`response_lags`: 1 in an inviscid fluid with a plain or no projection, ``steps``
+    otherwise.
+    """
+    controls = 2 * control[0] * control[1]
+    jacobians = 3 * batch * (2 * keyframes * points) * (controls * steps)
+    responses = 2 * lags * controls * 2 * (grid[0] + 1) * (grid[1] + 1)
+    samples = 2 * (lags * controls) * (batch * steps * 2 * points) * 2
+    return 8 * (jacobians + responses + samples)
 
 
 @dataclass
@@ -103,13 +130,19 @@ def rest_response(
     ry, rx = _bicubic_axis(ky, h, basis.device, dtype), _bicubic_axis(kx, w, basis.device, dtype)
     step = warp.simulator.step
     z = step.relax(warp.dt * faces_from_cells(ry @ basis @ rx.T), viscosity)[0]
-    if viscosity == 0 and step.keep_divergence in (0.0, 1.0):
+    if response_lags(warp, viscosity) == 1:
         return z.unsqueeze(0)
     lags = [z]
     for _ in range(warp.steps - 1):
         lags.append(step.relax(lags[-1], viscosity)[0])
     zs = torch.stack(lags)
     return torch.cat([zs[:1], zs.diff(dim=0)])
+
+
+def response_lags(warp: FluidWarp, viscosity: float) -> int:
+    """How many steps of :func:`rest_response` matter: 1 when a step's linear part is idempotent (no viscosity,
+    and a plain or no projection), ``warp.steps`` otherwise."""
+    return 1 if viscosity == 0 and warp.simulator.step.keep_divergence in (0.0, 1.0) else warp.steps
 
 
 def _sample(extended: Tensor, points: Tensor) -> Tensor:
