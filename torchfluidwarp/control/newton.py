@@ -24,7 +24,8 @@ step adds Broyden's rank-one update along its direction to a correction term. An
 the model, and the correction carries over to it. A step that does not lower the objective is rejected and
 the damping raised. The start stops when every point is within ``tolerance`` of its target at every keyframe, or
 when it stalls: :func:`~torchfluidwarp.control.keyframes.fit_keyframes` then hands its best iterate to
-L-BFGS, so the start never makes a fit fail that L-BFGS alone would finish.
+L-BFGS, which finishes the fit with adjoint gradients as it did before the start existed (from that iterate
+rather than from rest, so it may end elsewhere, and it was slower on one of the benchmark's instances).
 """
 
 from __future__ import annotations
