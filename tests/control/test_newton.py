@@ -86,9 +86,10 @@ def test_the_start_meets_reachable_targets_with_roll_outs_only(fluid):
     fit = fit_keyframes(SRC, tgt, **kw)
     assert fit.reached and fit.converged and fit.evaluations == 0 and float(fit.error.max()) <= 0.01
     assert len(fit.loss_history) == fit.forwards and "quasi-Newton start: targets met" in fit.message
-    with torch.no_grad():  # the returned forces are the ones that met the targets
-        replay = fit.warp.carry_points(SRC, fit.forces)[:, -1]
-    assert float((replay - tgt).norm(dim=-1).max()) <= 0.01
+    with torch.no_grad():  # the returned forces are the ones that met the targets, on the returned paths
+        replay = fit.warp.carry_points(SRC, fit.forces)
+    torch.testing.assert_close(fit.trajectories, replay, rtol=0, atol=1e-12)
+    assert float((replay[:, -1] - tgt).norm(dim=-1).max()) <= 0.01
     plain = fit_keyframes(SRC, tgt, method="lbfgs", **kw)
     assert plain.reached and plain.forwards == 0
     assert fit.forwards < plain.evaluations  # each a roll-out without autograd, against a roll-out with its adjoint

@@ -347,8 +347,9 @@ def fit_keyframes(
         newton = newton_start(
             warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, max_forwards=forwards, progress=progress
         )
-    if newton is not None and newton.reached:
-        history, evaluations, converged, how = newton.loss_history, 0, True, newton.message
+    paths: Tensor | None = None
+    if newton is not None and newton.reached:  # its last roll-out's paths are those of the controls it leaves
+        history, evaluations, converged, how, paths = newton.loss_history, 0, True, newton.message, newton.paths
     else:
         result = minimize(
             objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes"
@@ -356,8 +357,9 @@ def fit_keyframes(
         history = ([] if newton is None else newton.loss_history) + list(result.loss_history)
         evaluations, converged = result.evaluations, result.converged
         how = result.message if newton is None else f"{newton.message}; {result.message}"
-    with torch.no_grad():
-        paths = warp.carry_points(src, module)
+    if paths is None:
+        with torch.no_grad():
+            paths = warp.carry_points(src, module)
     kf_err = [(t, (paths[:, t] - q).norm(dim=-1)) for t, q in keyframes]
     reached = all(bool(e.max() <= tolerance) for _, e in kf_err)
     err = kf_err[-1][1]

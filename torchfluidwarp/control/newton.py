@@ -99,12 +99,14 @@ class NewtonStart:
         loss_history: the objective (pixels^2) after each roll-out that ran to the end.
         reached: every point is within the tolerance of its target at every keyframe.
         message: why the start stopped.
+        paths: ``(B, T + 1, M, 2)`` the points' paths under the controls left in the module, pixels.
     """
 
     forwards: int = 0
     loss_history: list[float] = field(default_factory=list)
     reached: bool = False
     message: str = ""
+    paths: Tensor | None = None
 
 
 def rest_response(
@@ -309,6 +311,7 @@ def newton_start(
     best, stalled = float(loss.sum()), 0
     J = jacobian(vel, paths)
     correction = torch.zeros_like(J)
+    kept = paths  # the paths of each problem's accepted controls
     while not bool(met.all()) and result.forwards < max_forwards and stalled < patience:
         du = torch.where(met.view(B, 1), 0.0, _damped_step(J, r, lam))  # a problem that met its targets rests
         with torch.no_grad():
@@ -336,6 +339,7 @@ def newton_start(
             u, r = torch.where(keep, u + du, u), torch.where(keep, r_new, r)
             loss, met = torch.where(accepted, loss_new, loss), torch.where(accepted, met_new, met)
             J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths) + correction, J)
+            kept = torch.where(accepted.view(B, 1, 1, 1), paths, kept)
         total = float(loss.sum())
         bar.update(1)
         bar.set_postfix(loss=f"{total:.4g}")
@@ -346,7 +350,7 @@ def newton_start(
     bar.close()
     with torch.no_grad():
         module.weight.copy_(u.view_as(module.weight))
-    result.reached = bool(met.all())
+    result.reached, result.paths = bool(met.all()), kept
     how = "targets met" if result.reached else "handed over to L-BFGS"
     result.message = f"quasi-Newton start: {how} after {result.forwards} roll-outs"
     return result
