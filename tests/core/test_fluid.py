@@ -168,3 +168,23 @@ def test_exact_solves_skip_cg_and_agree_with_the_checked_loop(dtype, gen):
     d_fast = fluid.diffuse(v, 0.8, 1.0)
     d_checked = fluid.diffuse(v, 0.8, 1.0, config=CGConfig(verify_exact=True))
     torch.testing.assert_close(d_fast, d_checked, atol=tol * float(v.abs().max()), rtol=0)
+
+
+@pytest.mark.parametrize(
+    "batch,grid",
+    [(1, (8, 8)), (1, (7, 9)), (2, (8, 8)), (3, (7, 9)), (1, (100, 96))],  # the convolution, then the differences
+)
+def test_divergence_is_the_staggered_stencil_on_either_path(batch, grid, gen):
+    """One small field takes the 2x2 convolution, a batch or a large grid two differences: both are
+    ``u[j, i + 1] - u[j, i] + v[j + 1, i] - v[j, i]``, forward and backward."""
+    h, w = grid
+    v = torch.randn(batch, 2, h + 1, w + 1, generator=gen, dtype=torch.float64, requires_grad=True)
+    expected = torch.zeros(batch, 1, h, w, dtype=torch.float64)
+    for j in range(h):
+        expected[:, 0, j] = v[:, 0, j, 1:] - v[:, 0, j, :-1] + v[:, 1, j + 1, :w] - v[:, 1, j, :w]
+    div = fluid.divergence(v)
+    torch.testing.assert_close(div, expected, rtol=0, atol=1e-12)
+    weight = torch.randn(div.shape, generator=gen, dtype=torch.float64)
+    (got,) = torch.autograd.grad((div * weight).sum(), v)
+    (want,) = torch.autograd.grad((expected * weight).sum(), v)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
