@@ -87,9 +87,9 @@ def _pack(u: Tensor, v: Tensor) -> Tensor:
 CONV_DIVERGENCE_NODES = 96 * 96
 """On the CPU, :func:`divergence` is one 2x2 convolution for a single velocity of at most this many nodes
 ``(h + 1)(w + 1)``, and two differences otherwise. The convolution is one kernel, the fastest way for a small
-field, but beyond that (a batch, or a larger grid) torch's CPU convolution takes a path that cost up to 40x the
-differences forward and 20x in the backward (``(2, 2, 65, 65)``: 77 against 20 us; ``(1, 2, 257, 257)``: 280
-against 44 us forward, 6.5 against 0.3 ms forward and backward; AMD EPYC, one thread)."""
+field, but beyond that (a batch, or a larger grid) torch's CPU convolution takes a slow path: ``(2, 2, 65, 65)``
+cost 77 against 20 us forward, ``(1, 2, 257, 257)`` 280 against 44 us forward and 6.5 against 0.3 ms forward
+and backward, ``(8, 2, 257, 257)`` 21 against 0.2 ms forward (AMD EPYC, one thread)."""
 
 
 def divergence(velocity: Tensor) -> Tensor:
