@@ -31,8 +31,7 @@ from torchfluidwarp._checks import (
     compute_dtype,
     describe,
 )
-from torchfluidwarp.control import newton as _newton
-from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, response_lags, start_bytes
+from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, startable_control
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
@@ -187,19 +186,6 @@ def velocity_gradient_energy(velocities: Tensor) -> Tensor:
     return torch.stack([(d**2).sum() for d in terms]).sum() / (h * w)
 
 
-def _modelled_control(
-    module: nn.Module, batch: int, keyframes: int, points: int, grid: tuple[int, int], lags: int
-) -> ControlGrid | None:
-    """``module`` if the quasi-Newton start's model knows it (a plain cumulative control grid of ``batch``
-    problems: the default, or a previous fit's to warm-start) and the start fits in
-    :data:`~torchfluidwarp.control.newton.MAX_START_BYTES`; otherwise None."""
-    if not (type(module) is ControlGrid and module.cumulative and module.weight.shape[0] == batch):
-        return None
-    T, ky, kx = module.weight.shape[1], module.weight.shape[-2], module.weight.shape[-1]
-    need = start_bytes(batch, keyframes, points, T, (ky, kx), grid, lags)
-    return module if need <= _newton.MAX_START_BYTES else None
-
-
 def fit_keyframes(
     source: Tensor,
     target: Keyframes,
@@ -337,16 +323,15 @@ def fit_keyframes(
     start = time.perf_counter()
     # the start's model: the points' residuals alone, a viscosity that is one number, a control grid
     uniform = None if isinstance(viscosity, (bool, Tensor, nn.Module)) else float(viscosity)
-    grid_module, newton = None, None
+    newton = None
     if method == "auto" and regularization == smoothness == 0 and uniform is not None:
-        lags = response_lags(warp, uniform)
-        grid_module = _modelled_control(module, B, len(keyframes), M, warp.grid.shape, lags)
-    if grid_module is not None and uniform is not None:
-        # max_iter bounds the start too: one roll-out per iteration, the first one's included
-        forwards = min(MAX_FORWARDS, max_iter + 1)
-        newton = newton_start(
-            warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, max_forwards=forwards, progress=progress
-        )
+        grid_module = startable_control(warp, module, B, len(keyframes), M, uniform)
+        if grid_module is not None:
+            # max_iter bounds the start too: one roll-out per iteration, the first one's included
+            forwards = min(MAX_FORWARDS, max_iter + 1)
+            newton = newton_start(
+                warp, grid_module, src, keyframes, w, tolerance, (H, W), uniform, forwards, progress=progress
+            )
     paths: Tensor | None = None
     if newton is not None and newton.reached:  # its last roll-out's paths are those of the controls it leaves
         history, evaluations, converged, how, paths = newton.loss_history, 0, True, newton.message, newton.paths

@@ -34,7 +34,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from torchfluidwarp.core.advection import _extend, _geo, _velocity_at
@@ -51,6 +51,7 @@ __all__ = [
     "model_jacobian",
     "newton_start",
     "start_bytes",
+    "startable_control",
     "MAX_START_BYTES",
 ]
 
@@ -88,6 +89,20 @@ def start_bytes(
     responses = 2 * lags * controls * 2 * (grid[0] + 1) * (grid[1] + 1)
     samples = 2 * (lags * controls) * (batch * steps * 2 * points) * 2
     return 8 * (jacobians + responses + samples)
+
+
+def startable_control(
+    warp: FluidWarp, module: nn.Module, batch: int, keyframes: int, points: int, viscosity: float
+) -> ControlGrid | None:
+    """``module`` if the start's model knows it (a plain cumulative control grid of ``batch`` problems: the
+    default, or a previous fit's to warm-start) and the start would hold at most :data:`MAX_START_BYTES`
+    (:func:`start_bytes`) for ``points`` points at ``keyframes`` keyframes in ``warp``'s fluid; otherwise None."""
+    if not (type(module) is ControlGrid and module.cumulative and module.weight.shape[0] == batch):
+        return None
+    ky, kx = module.weight.shape[-2:]
+    lags = response_lags(warp, viscosity)
+    need = start_bytes(batch, keyframes, points, warp.steps, (ky, kx), warp.grid.shape, lags)
+    return module if need <= MAX_START_BYTES else None
 
 
 @dataclass
@@ -210,16 +225,14 @@ def model_jacobian(
     # forward accumulation of d p_t / d u: D_t = deform_t D_{t-1}, plus step t's sources, lag k = t - s + 1 in
     # the column block of control s
     D = p.new_zeros(B, M, 2, T, P1)
-    out = []
-    wanted = set(times)
+    wanted, at_time = set(times), {}
     for t in range(T):
         D = torch.einsum("bmij,bmjsp->bmisp", deform[:, t], D)
         lags = min(L, t + 1)
         D[:, :, :, t + 1 - lags : t + 1] += source[:, t, :, :, :lags].flip(-2)
         if t + 1 in wanted:
-            out.append((t + 1, D))
-    by_time = dict(out)
-    J = torch.stack([by_time[t] for t in times], dim=1)  # (B, K, M, 2, T, P1) cells
+            at_time[t + 1] = D  # the next step makes a new D: this one stays as it is
+    J = torch.stack([at_time[t] for t in times], dim=1)  # (B, K, M, 2, T, P1) cells
     return (J / c.view(1, 1, 1, 2, 1, 1)).flatten(-2)  # pixels
 
 
