@@ -87,9 +87,9 @@ def _pack(u: Tensor, v: Tensor) -> Tensor:
 CONV_DIVERGENCE_NODES = 96 * 96
 """On the CPU, :func:`divergence` is one 2x2 convolution for a single velocity of at most this many nodes
 ``(h + 1)(w + 1)``, and two differences otherwise. The convolution is one kernel, the fastest way for a small
-field, but beyond that (a batch, or a larger grid) torch's CPU convolution takes a slow path: ``(2, 2, 65, 65)``
-cost 77 against 20 us forward, ``(1, 2, 257, 257)`` 280 against 44 us forward and 6.5 against 0.3 ms forward
-and backward, ``(8, 2, 257, 257)`` 21 against 0.2 ms forward (AMD EPYC, one thread)."""
+field, but beyond that (a batch, or a larger grid) torch's CPU convolution takes a slow path: with the
+differences a fluid step's forward + backward at 256^2 went from 24.8 to 18.8 ms, and at 1024^2 from 509 to
+381 ms (``benchmarks/bench_fluid.py``, AMD EPYC, one thread; ``docs/benchmarks.md``)."""
 
 
 def divergence(velocity: Tensor) -> Tensor:
