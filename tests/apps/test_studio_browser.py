@@ -152,6 +152,8 @@ def test_points_preview_export_and_errors(browser, studio, tmp_path, dpr):
         before = page.evaluate("() => document.querySelector('#canvas-m').toDataURL()")
         generation = int(page.get_attribute("#canvas-m", "data-generation"))
         previews = page.evaluate("() => window.studio.previews")
+        assert page.is_hidden("#error"), page.inner_text("#error")
+        box_b = content_box(page, "#canvas-b")  # where B is now, should anything above it have moved
         x, y = css_point(box_b, (64, 64), PAIRS_B[2])
         page.mouse.move(x, y)
         page.mouse.down()
@@ -180,6 +182,20 @@ def test_points_preview_export_and_errors(browser, studio, tmp_path, dpr):
         page.set_input_files("#file-b", str(pattern_png(tmp_path / "b2.png", 3)))
         page.wait_for_function(f"() => window.studio.images.b && window.studio.images.b.version > {version}")
         assert page.is_hidden("#error")
+    finally:
+        context.close()
+
+
+def test_one_image_alone_is_not_an_error(browser, studio, tmp_path):
+    """Loading A before B is the normal order: the page waits for B instead of reporting a missing image."""
+    base, _ = studio
+    context, page = open_page(browser, base, 1)
+    try:
+        page.set_input_files("#file-a", str(pattern_png(tmp_path / "a.png", 1)))
+        page.wait_for_function("() => window.studio.images.a && window.studio.syncs >= 1", timeout=WAIT_MS)
+        page.wait_for_timeout(300)  # a report, had there been one, would be on the page by now
+        assert page.is_hidden("#error"), page.inner_text("#error")
+        assert server_state(base)["images"]["b"] is None
     finally:
         context.close()
 

@@ -204,6 +204,7 @@
     saveDir: false,
     lastLatency: null,                    // seconds from a preview request to its frame on screen
     previews: 0,                          // previews drawn (for tests)
+    syncs: 0,                             // point syncs settled, sent or not needed (for tests)
     autoRefine: true,                     // keep refining the fit while the points stay put
     animPreviews: 0,
   };
@@ -388,11 +389,13 @@
   }
 
   async function syncPoints() {
-    const done = complete();
     try {
+      // points belong to images: until both are loaded, the server has nothing to check them against
+      if (!app.images.a || !app.images.b) return;
+      const done = complete();
       const res = await api('api/points', { method: 'PUT', json: { points_a: done.map((p) => p.a), points_b: done.map((p) => p.b), settings: settings() } });
       if (res.alignment) morph.alignment = res.alignment;
-    } catch (err) { report(err); }
+    } catch (err) { report(err); } finally { app.syncs += 1; }
   }
 
   // --------------------------------------------------------------------------------------- preview
