@@ -239,7 +239,7 @@ def test_animate_preview_and_config(client):
 
 def test_latest_only_supersedes_stale_requests():
     worker = LatestOnly()
-    release = threading.Event()
+    started, release = threading.Event(), threading.Event()
     ran: list[int] = []
     results: dict[int, object] = {}
 
@@ -247,6 +247,7 @@ def test_latest_only_supersedes_stale_requests():
         def fn():
             ran.append(n)
             if n == 0:
+                started.set()
                 release.wait(5)
             return n
 
@@ -263,7 +264,10 @@ def test_latest_only_supersedes_stale_requests():
         t = threading.Thread(target=call, args=(n, worker.ticket("fit")))
         t.start()
         threads.append(t)
-        time.sleep(0.05)
+        if n == 0:
+            assert started.wait(5)  # 0 holds the slot before any newer ticket exists, however busy the machine
+        else:
+            time.sleep(0.05)  # 1 and 2 reach the slot's queue (they are superseded whether or not they do)
     release.set()
     for t in threads:
         t.join(5)
