@@ -90,6 +90,41 @@ def test_duplicate_sources_with_different_targets_end_finite_and_say_so():
     assert not fit.reached and "did not reach" in fit.message
 
 
+class Brittle(ControlGrid):
+    """A control grid whose flow blows up (forces times 1e9) once a control value exceeds ``limit``."""
+
+    limit = 1.0
+
+    def forward(self, grid, steps, dt, image_size):
+        f = super().forward(grid, steps, dt, image_size)
+        return f * 1e9 if float(self.weight.detach().abs().max()) > self.limit else f
+
+
+def test_a_trial_step_that_blows_the_flow_up_is_stepped_back_from():
+    # the targets need controls of about 1.2 (a fit with limit 1.5 reaches them), beyond this module's limit of
+    # 1: L-BFGS keeps stepping into the blow-up. Before, the first such step's FlowBlewUp ended the fit.
+    src = torch.tensor([[10.0, 12.0], [20.0, 20.0], [14.0, 22.0]], dtype=torch.float64)
+    tgt = src + torch.tensor([4.0, -2.0], dtype=torch.float64)
+    forces = Brittle(4, (3, 3), dtype=torch.float64)
+    fit = fit_keyframes(
+        src,
+        tgt,
+        image_size=(32, 32),
+        grid=12,
+        steps=4,
+        forces=forces,
+        method="lbfgs",
+        dtype=torch.float64,
+        progress=False,
+    )
+    assert not fit.converged and "restarts" in fit.message and "undefined (FlowBlewUp)" in fit.message
+    assert float(forces.weight.detach().abs().max()) <= Brittle.limit  # the best iterate kept is a defined one
+    assert float(fit.error.max()) < 0.5 * float((tgt - src).norm(dim=-1).max())  # it moved well towards them
+    with torch.no_grad():
+        replay = fit.warp.carry_points(src[None], forces)
+    torch.testing.assert_close(replay[:, -1], fit.points)
+
+
 @pytest.mark.parametrize(
     "kwargs,match",
     [

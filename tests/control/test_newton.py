@@ -3,6 +3,7 @@ import torch
 
 from torchfluidwarp.control.keyframes import fit_keyframes, keyframe_loss
 from torchfluidwarp.control.newton import model_jacobian, newton_start, rest_response
+from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.warp.forces import Brushes, ControlGrid
 from torchfluidwarp.warp.layer import FluidWarp
 
@@ -147,7 +148,7 @@ def test_a_step_whose_flow_blows_up_is_rejected(monkeypatch):
     def flaky(self, *args, **kwargs):
         calls.append(1)
         if len(calls) == 2:  # the first trial step
-            raise ValueError("the flow blew up at step 3")
+            raise FlowBlewUp("the flow blew up at step 3")
         return rollout(self, *args, **kwargs)
 
     monkeypatch.setattr(FluidWarp, "rollout", flaky)

@@ -5,7 +5,7 @@ import sys
 import pytest
 import torch
 
-from torchfluidwarp.control.optim import OptimResult, minimize
+from torchfluidwarp.control.optim import MAX_RESTARTS, OptimResult, minimize
 
 
 def _quadratic(gen, n=6):
@@ -62,6 +62,63 @@ def test_a_nan_gradient_stops_the_fit_at_non_finite_parameters_and_restores_the_
     assert not res.converged and "parameters became non-finite" in res.message
     assert res.loss_history == (5.0,) and res.best_loss == 5.0
     torch.testing.assert_close(x.detach(), torch.tensor([2.0, -1.0], dtype=torch.float64), atol=0, rtol=0)
+
+
+class Undefined(Exception):
+    """The objective's way of saying that it has no value at these parameters."""
+
+
+def pseudo_huber(x: torch.Tensor, bound: float):
+    """sqrt(1 + (x - 3)^2) summed, minimum 2 at (3, 3); undefined where some |x_i| > ``bound``. Its flat tails
+    make L-BFGS' line search extrapolate far past the minimum from a start at (-8, -4)."""
+    trials: list[torch.Tensor] = []
+
+    def objective():
+        trials.append(x.detach().clone())
+        if float(x.detach().abs().max()) > bound:
+            raise Undefined(f"|x| > {bound}")
+        return torch.sqrt(1 + (x - 3) ** 2).sum()
+
+    return objective, trials
+
+
+def test_an_undefined_trial_point_restarts_from_the_best_iterate_and_the_fit_goes_on():
+    x = torch.tensor([-8.0, -4.0], dtype=torch.float64, requires_grad=True)
+    objective, trials = pseudo_huber(x, bound=8.0)
+    with pytest.raises(Undefined):  # the unguarded driver meets the undefined region on this problem
+        minimize(objective, [x], max_iter=100)
+
+    x.data = torch.tensor([-8.0, -4.0], dtype=torch.float64)
+    objective, trials = pseudo_huber(x, bound=8.0)
+    res = minimize(objective, [x], max_iter=100, undefined=(Undefined,))
+    assert 1 <= res.restarts <= MAX_RESTARTS and "restart" in res.message
+    assert res.converged and abs(res.best_loss - 2.0) < 1e-12
+    torch.testing.assert_close(x.detach(), torch.full((2,), 3.0, dtype=torch.float64), atol=1e-6, rtol=0)
+    assert any(float(t.abs().max()) > 8.0 for t in trials)  # it did step into the undefined region
+    assert res.evaluations == len(res.loss_history) == sum(float(t.abs().max()) <= 8.0 for t in trials)
+
+
+def test_an_objective_undefined_at_the_starting_point_raises():
+    x = torch.tensor([-9.0, 0.0], dtype=torch.float64, requires_grad=True)
+    objective, _ = pseudo_huber(x, bound=8.0)
+    with pytest.raises(Undefined):
+        minimize(objective, [x], max_iter=10, undefined=(Undefined,))
+
+
+def test_an_objective_undefined_at_every_trial_point_ends_after_max_restarts_at_the_start():
+    start = torch.tensor([1.0, -2.0], dtype=torch.float64)
+    x = start.clone().requires_grad_(True)
+
+    def objective():
+        if not torch.equal(x.detach(), start):
+            raise Undefined("only the start is defined")
+        return (x**2).sum()
+
+    res = minimize(objective, [x], max_iter=50, undefined=(Undefined,))
+    assert not res.converged and res.restarts == MAX_RESTARTS
+    assert "undefined (Undefined)" in res.message and f"{MAX_RESTARTS} restarts" in res.message
+    assert res.best_loss == 5.0 and set(res.loss_history) == {5.0}
+    torch.testing.assert_close(x.detach(), start, atol=0, rtol=0)
 
 
 def test_the_stop_callback_ends_the_fit_as_converged():

@@ -40,6 +40,7 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.keyframes import check_fit_memory, check_points
 from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.optim import HISTORY_SIZE, minimize
+from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, scale_factor
 from torchfluidwarp.io import resize_image
@@ -359,6 +360,7 @@ def _fit_level(
         # looser than the driver's defaults, as this fit has always run: image losses flatten out sooner
         tolerance_grad=1e-10,
         tolerance_change=1e-12,
+        undefined=(FlowBlewUp,),  # a trial step whose flow blew up was too long: restart from the best one
     )
     history.extend(result.loss_history)
     return LevelFit(

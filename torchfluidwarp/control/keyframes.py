@@ -33,6 +33,7 @@ from torchfluidwarp._checks import (
 )
 from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, startable_control
 from torchfluidwarp.control.optim import minimize
+from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.warp.forces import ControlGrid
@@ -259,6 +260,9 @@ def fit_keyframes(
     Raises:
         ValueError: mismatched point counts, points outside the image, non-finite values, no points,
             ``steps < 1``, bad keyframe times.
+        FlowBlewUp: the starting forces (``forces``, a warm start) make the flow blow up (a ``ValueError``).
+            A trial step of the fit that does is a step too long: the fit steps back (see
+            :func:`~torchfluidwarp.control.optim.minimize`).
 
     Example:
         >>> src = torch.tensor([[20.0, 20.0], [40.0, 30.0]])
@@ -337,7 +341,13 @@ def fit_keyframes(
         history, evaluations, converged, how, paths = newton.loss_history, 0, True, newton.message, newton.paths
     else:
         result = minimize(
-            objective, params, max_iter=max_iter, stop=targets_met, progress=progress, desc="fit_keyframes"
+            objective,
+            params,
+            max_iter=max_iter,
+            stop=targets_met,
+            progress=progress,
+            desc="fit_keyframes",
+            undefined=(FlowBlewUp,),  # a trial step whose flow blew up was too long: restart from the best one
         )
         history = ([] if newton is None else newton.loss_history) + list(result.loss_history)
         evaluations, converged = result.evaluations, result.converged

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from torchfluidwarp.core.advection import _extend, _geo, _velocity_at
+from torchfluidwarp.core.advection import FlowBlewUp, _extend, _geo, _velocity_at
 from torchfluidwarp.core.fluid import faces_from_cells
 from torchfluidwarp.core.grid import rescale_points
 from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
@@ -332,7 +332,7 @@ def newton_start(
         result.forwards += 1
         try:
             vel, paths = roll()
-        except ValueError:  # the flow blew up or needs too many sub-steps: a step far too long
+        except FlowBlewUp:  # the flow blew up or needs too many sub-steps: a step far too long
             accepted = torch.zeros(B, dtype=torch.bool, device=u.device)
             r_new = None
         else:

@@ -5,8 +5,10 @@
 closure (clear the gradients, evaluate under ``enable_grad``, backpropagate), keeps the best iterate and puts it
 back at the end, and shows one tqdm bar that counts L-BFGS iterations up to ``max_iter``. Its NaN policy: a
 non-finite loss, or non-finite parameters after a line-search step, ends the fit with ``converged=False`` and a
-message saying so, and the best finite iterate is restored. An optional ``stop`` callback ends the fit early
-with ``converged=True`` (the keyframe fit stops once every point is within tolerance).
+message saying so, and the best finite iterate is restored. A trial point where the objective is undefined (it
+raised one of ``undefined``: for the fits, a flow that blew up) is a step too long: L-BFGS starts afresh from the
+best iterate, whose first step is short, at most :data:`MAX_RESTARTS` times. An optional ``stop`` callback ends the
+fit early with ``converged=True`` (the keyframe fit stops once every point is within tolerance).
 """
 
 from __future__ import annotations
@@ -22,10 +24,14 @@ from tqdm.auto import tqdm
 
 from torchfluidwarp._checks import all_finite, check_int, check_positive, describe
 
-__all__ = ["OptimResult", "minimize", "HISTORY_SIZE"]
+__all__ = ["OptimResult", "minimize", "HISTORY_SIZE", "MAX_RESTARTS"]
 
 HISTORY_SIZE = 100
 """L-BFGS memory: ``benchmarks/bench_keyframes.py``'s median evaluations fell from 48 (with 20) to 39."""
+
+MAX_RESTARTS = 4
+"""How often :func:`minimize` starts L-BFGS afresh from its best iterate after a trial point where the objective
+is undefined; the next such point ends the fit with ``converged=False``."""
 
 
 @dataclass(frozen=True)
@@ -36,10 +42,12 @@ class OptimResult:
         loss_history: the objective at every completed evaluation, in order (a non-finite value that stopped
             the fit is not included).
         evaluations: completed objective-and-gradient evaluations (``len(loss_history)``).
-        iterations: L-BFGS iterations, at most ``max_iter``.
+        iterations: L-BFGS iterations, at most ``max_iter`` (over all restarts).
+        restarts: fresh starts of L-BFGS after trial points where the objective was undefined.
         converged: ``stop`` returned True, or L-BFGS stopped on its own criterion (gradient or change below
             its tolerance) before ``max_iter`` iterations and ``max_eval`` evaluations. False when the fit ran
-            out of iterations or evaluations, or met a non-finite loss or parameter.
+            out of iterations or evaluations, met a non-finite loss or parameter, or an undefined point after
+            :data:`MAX_RESTARTS` restarts.
         message: a one-line reason for stopping.
         seconds: wall time of the fit, from after the optimiser is built.
         best_loss: the smallest finite loss seen, that of the restored parameters (``inf`` if none was finite).
@@ -52,6 +60,7 @@ class OptimResult:
     message: str
     seconds: float
     best_loss: float
+    restarts: int = 0
 
 
 class _LBFGS(torch.optim.LBFGS):
@@ -90,6 +99,7 @@ def minimize(
     max_eval: int | None = None,
     tolerance_grad: float = 1e-12,
     tolerance_change: float = 1e-14,
+    undefined: tuple[type[Exception], ...] = (),
 ) -> OptimResult:
     """Minimise ``objective()`` over ``params`` in place with L-BFGS (strong-Wolfe line search).
 
@@ -108,6 +118,9 @@ def minimize(
         max_eval: evaluation budget (default ``2 * max_iter``); a line search may overshoot it by a few.
         tolerance_grad: L-BFGS stops when the largest gradient entry is at most this.
         tolerance_change: L-BFGS stops when a step or the loss changes by at most this.
+        undefined: exception types by which ``objective`` says that it is undefined at the current values (the
+            fits pass :class:`~torchfluidwarp.core.advection.FlowBlewUp`). At a trial point, L-BFGS restarts from
+            the best iterate (see :data:`MAX_RESTARTS`); at the starting point the exception propagates.
 
     Returns:
         an :class:`OptimResult`.
@@ -115,6 +128,7 @@ def minimize(
     Raises:
         ValueError: ``params`` empty or holding a tensor that does not require grad; non-positive
             ``max_iter``, ``history_size`` or tolerances.
+        Exception: one of ``undefined``, raised by the objective at the starting point.
         TypeError: ``params`` holding something other than a tensor.
 
     Example:
@@ -137,38 +151,31 @@ def minimize(
     check_positive("tolerance_grad", tolerance_grad)
     check_positive("tolerance_change", tolerance_change)
 
-    optimizer = _LBFGS(
-        params,
-        lr=1.0,
-        max_iter=max_iter,
-        max_eval=max_eval,
-        history_size=history_size,
-        tolerance_grad=tolerance_grad,
-        tolerance_change=tolerance_change,
-        line_search_fn="strong_wolfe",
-    )
-    state = optimizer.state[params[0]]  # LBFGS keeps its counters here: n_iter, func_evals
     history: list[float] = []
     best_loss = math.inf
     best_state = [p.detach().clone() for p in params]  # the starting point, should nothing be finite
+    calls = 0  # objective calls, over all restarts (max_eval's budget)
+    done_iters = 0  # iterations of the L-BFGS runs before the current one
+    state: dict = {}  # the current run's counters (LBFGS keeps n_iter and func_evals here)
     start = time.perf_counter()
     # each L-BFGS iteration is one or more evaluations (its line search)
     bar = tqdm(total=max_iter, desc=desc, unit="iter", disable=not progress, leave=False)
 
     @torch.enable_grad()
     def closure() -> Tensor:
-        nonlocal best_loss, best_state
+        nonlocal best_loss, best_state, calls
         for p in params:  # optimizer.zero_grad() would import torch._dynamo (see _LBFGS)
             p.grad = None
         if not all(all_finite(p) for p in params):
             raise _Halt("the parameters became non-finite (a line-search step overflowed)")
+        calls += 1
         loss = objective()
         value = float(loss.detach())
         if not math.isfinite(value):
             raise _Halt(f"the loss became non-finite ({value})")
         loss.backward()
         history.append(value)
-        bar.update(min(int(state.get("n_iter", 0)), max_iter) - bar.n)
+        bar.update(min(done_iters + int(state.get("n_iter", 0)), max_iter) - bar.n)
         bar.set_postfix(loss=f"{value:.4g}", evals=len(history))
         if value < best_loss:
             best_loss = value
@@ -178,19 +185,47 @@ def minimize(
         return loss
 
     halt: str | None = None
+    restarts = 0
     try:
-        optimizer.step(closure)
-    except _Halt as e:
-        halt = e.reason
+        while done_iters < max_iter and calls < max_eval:
+            optimizer = _LBFGS(
+                params,
+                lr=1.0,
+                max_iter=max_iter - done_iters,
+                max_eval=max_eval - calls,
+                history_size=history_size,
+                tolerance_grad=tolerance_grad,
+                tolerance_change=tolerance_change,
+                line_search_fn="strong_wolfe",
+            )
+            state = optimizer.state[params[0]]
+            try:
+                optimizer.step(closure)
+            except _Halt as e:
+                halt = e.reason
+            except undefined as e:
+                if not history:  # the starting point itself: the caller's values, not a step too long
+                    raise
+                if restarts < MAX_RESTARTS:  # a fresh L-BFGS from the best iterate, whose first step is short
+                    restarts += 1
+                    with torch.no_grad():
+                        for p, v in zip(params, best_state):
+                            p.copy_(v)
+                    continue
+                halt = f"the objective was undefined ({type(e).__name__}) at a trial point after {restarts} restarts"
+            finally:
+                done_iters += int(state.get("n_iter", 0))
+            break
     finally:
-        iterations = min(int(state.get("n_iter", 0)), max_iter)
+        iterations = min(done_iters, max_iter)
         bar.update(iterations - bar.n)
         bar.close()
     with torch.no_grad():
         for p, v in zip(params, best_state):
             p.copy_(v)
 
-    done = f"after {iterations} iterations ({len(history)} evaluations), best loss {best_loss:.6g}"
+    again = f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else ""
+    done = f"after {iterations} iterations ({len(history)} evaluations{again}), best loss {best_loss:.6g}"
     if halt == "stop":
         converged, message = True, f"converged: the stop criterion was met {done}"
     elif halt is not None:
@@ -198,7 +233,7 @@ def minimize(
         message = f"did not converge: {halt} {done}; restored the best finite iterate"
     elif iterations >= max_iter:
         converged, message = False, f"did not converge: reached max_iter={max_iter} {done}"
-    elif int(state.get("func_evals", 0)) >= max_eval:
+    elif calls >= max_eval:
         converged, message = False, f"did not converge: used the evaluation budget max_eval={max_eval} {done}"
     else:
         converged, message = True, f"converged: L-BFGS made no further progress {done}"
@@ -210,4 +245,5 @@ def minimize(
         message=message,
         seconds=time.perf_counter() - start,
         best_loss=best_loss,
+        restarts=restarts,
     )

@@ -12,6 +12,7 @@ Nothing here knows about images, forces' parameters or fits; every layer above b
 * :mod:`~torchfluidwarp.core.simulator`: the steps as ``nn.Module`` s and :class:`FluidSimulator`.
 """
 
+from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.grid import (
     FluidGrid,
     cell_centres,
@@ -61,6 +62,7 @@ __all__ = [
     "CGConfig",
     "CGInfo",
     "ConvergenceError",
+    "FlowBlewUp",
     "ConvergenceWarning",
     "conjugate_gradient",
     "implicit_solve",

@@ -27,6 +27,7 @@ __all__ = [
     "advect_velocity",
     "advect_points",
     "substeps",
+    "FlowBlewUp",
     "MAX_STRAIN_PER_SUBSTEP",
     "MAX_SUBSTEPS",
 ]
@@ -226,8 +227,19 @@ near 1 and can never fold."""
 
 MAX_SUBSTEPS = 4096
 """The default ``max_substeps`` of :func:`substeps`: a step that would need more sub-steps is refused with a
-``ValueError`` (giving the count, the limit and the setting that raises it) instead of running for hours. A gentle
-flow needs 1 to 10, forces of 10 cells per time unit^2 about 100, and forces of 1000 some 20000."""
+:class:`FlowBlewUp` (giving the count, the limit and the setting that raises it) instead of running for hours. A
+gentle flow needs 1 to 10, forces of 10 cells per time unit^2 about 100, and forces of 1000 some 20000."""
+
+
+class FlowBlewUp(ValueError, FloatingPointError):
+    """A flow that cannot be run or carried: its velocity became non-finite (in a roll-out of
+    :class:`~torchfluidwarp.core.simulator.FluidSimulator`, or here), or it needs more than ``max_substeps``.
+
+    A ``ValueError`` naming the forces, velocity and ``dt`` (and a ``FloatingPointError``, what a roll-out's blow-up
+    used to be), so callers that catch those keep working. The fits catch this one alone: a trial step that makes
+    the flow blow up is a step too long, not a bug (:func:`~torchfluidwarp.control.optim.minimize`'s
+    ``undefined``).
+    """
 
 
 def substeps(
@@ -246,7 +258,8 @@ def substeps(
         max_substeps: the most sub-steps one step may take (default :data:`MAX_SUBSTEPS`).
 
     Raises:
-        ValueError: a non-finite velocity, or a flow that needs more than ``max_substeps`` sub-steps.
+        FlowBlewUp: a non-finite velocity, or a flow that needs more than ``max_substeps`` sub-steps (a
+            ``ValueError``).
     """
     max_substeps = check_int("max_substeps", max_substeps)
     return _substeps(_extend(velocity.detach()), dt, check_positive("max_strain", max_strain), max_substeps)
@@ -262,13 +275,13 @@ def _substeps(
     # the strain is on the host already, so this guard of the unchecked sub-step sampling costs nothing: a NaN or
     # inf anywhere in the velocity makes it non-finite (NaN propagates through amax)
     if not math.isfinite(strain * dt):
-        raise ValueError(
+        raise FlowBlewUp(
             f"velocity: non-finite velocity or strain times dt (strain {strain!r}, dt {dt!r}): "
             "the flow blew up (forces or dt too large?)"
         )
     n = max(1, math.ceil(strain * abs(dt) / max_strain))
     if n > max_substeps:
-        raise ValueError(
+        raise FlowBlewUp(
             f"the flow needs {n if n < 10**9 else f'about {float(n):.3g}'} sub-steps in one step "
             f"(velocity strain {strain:.3g} per time unit, dt {dt:.3g}), "
             f"above the limit of {max_substeps}: reduce the forces, the initial velocity or dt, or raise the "

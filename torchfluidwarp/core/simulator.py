@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import all_finite, check_fraction, check_positive, check_tensor, compute_dtype
-from torchfluidwarp.core.advection import _advect_points, _advect_velocity
+from torchfluidwarp.core.advection import FlowBlewUp, _advect_points, _advect_velocity
 from torchfluidwarp.core.fluid import (
     Viscosity,
     check_viscosity,
@@ -292,8 +292,3 @@ def _same_batch(name: str, x: object, batch: int) -> int:
     if isinstance(x, Tensor) and x.ndim and x.shape[0] != batch:
         raise ValueError(f"{name} has batch {x.shape[0]} but forces have batch {batch}; got shape {tuple(x.shape)}")
     return batch
-
-
-class FlowBlewUp(ValueError, FloatingPointError):
-    """The roll-out's velocity became non-finite: a ``ValueError`` naming the forces, velocity and ``dt`` (and a
-    ``FloatingPointError``, what it used to be)."""
