@@ -351,7 +351,8 @@ def newton_start(
             keep = accepted.view(B, 1)
             u, r = torch.where(keep, u + du, u), torch.where(keep, r_new, r)
             loss, met = torch.where(accepted, loss_new, loss), torch.where(accepted, met_new, met)
-            J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths) + correction, J)
+            if not bool(met.all()):  # the next step's model; none is needed once every target is met
+                J = torch.where(keep.unsqueeze(-1), jacobian(vel, paths) + correction, J)
             kept = torch.where(accepted.view(B, 1, 1, 1), paths, kept)
         total = float(loss.sum())
         bar.update(1)
