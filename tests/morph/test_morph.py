@@ -238,6 +238,51 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())
 
 
+def test_marks_that_swap_places_meet_halfway_and_are_morphed_without_a_pre_alignment(pair):
+    # without a pre-alignment, swapped marks' straight paths share their midpoint: no spline interpolates both,
+    # and the interpolating spline's singular system used to end the morph with an error about its centres
+    a, b = pair
+    pb = POINTS_A.clone()
+    pb[[0, 4]] = pb[[4, 0]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the marks cross, and the maps fold: both expected
+        r = morph(a, b, POINTS_A, pb, frames=3, progress=False, align=None)
+    assert torch.isfinite(r.frames).all()
+    err = r.fit.error[0]
+    assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())  # the swapped marks are the ones missed
+
+
+def test_marks_in_a_shuffled_order_are_morphed_without_the_pre_alignment_and_say_so(gen):
+    # marks of no common pose: the least-squares similarity shrinks towards a point, and B's marks taken back
+    # through its inverse landed hundreds of pixels outside the picture, where the fluid blew up
+    pa = torch.tensor(
+        [
+            [8, 21],
+            [46, 15],
+            [45, 38],
+            [16, 29],
+            [27, 46],
+            [16, 37],
+            [29, 24],
+            [56, 11],
+            [12, 34],
+            [55, 13],
+            [40, 34],
+            [9, 20],
+        ],
+        dtype=torch.float64,
+    )
+    pb = pa[torch.tensor([7, 3, 10, 0, 11, 5, 1, 9, 2, 6, 4, 8])]  # a similarity explains 7% of their spread
+    a = _blobs((64, 64), pa.tolist(), gen)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, a.flip(-1), pa, pb, frames=3, progress=False, max_iter=10)
+    pose_warnings = [w for w in caught if "do not agree on a pose" in str(w.message)]
+    assert len(pose_warnings) == 1 and "similarity pre-alignment" in str(pose_warnings[0].message)
+    assert torch.isfinite(r.frames).all()
+    assert float(r.fit.trajectories.abs().max()) < 200  # every path stays near the 64 x 64 picture
+
+
 def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
     a, b = pair
     morph_module = sys.modules["torchfluidwarp.morph.render"]  # where the frames are rendered

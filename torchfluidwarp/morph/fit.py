@@ -26,6 +26,35 @@ MIN_AREA = 0.1
 """The natural morph never squeezes an area below this fraction of its size in the middle frame (see
 :func:`straight_paths`): a margin that keeps the discrete flow and its resampled maps from folding."""
 
+MIN_POSE_FIT = 0.25
+"""The least share of B's marks' spread that the pre-alignment must explain (:func:`pose`). The 68 marks of two
+different faces give 0.73 to 1 (median 0.96 over the ordered pairs of ``benchmarks/bench_morph_quality.py``'s
+faces); 10 marks listed in a random order give a median of 0.07, and 20 of 0.04. Below it the least-squares
+transform shrinks towards a point, and its inverse would throw B's marks far outside the picture."""
+
+
+def pose(pa: Tensor, pb: Tensor, align: str | None) -> Tensor:
+    """The morph's global pre-alignment ``(3, 3)`` float64, A's pixels to B's
+    (:func:`~torchfluidwarp.control.alignment.estimate_alignment` of kind ``align``), or the identity, with a
+    warning, when it explains less than :data:`MIN_POSE_FIT` of the spread of B's marks ``pb`` ``(M, 2)``: marks
+    that do not agree on a pose are better morphed by the flow alone."""
+    a, b = pa.double(), pb.double()
+    M = estimate_alignment(a, b, align)
+    spread = float((b - b.mean(0)).square().sum())
+    if align in (None, "none") or spread == 0:
+        return M
+    explained = 1 - float((apply_alignment(M, a) - b).square().sum()) / spread
+    if explained >= MIN_POSE_FIT:
+        return M
+    warnings.warn(
+        f"the marks do not agree on a pose: the {align} pre-alignment explains {max(explained, 0):.0%} of how "
+        f"points_b spread (under {MIN_POSE_FIT:.0%}), so the morph runs without it; check that points_a and "
+        "points_b list the same features in the same order",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+    return torch.eye(3, dtype=torch.float64, device=a.device)
+
 
 def check_marks(pa: Tensor, pb: Tensor) -> None:
     """Refuse marks that cannot be morphed, and warn about marks whose order crosses."""
@@ -97,7 +126,10 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     mids, disp = 0.5 * (src + tgt), tgt - src
 
     def least(smoothing: float) -> float:
-        return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
+        try:
+            return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
+        except ValueError:  # marks that swap places share a midpoint: no spline interpolates both
+            return -math.inf
 
     if least(0.0) >= MIN_AREA:
         return mids, disp
@@ -105,7 +137,13 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     for _ in range(14):
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
-    travel = tps_fit(mids, disp, 10.0**hi)
+    try:
+        travel = tps_fit(mids, disp, 10.0**hi)
+    except ValueError as exc:
+        raise ValueError(
+            "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
+            "places meet halfway) to guide the morph; check that both list the same features in the same order"
+        ) from exc
     m = solve_midpoints(travel, src, -0.5)
     return m, travel(m)
 

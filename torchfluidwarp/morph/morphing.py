@@ -31,13 +31,13 @@ from torchfluidwarp._checks import (
     compute_dtype,
     describe,
 )
-from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment, interpolate_alignment
+from torchfluidwarp.control.alignment import AlignKind, apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points, fit_keyframes
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell, rescale_points, scale_factor
 from torchfluidwarp.correspond import MatchMode, auto_points
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural
+from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural, pose
 from torchfluidwarp.morph.regions import Background, hull_mask
 from torchfluidwarp.morph.render import FEATHER, InverseMethod, Scene, paper_flows
 from torchfluidwarp.morph.result import MorphResult
@@ -205,7 +205,9 @@ def morph(
         grid, steps, viscosity: the fluid (see :func:`fit_keyframes`); ``grid`` cells cover the fluid's box
             (default per method, :data:`DEFAULTS`: 80 x 80 for ``"natural"``, 64 x 64 for ``"paper"``).
         control: ``(K_y, K_x)`` control points per step of ``"paper"``'s control grid.
-        align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``.
+        align: global pre-alignment ``"similarity"`` (default), ``"affine"`` or ``None``. Marks that do not agree
+            on a pose (it would explain under :data:`~torchfluidwarp.morph.fit.MIN_POSE_FIT` of B's marks'
+            spread: points listed in different orders) are morphed without it, with a warning.
         inverse: how B is pulled back: ``"flow"`` (default: along the same fitted velocities, no second fit)
             or ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
         blend: the colour's schedule, how the cross-dissolve's weight of B grows over the morph's time ``t``:
@@ -311,7 +313,7 @@ def morph(
     b, pb = resize_pair(a, b, pb)
     H, W = a.shape[-2:]
     size = (H, W)
-    M = estimate_alignment(pa.double(), pb.double(), align)
+    M = pose(pa, pb, align)
     center = pa.double().mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb.double())
