@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.warp.forces import LandmarkForces, solve_midpoints
@@ -33,7 +33,7 @@ faces); 10 marks listed in a random order give a median of 0.07, and 20 of 0.04.
 transform shrinks towards a point, and its inverse would throw B's marks far outside the picture."""
 
 
-def pose(pa: Tensor, pb: Tensor, align: str | None) -> Tensor:
+def pose(pa: Tensor, pb: Tensor, align: AlignKind | None) -> Tensor:
     """The morph's global pre-alignment ``(3, 3)`` float64, A's pixels to B's
     (:func:`~torchfluidwarp.control.alignment.estimate_alignment` of kind ``align``), or the identity, with a
     warning, when it explains less than :data:`MIN_POSE_FIT` of the spread of B's marks ``pb`` ``(M, 2)``: marks
