@@ -174,10 +174,12 @@ def test_points_preview_export_and_errors(browser, studio, tmp_path, dpr):
         assert info.value.suggested_filename == "a.pts"
         np.testing.assert_allclose(read_points(path).numpy(), got_a, atol=1e-4)
 
-        # a non-image: the page says so, and the next valid upload works
+        # a non-image: the page says so, without moving the panes, and the next valid upload works
+        box_before = content_box(page, "#canvas-a")
         page.set_input_files("#file-b", files=[{"name": "notes.png", "mimeType": "image/png", "buffer": b"not a png"}])
         page.wait_for_selector("#error:not([hidden])")
         assert "notes.png" in page.inner_text("#error")
+        assert content_box(page, "#canvas-a") == box_before
         version = server_state(base)["images"]["b"]["version"]
         page.set_input_files("#file-b", str(pattern_png(tmp_path / "b2.png", 3)))
         page.wait_for_function(f"() => window.studio.images.b && window.studio.images.b.version > {version}")
