@@ -488,37 +488,49 @@ def first_fit_child(spec: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def report_first_fit(r: dict[str, Any]) -> str:
-    if r.get("failed"):
-        return f"### First fit of a process\n\nfailed: {r.get('stderr_tail', '')}"
-    ratio = r["first_over_warm"]
+FIRST_FIT_PROCESSES = 5
+"""Fresh processes of the first-fit section: one process's first call varies with what else the machine does
+(1.05-1.12x in six processes here, and once 1.44x), so the section reports their median."""
+
+
+def report_first_fit(runs: list[dict[str, Any]]) -> str:
+    failed = [r for r in runs if r.get("failed")]
+    if failed:
+        return f"### First fit of a process\n\nfailed: {failed[0].get('stderr_tail', '')}"
+    ratios = [r["first_over_warm"] for r in runs]
+    ratio = statistics.median(ratios)
     return "\n".join(
         [
             "### First fit of a process",
             "",
             "The paper's fit of the first flow instance (float32) as the first `fit_keyframes` call of a fresh process "
-            "(imports done, nothing warmed up), then the same fit again; wall times of the whole calls.",
+            f"(imports done, nothing warmed up), then the same fit again; wall times of the whole calls, in each of "
+            f"{len(runs)} fresh processes one after another; the target is read on the median ratio.",
             "",
             table(
                 [
+                    "process",
                     "first fit s",
-                    f"warm fit s (median of {r['warm_repeats']})",
+                    f"warm fit s (median of {runs[0]['warm_repeats']})",
                     "first / warm",
                     "evaluations",
                     "`torch._dynamo` imported",
-                    "target",
                 ],
                 [
                     [
+                        str(k + 1),
                         f"{r['first_wall_s']:.3f}",
                         f"{r['warm_wall_s']:.3f}",
-                        f"{ratio:.2f}x",
+                        f"{r['first_over_warm']:.2f}x",
                         "/".join(map(str, r["evaluations"])),
                         yes(r["dynamo_imported"]),
-                        f"<= 1.2x: {verdict(ratio <= 1.2)}",
                     ]
+                    for k, r in enumerate(runs)
                 ],
             ),
+            "",
+            f"median first / warm {ratio:.2f}x (range {min(ratios):.2f}-{max(ratios):.2f}x); target <= 1.2x: "
+            f"{verdict(ratio <= 1.2 and not any(r['dynamo_imported'] for r in runs))}",
         ]
     )
 
@@ -1070,8 +1082,10 @@ def main(argv: list[str] | None = None) -> int:
     print("\n" + report_memory(mem_runs))
     # 5. the first fit of a fresh process against the same fit warm
     log("  first fit of a process ...")
-    first_run = run_child({**child, "kind": "first", "dtype": "float32", "warm_repeats": 3})
-    print("\n" + report_first_fit(first_run), flush=True)
+    first_runs = [
+        run_child({**child, "kind": "first", "dtype": "float32", "warm_repeats": 3}) for _ in range(FIRST_FIT_PROCESSES)
+    ]
+    print("\n" + report_first_fit(first_runs), flush=True)
     total = time.perf_counter() - t_start
     info["load_end"] = machine_load()
     print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
@@ -1093,7 +1107,7 @@ def main(argv: list[str] | None = None) -> int:
             "gradient": [asdict(r) for r in grad_rows],
             "controls": [asdict(r) for r in sweep_rows],
             "memory": mem_runs,
-            "first_fit": first_run,
+            "first_fit": first_runs,
             "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
             "total_s": total,
         }
