@@ -1,8 +1,11 @@
+import warnings
+
 import pytest
 import torch
 import torch.nn.functional as F
 
-from torchfluidwarp.control.images import fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.images import _level_grids, fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.warp.forces import Brushes
 from torchfluidwarp.warp.layer import FluidWarp, jacobian_determinant
@@ -123,11 +126,44 @@ def test_a_callable_loss_and_a_batch():
 
 
 @pytest.mark.parametrize(
+    "grid, sides",
+    [(64, [16, 32, 64]), (128, [16, 32, 64, 128]), ((20, 40), [20, 40]), (22, [22]), (8, [8])],
+)
+def test_auto_levels_halve_the_grid_down_to_the_coarsest_level(grid, sides):
+    grids = _level_grids(FluidGrid.of(grid), "auto")
+    assert [max(g.shape) for g in grids] == sides and grids[-1] == FluidGrid.of(grid)
+
+
+def test_a_grid_set_without_levels_fits_on_levels_that_suit_it():
+    # the default levels used to be (16, 32, 64) whatever the grid, so any grid under 64 cells was refused
+    fit = fit_images(_blob(14.0, 16.0), _blob(16.0, 16.0), grid=12, steps=4, control=3, progress=False, max_iter=20)
+    assert [lv.grid for lv in fit.levels] == [(12, 12)]
+    assert fit.final_loss < 0.5 * fit.initial_loss
+
+
+def test_a_fit_whose_map_folds_warns_with_the_count_and_regularization_calms_it():
+    # a blob pulled across the picture in an incompressible fluid: the flow swirls until the map folds
+    source, target = _blob(8.0, 8.0, sigma=4.0), _blob(24.0, 24.0, sigma=4.0)
+    kw = dict(grid=16, levels=None, steps=4, control=4, max_iter=40, progress=False)
+    with pytest.warns(RuntimeWarning, match=r"fit_images: the fitted map folds on \d+ of 1024 pixels") as caught:
+        fit = fit_images(source, target, **kw)
+    folded = int(str(caught[0].message).split("folds on ")[1].split()[0])
+    with torch.no_grad():
+        det = jacobian_determinant(fit.warp.maps(fit.forces, (32, 32))[:, -1])  # the map fit_images judged
+    assert folded == int((det <= 0).sum()) > 0 and float(fit.min_det) <= 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # a calmer flow: no fold, no warning
+        calm = fit_images(source, target, regularization=1e-2, **kw)
+    assert float(calm.min_det) > 0
+
+
+@pytest.mark.parametrize(
     "kwargs, name",
     [
         ({"loss": "l1"}, "loss"),
         ({"levels": (16, 8)}, "levels"),
         ({"levels": (32,)}, "levels"),
+        ({"levels": "coarse"}, "levels"),
         ({"target": torch.zeros(1, 1, 16, 16)}, "target"),
         ({"source": torch.full((1, 1, 32, 32), float("nan"))}, "source"),
         ({"max_iter": (5, 5, 5)}, "max_iter"),

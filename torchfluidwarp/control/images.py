@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import torch
 from torch import Tensor
@@ -86,7 +88,8 @@ class ImageFit:
         warped: ``(B, C, H, W)`` the source warped by the fitted forces (frame ``T``), full resolution.
         initial_loss: the image term at full resolution before fitting (identity map).
         final_loss: the image term at full resolution after fitting.
-        min_det: ``(B,)`` the smallest Jacobian determinant of the fitted backward map (> 0: no folds).
+        min_det: ``(B,)`` the smallest Jacobian determinant of the fitted backward map (> 0: no folds; a fit
+            whose map folds also warns, naming how many pixels fold).
         loss_history: the objective at every evaluation, all levels in order.
         evaluations: total objective-and-gradient evaluations.
         seconds: total wall time.
@@ -113,13 +116,24 @@ class ImageFit:
         return self.warp(image, self.forces)
 
 
-def _level_grids(grid: FluidGrid, levels: Sequence[int] | None) -> list[FluidGrid]:
+COARSEST_LEVEL = 16
+"""``levels="auto"``'s coarsest level, in cells along the grid's longer side: the grid's longer side is halved
+while the half has at least this many cells, so the default 64 x 64 grid fits at 16, 32 and 64."""
+
+
+def _level_grids(grid: FluidGrid, levels: Sequence[int] | Literal["auto"] | None) -> list[FluidGrid]:
     """Coarse-to-fine grids: each level ``n`` is ``grid`` scaled so that its longer side has ``n`` cells."""
     longest = max(grid.shape)
     if levels is None:
         return [grid]
+    if isinstance(levels, str):
+        if levels != "auto":
+            raise ValueError(f"levels must be 'auto', None or a sequence of ints, got {levels!r}")
+        levels = [longest]
+        while levels[0] // 2 >= COARSEST_LEVEL:
+            levels.insert(0, levels[0] // 2)
     if not isinstance(levels, (tuple, list)) or not levels:
-        raise TypeError(f"levels must be a non-empty sequence of ints or None, got {describe(levels)}")
+        raise TypeError(f"levels must be 'auto', None or a non-empty sequence of ints, got {describe(levels)}")
     sizes = [check_int("levels", n, minimum=2) for n in levels]
     if any(b <= a for a, b in zip(sizes, sizes[1:])) or sizes[-1] > longest:
         raise ValueError(
@@ -147,7 +161,7 @@ def fit_images(
     points: tuple[Tensor, Tensor] | None = None,
     point_weight: float = 1e-3,
     grid: FluidGrid | int | tuple[int, int] = (64, 64),
-    levels: Sequence[int] | None = (16, 32, 64),
+    levels: Sequence[int] | Literal["auto"] | None = "auto",
     steps: int = 10,
     control: tuple[int, int] | int = (5, 5),
     dt: float = 1.0,
@@ -177,8 +191,10 @@ def fit_images(
             term, whose scale is that of ``loss``).
         grid: the finest fluid grid ``(h, w)``.
         levels: coarse-to-fine sizes, in cells along the longer side of ``grid`` (increasing; the finest grid
-            is added when the last level is smaller); ``None`` fits on ``grid`` only. Images at each level
-            are downsampled to keep the finest level's pixels per cell.
+            is added when the last level is smaller); ``"auto"`` (the default): the longer side halved while
+            the half keeps at least :data:`COARSEST_LEVEL` (16) cells, (16, 32, 64) for the default grid and
+            (20, 40) for a grid of 40; ``None`` fits on ``grid`` only. Images at each level are downsampled to
+            keep the finest level's pixels per cell.
         steps: fluid steps ``T``; the warped source is frame ``T``.
         control: ``(K_y, K_x)`` control points per step of the :class:`ControlGrid`.
         dt: time step. viscosity: as for :class:`~torchfluidwarp.warp.layer.FluidWarp` (float or ``(B|1, 1, h, w)``
@@ -297,7 +313,16 @@ def fit_images(
         coords = next(iter_backward_maps(vel, (H, W), dt, times=[steps]))
         warped = warp_image(src, coords, warp.mode)
         final = float(objective(warped, tgt))
-        min_det = jacobian_determinant(coords).flatten(1).amin(1)
+        det = jacobian_determinant(coords).flatten(1)
+        min_det, folded = det.amin(1), int((det <= 0).sum())
+    if folded:
+        warnings.warn(
+            f"fit_images: the fitted map folds on {folded} of {det.numel()} pixels (min det "
+            f"{float(min_det.min()):.3g}): the flow crushes part of the source onto itself; raise regularization "
+            "for a calmer flow, at some cost in the loss",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     if not math.isfinite(final):
         raise ValueError(f"loss became non-finite ({final}) on the fitted warp of source; no result to return")
     seconds = time.perf_counter() - start
