@@ -121,6 +121,41 @@ def test_an_objective_undefined_at_every_trial_point_ends_after_max_restarts_at_
     torch.testing.assert_close(x.detach(), start, atol=0, rtol=0)
 
 
+def test_a_stalled_run_starts_afresh_from_the_best_iterate_only_when_asked_and_short_of_stop():
+    # a loose tolerance_change makes L-BFGS stop on its own after a few iterations, short of the minimum
+    def run(stall_restarts: int, stop_at: float):
+        x = torch.tensor([-8.0, -4.0], dtype=torch.float64, requires_grad=True)
+        seen: list[torch.Tensor] = []
+
+        def objective():
+            seen.append(x.detach().clone())
+            return torch.sqrt(1 + (x - 3) ** 2).sum()
+
+        res = minimize(
+            objective,
+            [x],
+            max_iter=100,
+            tolerance_change=0.05,
+            stall_restarts=stall_restarts,
+            stop=lambda v: v < stop_at,
+        )
+        return res, seen
+
+    plain, _ = run(0, 0.0)
+    again, seen = run(2, 0.0)
+    assert "2 fresh starts after a stall" in again.message and "fresh start" not in plain.message
+    assert again.iterations <= 100 and again.evaluations > plain.evaluations
+    assert again.best_loss <= plain.best_loss
+    # each fresh run begins with an evaluation at the best iterate seen before it
+    first_of_second = seen[plain.evaluations]
+    torch.testing.assert_close(
+        first_of_second, seen[min(range(plain.evaluations), key=lambda i: again.loss_history[i])]
+    )
+    # stop met: nothing to start afresh for
+    met, _ = run(2, 1e9)
+    assert met.converged and "fresh start" not in met.message and met.evaluations == 1
+
+
 def test_the_stop_callback_ends_the_fit_as_converged():
     x = torch.tensor([4.0, -3.0], dtype=torch.float64, requires_grad=True)
     calls: list[float] = []
@@ -170,6 +205,7 @@ def test_it_works_under_no_grad_and_the_result_is_frozen():
         (["x"], {}, TypeError, r"params\[0\] must be a tensor"),
         (None, {"max_iter": 0}, ValueError, "max_iter must be >= 1"),
         (None, {"history_size": 0}, ValueError, "history_size must be >= 1"),
+        (None, {"stall_restarts": -1}, ValueError, "stall_restarts must be >= 0"),
     ],
 )
 def test_bad_arguments(params, kwargs, error, match):

@@ -348,6 +348,9 @@ def fit_keyframes(
             progress=progress,
             desc="fit_keyframes",
             undefined=(FlowBlewUp,),  # a trial step whose flow blew up was too long: restart from the best one
+            # after the quasi-Newton start, L-BFGS' first run can stall early in a rough stretch (its line search
+            # fails); one fresh run from the best controls goes on from there
+            stall_restarts=0 if newton is None else 1,
         )
         history = ([] if newton is None else newton.loss_history) + list(result.loss_history)
         evaluations, converged = result.evaluations, result.converged

@@ -100,6 +100,7 @@ def minimize(
     tolerance_grad: float = 1e-12,
     tolerance_change: float = 1e-14,
     undefined: tuple[type[Exception], ...] = (),
+    stall_restarts: int = 0,
 ) -> OptimResult:
     """Minimise ``objective()`` over ``params`` in place with L-BFGS (strong-Wolfe line search).
 
@@ -121,6 +122,10 @@ def minimize(
         undefined: exception types by which ``objective`` says that it is undefined at the current values (the
             fits pass :class:`~torchfluidwarp.core.advection.FlowBlewUp`). At a trial point, L-BFGS restarts from
             the best iterate (see :data:`MAX_RESTARTS`); at the starting point the exception propagates.
+        stall_restarts: how many times L-BFGS starts afresh from the best iterate when it stops on its own
+            criterion before ``stop`` is met and budget remains (default 0). A fresh start forgets the curvature
+            pairs and takes a short first step, which gets past a line search that failed in a rough stretch
+            of the objective; one that makes no progress costs one iteration's line search.
 
     Returns:
         an :class:`OptimResult`.
@@ -147,6 +152,7 @@ def minimize(
             raise ValueError(f"params[{i}] must require grad, got {describe(p)} with requires_grad=False")
     max_iter = check_int("max_iter", max_iter)
     history_size = check_int("history_size", history_size)
+    stall_restarts = check_int("stall_restarts", stall_restarts, minimum=0)
     max_eval = 2 * max_iter if max_eval is None else check_int("max_eval", max_eval)
     check_positive("tolerance_grad", tolerance_grad)
     check_positive("tolerance_change", tolerance_change)
@@ -185,7 +191,7 @@ def minimize(
         return loss
 
     halt: str | None = None
-    restarts = 0
+    restarts = stalls = 0
     try:
         while done_iters < max_iter and calls < max_eval:
             optimizer = _LBFGS(
@@ -215,6 +221,12 @@ def minimize(
                 halt = f"the objective was undefined ({type(e).__name__}) at a trial point after {restarts} restarts"
             finally:
                 done_iters += int(state.get("n_iter", 0))
+            if halt is None and stalls < stall_restarts and done_iters < max_iter and calls < max_eval:
+                stalls += 1  # L-BFGS stopped on its own short of `stop`: once more, afresh, from the best iterate
+                with torch.no_grad():
+                    for p, v in zip(params, best_state):
+                        p.copy_(v)
+                continue
             break
     finally:
         iterations = min(done_iters, max_iter)
@@ -225,6 +237,7 @@ def minimize(
             p.copy_(v)
 
     again = f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else ""
+    again += f", {stalls} fresh start{'s' if stalls != 1 else ''} after a stall" if stalls else ""
     done = f"after {iterations} iterations ({len(history)} evaluations{again}), best loss {best_loss:.6g}"
     if halt == "stop":
         converged, message = True, f"converged: the stop criterion was met {done}"
