@@ -252,27 +252,10 @@ def test_marks_that_swap_places_meet_halfway_and_are_morphed_without_a_pre_align
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())  # the swapped marks are the ones missed
 
 
-def test_marks_in_a_shuffled_order_are_morphed_without_the_pre_alignment_and_say_so(gen):
+def test_marks_in_a_shuffled_order_are_morphed_without_the_pre_alignment_and_say_so(gen, shuffled_marks):
     # marks of no common pose: the least-squares similarity shrinks towards a point, and B's marks taken back
     # through its inverse landed hundreds of pixels outside the picture, where the fluid blew up
-    pa = torch.tensor(
-        [
-            [8, 21],
-            [46, 15],
-            [45, 38],
-            [16, 29],
-            [27, 46],
-            [16, 37],
-            [29, 24],
-            [56, 11],
-            [12, 34],
-            [55, 13],
-            [40, 34],
-            [9, 20],
-        ],
-        dtype=torch.float64,
-    )
-    pb = pa[torch.tensor([7, 3, 10, 0, 11, 5, 1, 9, 2, 6, 4, 8])]  # a similarity explains 7% of their spread
+    pa, pb = shuffled_marks  # a similarity explains 7% of their spread
     a = _blobs((64, 64), pa.tolist(), gen)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
