@@ -7,8 +7,9 @@ back at the end, and shows one tqdm bar that counts L-BFGS iterations up to ``ma
 non-finite loss, or non-finite parameters after a line-search step, ends the fit with ``converged=False`` and a
 message saying so, and the best finite iterate is restored. A trial point where the objective is undefined (it
 raised one of ``undefined``: for the fits, a flow that blew up) is a step too long: L-BFGS starts afresh from the
-best iterate, whose first step is short, at most :data:`MAX_RESTARTS` times. An optional ``stop`` callback ends the
-fit early with ``converged=True`` (the keyframe fit stops once every point is within tolerance).
+best iterate, whose first step is short, at most :data:`MAX_RESTARTS` times; with ``stall_restarts``, so does a run
+that stops on its own short of ``stop``. An optional ``stop`` callback ends the fit early with ``converged=True``
+(the keyframe fit stops once every point is within tolerance).
 """
 
 from __future__ import annotations
