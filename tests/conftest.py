@@ -36,6 +36,30 @@ def one_thread():
     torch.set_num_threads(n)
 
 
+@pytest.fixture
+def shuffled_marks() -> tuple[torch.Tensor, torch.Tensor]:
+    """12 marks ``(12, 2)`` float64 pixels in a 64 x 64 picture, and the same marks in a shuffled order: a
+    similarity explains 7% of the shuffled set's spread, an affine 12% (no common pose; tests/morph)."""
+    pa = torch.tensor(
+        [
+            [8, 21],
+            [46, 15],
+            [45, 38],
+            [16, 29],
+            [27, 46],
+            [16, 37],
+            [29, 24],
+            [56, 11],
+            [12, 34],
+            [55, 13],
+            [40, 34],
+            [9, 20],
+        ],
+        dtype=torch.float64,
+    )
+    return pa, pa[torch.tensor([7, 3, 10, 0, 11, 5, 1, 9, 2, 6, 4, 8])]
+
+
 def gradcheck64(fn, *inputs: torch.Tensor, **kwargs) -> bool:
     """``torch.autograd.gradcheck`` on float64 copies of ``inputs`` (all made to require grad)."""
     xs = [x.detach().to(torch.float64).requires_grad_() for x in inputs]
