@@ -125,12 +125,7 @@ def test_a_stalled_run_starts_afresh_from_the_best_iterate_only_when_asked_and_s
     # a loose tolerance_change makes L-BFGS stop on its own after a few iterations, short of the minimum
     def run(stall_restarts: int, stop_at: float):
         x = torch.tensor([-8.0, -4.0], dtype=torch.float64, requires_grad=True)
-        seen: list[torch.Tensor] = []
-
-        def objective():
-            seen.append(x.detach().clone())
-            return torch.sqrt(1 + (x - 3) ** 2).sum()
-
+        objective, seen = pseudo_huber(x, bound=math.inf)
         res = minimize(
             objective,
             [x],

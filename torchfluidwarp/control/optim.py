@@ -191,10 +191,16 @@ def minimize(
                 raise _Halt("stop")
         return loss
 
+    def restore_best() -> None:
+        with torch.no_grad():
+            for p, v in zip(params, best_state):
+                p.copy_(v)
+
     halt: str | None = None
     restarts = stalls = 0
     try:
         while done_iters < max_iter and calls < max_eval:
+            restore_best()  # each run starts from the best iterate (the first: the starting values)
             optimizer = _LBFGS(
                 params,
                 lr=1.0,
@@ -215,27 +221,19 @@ def minimize(
                     raise
                 if restarts < MAX_RESTARTS:  # a fresh L-BFGS from the best iterate, whose first step is short
                     restarts += 1
-                    with torch.no_grad():
-                        for p, v in zip(params, best_state):
-                            p.copy_(v)
                     continue
                 halt = f"the objective was undefined ({type(e).__name__}) at a trial point after {restarts} restarts"
             finally:
                 done_iters += int(state.get("n_iter", 0))
             if halt is None and stalls < stall_restarts and done_iters < max_iter and calls < max_eval:
                 stalls += 1  # L-BFGS stopped on its own short of `stop`: once more, afresh, from the best iterate
-                with torch.no_grad():
-                    for p, v in zip(params, best_state):
-                        p.copy_(v)
                 continue
             break
     finally:
         iterations = min(done_iters, max_iter)
         bar.update(iterations - bar.n)
         bar.close()
-    with torch.no_grad():
-        for p, v in zip(params, best_state):
-            p.copy_(v)
+    restore_best()
 
     again = f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else ""
     again += f", {stalls} fresh start{'s' if stalls != 1 else ''} after a stall" if stalls else ""
