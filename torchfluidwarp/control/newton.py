@@ -52,6 +52,8 @@ __all__ = [
     "newton_start",
     "start_bytes",
     "startable_control",
+    "MAX_FORWARDS",
+    "PATIENCE",
     "MAX_START_BYTES",
 ]
 
