@@ -40,7 +40,7 @@ HERE = Path(__file__).resolve().parent
 
 def joint_against_sequential(n: int, repeats: int) -> tuple[str, dict]:
     sys.path.insert(0, str(HERE))
-    from bench_keyframes import flow_instance
+    from _common import flow_instance
 
     from torchfluidwarp.control import fit_keyframes
 

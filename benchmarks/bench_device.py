@@ -1,58 +1,26 @@
 """Benchmark of the GPU path against the CPU of the same machine, in one run (issue #20).
 
-Every device in ``--devices`` (default: ``cpu``, and ``cuda`` when ``torch.cuda.is_available()``) runs the same
-three measurements, in float32, with its inputs made on the CPU and moved to it; each prints a table with one
-column per device and, for every timed figure, a row of speed-ups over ``cpu``:
+Every device in ``--devices`` (default: ``cpu``, and ``cuda`` when available) runs the same measurements, float32,
+inputs made on the CPU and moved to it; each table has one column per device and speed-up rows over ``cpu``:
 
-1. **Frames.** :class:`~torchfluidwarp.warp.layer.FluidWarp` on a 64x64 fluid, 60 steps, stirred by the three
-   oscillating :class:`~torchfluidwarp.warp.forces.Brushes` of ``bench_warp.py`` (its ``make_brushes`` and
-   ``make_image``), warping an RGB image of 600x600 and of 1920x1080, without grad. Timed, each over the
-   ``T = 60`` new frames (frame 0, the input itself, is not counted):
+1. **Frames**: ``FluidWarp`` on a 64x64 fluid, 60 steps, stirred by ``_common.make_brushes``, warping an RGB
+   image of 600x600 and 1920x1080, without grad: ``forward``, ``iter_frames`` (as shipped and with
+   ``prefetch=False``), the fluid step and the backward map per frame, and the floor, ``grid_sample`` of the image
+   through a smooth grid (identity plus a gentle sine) once per frame; each path's ratio to the floor.
+2. **Keyframe fit**: ``_common.flow_instance(0)`` (14 points, 64x64 fluid, 10 steps, 500 controls, 0.05 px).
+3. **Morph**: the bundled astronaut -> cat pair at 1024x1024, 30 frames, ``morph()``'s defaults: the call, the
+   frames streamed through ``result.iter_frames()``, and both.
 
-   * :meth:`FluidWarp.forward`: all ``T + 1`` frames in one tensor;
-   * :meth:`FluidWarp.iter_frames`, consumed frame by frame, as shipped (for frames over
-     ``PREFETCH_PIXELS`` the next sampling grid is built in a worker thread) and with ``prefetch=False``;
-   * two of a frame's pieces on their own: the fluid step (:meth:`FluidWarp.rollout` over ``T`` steps) and the
-     backward map at the image's size (:func:`~torchfluidwarp.warp.maps.iter_backward_maps`), per frame;
-   * the floor: ``torch.nn.functional.grid_sample`` of the image through a smooth grid of the frame's size
-     (identity plus a few pixels of sine displacement; border padding, ``align_corners=False``), ``T`` times.
-
-   Frames per second are ``T`` over the wall time; each path's ratio to the floor is printed too.
-2. **Keyframe fit.** The paper set-up exactly as ``bench_keyframes.py`` builds it: its first flow instance
-   (``flow_instance(0, 14, (64, 64), 10)``: 14 points in a 64x64-pixel frame, targets 5 to 10 px away) fitted
-   by :func:`fit_keyframes` on a 64x64 fluid over 10 steps with ``control=(5, 5)`` (500 parameters),
-   ``tolerance=0.05`` px, float32, the source and target points on the device. Reported: the wall time of the
-   call, the quasi-Newton start's roll-outs and L-BFGS' evaluations (``fit_keyframes``' default
-   ``method="auto"``), ms per evaluation, mean and max final error (px), and whether every point reached its
-   target.
-3. **Morph.** The bundled astronaut -> cat pair with its 23 points, resized to 1024x1024 (the points scaled by
-   the same factors, pixel centres at integers: ``x' = (x + 0.5) W' / W - 0.5``), images and points on the
-   device, morphed by :func:`torchfluidwarp.morph` with ``frames=30`` (its defaults otherwise). ``morph``
-   returns once the fit is done and renders the frames on demand, so two times are taken: the call itself, and
-   the call plus all 30 frames streamed through ``result.iter_frames()`` (the "whole morph"). The mean point
-   error is ``result.fit.error.mean()``, in the last frame's pixels.
-
-Timing: on CUDA, ``torch.cuda.synchronize()`` runs before every clock reading, so a time covers the work the
-call queued, not only its launch. Each measurement is warmed up once per device before it is timed (frames: one
-full repeat; fit: the same fit cut to 3 L-BFGS iterations; morph: the same pair at the same size with 2 frames
-and 1 iteration), then runs ``--repeats`` times, the repeats interleaved over the devices so that a change of
-load on the machine affects them alike; each figure is the median over the repeats. For CUDA the peak of
-``torch.cuda.max_memory_allocated`` over the measurement is shown as well.
-
-A failure on one device (an exception in its set-up or in any repeat) prints its traceback and drops that
-device from that measurement only; the others, and the later measurements, still run. With ``--json PATH`` the
-results so far are written after every measurement, so a run cut short keeps what it measured. ``--quick`` is a
-smoke test: 64x64 and 96x128 images over 8 fluid steps, the fit on a 32x32 fluid over 5 steps, a 128x128 morph
-of 5 frames. ``--only`` picks measurements. On CUDA a roll-out of at least ``GRAPH_MIN_STEPS`` steps replays its
-step from a captured CUDA graph (:mod:`torchfluidwarp.core.graphs`); ``--no-cuda-graphs`` rolls it out step
-by step instead, for comparison. Run ``PYTHONPATH=$PWD python benchmarks/bench_device.py --help`` for the
-options.
+On CUDA every clock reading is synchronised. Each measurement is warmed up once per device, then runs
+``--repeats`` times interleaved over the devices; figures are medians; the peak of
+``torch.cuda.max_memory_allocated`` is shown. A failure on one device prints its traceback and drops that device
+from that measurement only. ``--json`` is written after every measurement.
 """
 
 from __future__ import annotations
 
-import argparse
 import gc
+import inspect
 import math
 import statistics
 import sys
@@ -60,648 +28,264 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import describe_load, machine, machine_load, source_fingerprint, table, write_json
-from bench_keyframes import FRAME as FIT_FRAME
-from bench_keyframes import flow_instance
-from bench_warp import FLUID, make_brushes, make_image
-from torch import Tensor
+from _common import (
+    FLUID,
+    FRAME,
+    finish,
+    flow_instance,
+    log,
+    make_brushes,
+    make_image,
+    parser,
+    start,
+    table,
+    write_json,
+)
 
 from torchfluidwarp import FluidWarp, fit_keyframes, morph
 from torchfluidwarp.core import graphs
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.warp import iter_backward_maps
 
-SAMPLE_A, SAMPLE_B = "astronaut", "cat"
-FIT_SEED, FIT_POINTS, FIT_CONTROL, FIT_TOLERANCE = 0, 14, (5, 5), 0.05
-FLOOR_AMPLITUDE = 0.01  # the floor grid's displacement, in normalised units (0.5% of the frame's width)
-
-
-@dataclass(frozen=True)
-class Config:
-    """Sizes of one run: the full set-up, or ``--quick``'s."""
-
-    frame_sizes: tuple[tuple[int, int], ...]  # (H, W)
-    frame_steps: int
-    fit_grid: tuple[int, int]
-    fit_steps: int
-    morph_size: int
-    morph_frames: int
-
-
-FULL = Config(((600, 600), (1080, 1920)), 60, (64, 64), 10, 1024, 30)
-QUICK = Config(((64, 64), (96, 128)), 8, (32, 32), 5, 128, 5)
-SECTIONS = ("frames", "fit", "morph")
-
-# ----------------------------------------------------------------------------------------------- timing
+# iter_frames' prefetch worker may be removed (issue 30): then the serial loop is the only one
+PREFETCH = "prefetch" in inspect.signature(FluidWarp.iter_frames).parameters
+FULL = dict(frame_sizes=((600, 600), (1080, 1920)), frame_steps=60, fit_grid=(64, 64), fit_steps=10, morph_size=1024,
+            morph_frames=30)  # fmt: skip
+QUICK = dict(frame_sizes=((64, 64), (96, 128)), frame_steps=8, fit_grid=(32, 32), fit_steps=5, morph_size=128,
+             morph_frames=5)  # fmt: skip
+Runs = dict[str, dict[str, Any]]  # {device: {"runs": [figures per repeat], "error": str | None, "peak_mib": ...}}
 
 
 def clock(device: torch.device) -> float:
-    """Wall time in seconds, after the device has finished what was queued on it."""
     if device.type == "cuda":
         torch.cuda.synchronize(device)
     return time.perf_counter()
 
 
-Runs = dict[str, dict[str, Any]]  # {device: {"runs": [figures per repeat], "error": str | None, ...}}
-
-
-def interleaved(
-    what: str,
-    devices: list[torch.device],
-    setup: Callable[[torch.device], Any],
-    once: Callable[[Any], dict[str, Any]],
-    repeats: int,
-    log: Callable[[str], None],
-) -> Runs:
-    """Run ``setup(device)`` (inputs and warm-up) on every device, then ``repeats`` rounds of ``once(state)``
-    over the devices in turn. A device whose set-up or repeat raises has its traceback printed and is dropped
-    from this measurement; the others go on."""
+def on_devices(what: str, devices: list, setup: Callable, once: Callable, repeats: int) -> Runs:
+    """``setup(device)`` (inputs and warm-up) on every device, then ``repeats`` rounds of ``once(device, state)``
+    over the devices in turn; a device that raises is reported and dropped from this measurement."""
     out: Runs = {str(d): {"runs": [], "error": None} for d in devices}
-    states: dict[torch.device, Any] = {}
-
-    def fail(d: torch.device, stage: str) -> None:
-        print(f"\n{what}: {d} FAILED in {stage}:", file=sys.stderr, flush=True)
-        traceback.print_exc()
-        exc = sys.exc_info()[1]
-        out[str(d)]["error"] = f"{stage}: {type(exc).__name__}: {exc}"
-        states.pop(d, None)
-
-    for d in devices:
-        try:
-            if d.type == "cuda":
-                torch.cuda.reset_peak_memory_stats(d)
-            log(f"  {what}: {d}, set-up and warm-up ...")
-            states[d] = setup(d)
-        except Exception:
-            fail(d, "set-up")
-    for rep in range(repeats):
+    states: dict[Any, Any] = {}
+    for rep in range(-1, repeats):
         for d in devices:
-            if d not in states:
+            if rep >= 0 and d not in states:
                 continue
-            log(f"  {what}: {d}, repeat {rep + 1}/{repeats} ...")
             try:
-                out[str(d)]["runs"].append(once(states[d]))
-            except Exception:
-                fail(d, f"repeat {rep + 1}")
+                log(f"  {what}: {d}, " + ("set-up and warm-up" if rep < 0 else f"repeat {rep + 1}/{repeats}") + " ...")
+                if rep < 0:
+                    if d.type == "cuda":
+                        torch.cuda.reset_peak_memory_stats(d)
+                    states[d] = setup(d)
+                else:
+                    out[str(d)]["runs"].append(once(d, states[d]))
+            except Exception as exc:
+                print(f"\n{what}: {d} FAILED:", file=sys.stderr, flush=True)
+                traceback.print_exc()
+                out[str(d)]["error"] = f"{type(exc).__name__}: {exc}"
+                states.pop(d, None)
     for d in devices:
-        if d.type == "cuda":
-            try:
-                out[str(d)]["peak_mib"] = torch.cuda.max_memory_allocated(d) / 2**20
-            except Exception:  # a broken CUDA context has already been reported
-                pass
+        if d.type == "cuda" and d in states:
+            out[str(d)]["peak_mib"] = torch.cuda.max_memory_allocated(d) / 2**20
     states.clear()
     gc.collect()
-    if any(d.type == "cuda" for d in devices):
-        try:
-            torch.cuda.empty_cache()
-        except Exception:
-            pass
     return out
 
 
-def median(runs: list[dict[str, Any]], key: str) -> float:
-    return statistics.median(r[key] for r in runs)
-
-
-# ----------------------------------------------------------------------------------------------- 1. frames
-
-
-def smooth_grid(size: tuple[int, int], device: torch.device) -> Tensor:
-    """A smooth sampling grid ``(1, H, W, 2)``, normalised ``(x, y)`` (``align_corners=False``): the identity
-    plus a gentle sine displacement, so that ``grid_sample`` interpolates as it does for a warped frame."""
+def smooth_grid(size: tuple[int, int], device: torch.device, amplitude: float = 0.01) -> torch.Tensor:
+    """A smooth sampling grid ``(1, H, W, 2)`` (normalised, ``align_corners=False``): identity plus a sine."""
     H, W = size
     ys = (2 * torch.arange(H, device=device, dtype=torch.float32) + 1) / H - 1
     xs = (2 * torch.arange(W, device=device, dtype=torch.float32) + 1) / W - 1
-    gy, gx = torch.meshgrid(ys, xs, indexing="ij")  # (H, W) each
-    dx = FLOOR_AMPLITUDE * torch.sin(math.pi * gy) * torch.cos(2 * math.pi * gx)
-    dy = FLOOR_AMPLITUDE * torch.sin(2 * math.pi * gx) * torch.cos(math.pi * gy)
+    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+    dx = amplitude * torch.sin(math.pi * gy) * torch.cos(2 * math.pi * gx)
+    dy = amplitude * torch.sin(2 * math.pi * gx) * torch.cos(math.pi * gy)
     return torch.stack([gx + dx, gy + dy], dim=-1)[None]
 
 
-@dataclass
-class FrameState:
-    device: torch.device
-    warp: FluidWarp
-    brushes: torch.nn.Module
-    image: Tensor  # (1, 3, H, W)
-    grid: Tensor  # (1, H, W, 2)
-
-
-def frames_setup(size: tuple[int, int], steps: int) -> Callable[[torch.device], FrameState]:
-    def setup(device: torch.device) -> FrameState:
-        state = FrameState(
-            device=device,
-            warp=FluidWarp(FLUID, steps=steps, dt=1.0).to(device),
-            brushes=make_brushes(size).to(device),
-            image=make_image(size).to(device),
-            grid=smooth_grid(size, device),
-        )
-        frames_once(state)  # warm-up: kernels, caches, the allocator
-        return state
-
-    return setup
-
-
-def frames_once(s: FrameState) -> dict[str, Any]:
-    """One repeat of the three paths: wall seconds over the ``T`` new frames of each."""
-    T = s.warp.steps
+def frames_once(d: torch.device, s: dict[str, Any]) -> dict[str, float]:
+    """One repeat of every path: wall seconds over the ``T`` new frames of each."""
+    warp, image, brushes, T = s["warp"], s["image"], s["brushes"], s["warp"].steps
+    size = tuple(image.shape[-2:])
+    steps: dict[str, Callable[[], Any]] = {
+        "forward": lambda: warp(image, brushes),
+        "iter_frames": lambda: sum(1 for _ in warp.iter_frames(image, brushes)),
+        "floor": lambda: [F.grid_sample(image, s["grid"], "bilinear", "border", False) for _ in range(T)],
+        "serial": lambda: sum(1 for _ in warp.iter_frames(image, brushes, **({"prefetch": False} if PREFETCH else {}))),
+        "rollout": lambda: s.__setitem__("vel", warp.rollout(brushes, size).velocities),
+        "maps": lambda: sum(1 for _ in iter_backward_maps(s["vel"], size, warp.dt)),
+    }  # fmt: skip
+    out = {}
     with torch.no_grad():
-        t0 = clock(s.device)
-        s.warp(s.image, s.brushes)
-        t1 = clock(s.device)
-        n = 0
-        for _frame in s.warp.iter_frames(s.image, s.brushes):
-            n += 1
-        t2 = clock(s.device)
-        for _ in range(T):
-            F.grid_sample(s.image, s.grid, mode="bilinear", padding_mode="border", align_corners=False)
-        t3 = clock(s.device)
-        for _frame in s.warp.iter_frames(s.image, s.brushes, prefetch=False):
-            pass
-        t4 = clock(s.device)
-        velocities = s.warp.rollout(s.brushes, tuple(s.image.shape[-2:])).velocities
-        t5 = clock(s.device)
-        for _map in iter_backward_maps(velocities, tuple(s.image.shape[-2:]), s.warp.dt):
-            pass
-        t6 = clock(s.device)
-    if n != T + 1:
-        raise RuntimeError(f"iter_frames yielded {n} frames, expected {T + 1}")
-    return {
-        "forward_s": t1 - t0,
-        "iter_frames_s": t2 - t1,
-        "floor_s": t3 - t2,
-        "serial_s": t4 - t3,
-        "rollout_s": t5 - t4,
-        "maps_s": t6 - t5,
+        for k, fn in steps.items():
+            t0 = clock(d)
+            fn()
+            out[k] = clock(d) - t0
+    return out
+
+
+def frames_rows(s: dict[str, float], T: int) -> dict[str, str]:
+    r = {
+        "forward fps": f"{T / s['forward']:.1f}",
+        "iter_frames fps": f"{T / s['iter_frames']:.1f}",
+        "floor (grid_sample) fps": f"{T / s['floor']:.1f}",
+        "floor ms/frame": f"{s['floor'] / T * 1e3:.3f}",
+        "forward / floor": f"{s['forward'] / s['floor']:.2f}x",
+        "iter_frames / floor": f"{s['iter_frames'] / s['floor']:.2f}x",
+        "iter_frames(prefetch=False) fps": f"{T / s['serial']:.1f}",
+        "iter_frames(prefetch=False) / floor": f"{s['serial'] / s['floor']:.2f}x",
+        "of a frame: fluid step ms": f"{s['rollout'] / T * 1e3:.3f}",
+        "of a frame: backward map ms": f"{s['maps'] / T * 1e3:.3f}",
     }
+    return r
 
 
-def frames_summary(runs: list[dict[str, Any]], steps: int) -> dict[str, float]:
-    fwd, it, floor, serial = (median(runs, k) for k in ("forward_s", "iter_frames_s", "floor_s", "serial_s"))
-    return {
-        "rollout_ms": median(runs, "rollout_s") / steps * 1e3,
-        "maps_ms": median(runs, "maps_s") / steps * 1e3,
-        "serial_fps": steps / serial,
-        "serial_over_floor": serial / floor,
-        "forward_fps": steps / fwd,
-        "iter_frames_fps": steps / it,
-        "floor_fps": steps / floor,
-        "forward_ms": fwd / steps * 1e3,
-        "iter_frames_ms": it / steps * 1e3,
-        "floor_ms": floor / steps * 1e3,
-        "forward_over_floor": fwd / floor,
-        "iter_frames_over_floor": it / floor,
-    }
+def fit_once(d: torch.device, s: dict[str, Any], max_iter: int = 200) -> dict[str, Any]:
+    t0 = clock(d)
+    fit = fit_keyframes(*s["points"], image_size=FRAME, grid=s["grid"], steps=s["steps"], control=(5, 5),
+                        max_iter=max_iter, tolerance=0.05, dtype=torch.float32, progress=False)  # fmt: skip
+    return dict(wall=clock(d) - t0, seconds=fit.seconds, evals=fit.evaluations, forwards=fit.forwards,
+                mean=float(fit.error.mean()), max=float(fit.error.max()), reached=float(fit.reached))  # fmt: skip
 
 
-# ----------------------------------------------------------------------------------------------- 2. keyframe fit
+def fit_rows(s: dict[str, float], _: int) -> dict[str, str]:
+    ms = s["wall"] / s["evals"] * 1e3 if s["evals"] else math.nan
+    return {"fit s (wall, synchronised)": f"{s['wall']:.3f}", "KeyframeFit.seconds": f"{s['seconds']:.3f}",
+            "roll-outs of the quasi-Newton start": f"{s['forwards']:g}", "L-BFGS evaluations": f"{s['evals']:g}",
+            "ms per L-BFGS evaluation": f"{ms:.2f}", "mean final error px": f"{s['mean']:.4f}",
+            "max final error px": f"{s['max']:.4f}", "reached (share of repeats)": f"{s['reached']:g}"}  # fmt: skip
 
 
-@dataclass
-class FitState:
-    device: torch.device
-    source: Tensor  # (M, 2) pixels
-    target: Tensor
-
-
-def fit_call(s: FitState, cfg: Config, max_iter: int = 200) -> Any:
-    return fit_keyframes(
-        s.source,
-        s.target,
-        image_size=FIT_FRAME,
-        grid=cfg.fit_grid,
-        steps=cfg.fit_steps,
-        control=FIT_CONTROL,
-        max_iter=max_iter,
-        tolerance=FIT_TOLERANCE,
-        dtype=torch.float32,
-        progress=False,
-    )
-
-
-def fit_setup(inst: Any, cfg: Config) -> Callable[[torch.device], FitState]:
-    def setup(device: torch.device) -> FitState:
-        src, tgt = inst.tensors(torch.float32)
-        state = FitState(device, src.to(device), tgt.to(device))
-        fit_call(state, cfg, max_iter=3)  # warm-up: the same shapes, a few iterations
-        return state
-
-    return setup
-
-
-def fit_once(cfg: Config) -> Callable[[FitState], dict[str, Any]]:
-    def once(s: FitState) -> dict[str, Any]:
-        t0 = clock(s.device)
-        fit = fit_call(s, cfg)
-        wall = clock(s.device) - t0
-        return {
-            "wall_s": wall,
-            "fit_seconds": fit.seconds,  # KeyframeFit's own figure (from the optimiser's start)
-            "evaluations": fit.evaluations,
-            "forwards": fit.forwards,  # the quasi-Newton start's roll-outs without autograd
-            "mean_error_px": float(fit.error.mean()),
-            "max_error_px": float(fit.error.max()),
-            "reached": fit.reached,
-            "converged": fit.converged,
-        }
-
-    return once
-
-
-def fit_summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    wall = median(runs, "wall_s")
-    evals = median(runs, "evaluations")
-    return {
-        "wall_s": wall,
-        "fit_seconds": median(runs, "fit_seconds"),
-        "evaluations": evals,
-        "forwards": median(runs, "forwards"),
-        "ms_per_evaluation": wall / evals * 1e3 if evals else math.nan,  # undefined when the start met the targets
-        "mean_error_px": median(runs, "mean_error_px"),
-        "max_error_px": median(runs, "max_error_px"),
-        "reached": sum(bool(r["reached"]) for r in runs),
-        "repeats": len(runs),
-    }
-
-
-# ----------------------------------------------------------------------------------------------- 3. morph
-
-
-def load_pair(size: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """The bundled pair ``(1, 3, size, size)`` x 2 and its points ``(M, 2)`` x 2, resized on the CPU."""
-    a, b = load_sample(SAMPLE_A), load_sample(SAMPLE_B)
-    pa, pb = load_sample_points(SAMPLE_A), load_sample_points(SAMPLE_B)
+def load_pair(size: int) -> tuple[torch.Tensor, ...]:
+    """The bundled pair resized to ``size`` x ``size`` and its points, scaled with pixel centres at integers."""
+    a, b = load_sample("astronaut"), load_sample("cat")
+    pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
     H, W = a.shape[-2:]
-    if (H, W) != (size, size):
-        a, b = (
-            F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False, antialias=True) for x in (a, b)
-        )
-        scale = torch.tensor([size / W, size / H])
-        pa, pb = ((p + 0.5) * scale - 0.5 for p in (pa, pb))  # pixel centres stay at integers
-    return a, b, pa, pb
+    a, b = (F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False, antialias=True) for x in (a, b))
+    scale = torch.tensor([size / W, size / H])
+    return a, b, (pa + 0.5) * scale - 0.5, (pb + 0.5) * scale - 0.5
 
 
-@dataclass
-class MorphState:
-    device: torch.device
-    inputs: tuple[Tensor, Tensor, Tensor, Tensor]
-
-
-def morph_run(s: MorphState, frames: int, max_iter: int | None = None) -> dict[str, Any]:
-    """One morph: the call, then every frame streamed; wall seconds of each, the mean point error, and the
-    warnings it gave (a fold or crossing warning is part of the result, not noise to print every repeat)."""
+def morph_once(d: torch.device, s: dict[str, Any], frames: int | None = None) -> dict:
+    frames = frames or s["frames"]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        t0 = clock(s.device)
-        res = morph(*s.inputs, frames=frames, max_iter=max_iter, progress=False)
-        t1 = clock(s.device)
-        n = sum(1 for _frame in res.iter_frames())
-        t2 = clock(s.device)
+        t0 = clock(d)
+        res = morph(*s["inputs"], frames=frames, progress=False)
+        t1 = clock(d)
+        n = sum(1 for _ in res.iter_frames())
+        t2 = clock(d)
     if n != frames:
         raise RuntimeError(f"result.iter_frames() yielded {n} frames, expected {frames}")
-    return {
-        "call_s": t1 - t0,
-        "render_s": t2 - t1,
-        "total_s": t2 - t0,
-        "fit_evaluations": res.fit.evaluations,
-        "mean_error_px": float(res.fit.error.mean()),
-        "max_error_px": float(res.fit.error.max()),
-        "warnings": list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught)),
-    }
+    s["warnings"] = {f"{w.category.__name__}: {w.message}"[:300] for w in caught}
+    return dict(total=t2 - t0, call=t1 - t0, render=t2 - t1, evals=res.fit.evaluations,
+                mean=float(res.error.mean()), max=float(res.error.max()))  # fmt: skip
 
 
-def morph_setup(pair: tuple[Tensor, Tensor, Tensor, Tensor]) -> Callable[[torch.device], MorphState]:
-    def setup(device: torch.device) -> MorphState:
-        a, b, pa, pb = (x.to(device) for x in pair)
-        state = MorphState(device, (a, b, pa, pb))
-        morph_run(state, frames=2, max_iter=1)  # warm-up: the same size, 2 frames, 1 iteration
-        return state
-
-    return setup
+def morph_rows(s: dict[str, float], _: int) -> dict[str, str]:
+    return {"whole morph s (call + frames)": f"{s['total']:.3f}", "morph() call s": f"{s['call']:.3f}",
+            "frames s": f"{s['render']:.3f}", "fit evaluations": f"{s['evals']:g}",
+            "mean point error px (frames)": f"{s['mean']:.4f}", "max px": f"{s['max']:.4f}"}  # fmt: skip
 
 
-def morph_summary(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    return {
-        "call_s": median(runs, "call_s"),
-        "render_s": median(runs, "render_s"),
-        "total_s": median(runs, "total_s"),
-        "fit_evaluations": median(runs, "fit_evaluations"),
-        "mean_error_px": median(runs, "mean_error_px"),
-        "max_error_px": median(runs, "max_error_px"),
-        "repeats": len(runs),
-    }
-
-
-# ----------------------------------------------------------------------------------------------- report
-
-
-Row = tuple[str, Callable[[dict[str, Any]], str]]
-
-
-def device_table(
-    runs: Runs, summaries: dict[str, dict[str, Any]], rows: list[Row], speedups: list[tuple[str, str, bool]]
-) -> str:
-    """One column per device. ``speedups``: ``(label, key, higher_is_better)`` rows of each device's figure
-    over ``cpu``'s (> 1: faster than the CPU)."""
+def device_table(runs: Runs, rows: Callable, n: int, speedups: dict[str, tuple[str, bool]]) -> str:
+    """One column per device; ``speedups``: ``{label: (key, higher is better)}`` rows over ``cpu``'s figure."""
+    med = {d: {k: statistics.median(x[k] for x in r["runs"]) for k in r["runs"][0]} for d, r in runs.items()
+           if r["runs"] and not r["error"]}  # fmt: skip
     names = list(runs)
-    body = []
-    for label, fmt in rows:
-        body.append([label] + [fmt(summaries[n]) if n in summaries else "FAILED" for n in names])
-    base = summaries.get("cpu")
-    for label, key, higher in speedups:
-        cells = []
-        for n in names:
-            if base is None or n not in summaries or n == "cpu":
-                cells.append("-")
-                continue
-            v, b = summaries[n][key], base[key]
-            cells.append(f"{(v / b if higher else b / v):.2f}x")
-        body.append([f"speed-up over cpu: {label}"] + cells)
-    body.append(["repeats"] + [str(len(runs[n]["runs"])) for n in names])
-    if any("peak_mib" in runs[n] for n in names):
-        body.append(
-            ["peak GPU memory MiB"] + [f"{runs[n]['peak_mib']:.0f}" if "peak_mib" in runs[n] else "-" for n in names]
-        )
-    text = table(["", *names], body)
-    for n in names:
-        if runs[n]["error"]:
-            text += f"\n{n} FAILED: {runs[n]['error'].splitlines()[0][:300]}"
-    return text
-
-
-def summarise(runs: Runs, summary: Callable[[list[dict[str, Any]]], dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    return {n: summary(r["runs"]) for n, r in runs.items() if r["error"] is None and r["runs"]}
-
-
-def report_frames(size: tuple[int, int], steps: int, runs: Runs, summaries: dict[str, dict[str, Any]]) -> str:
-    H, W = size
-    head = (
-        f"Frames: {W}x{H} RGB float32, {FLUID[0]}x{FLUID[1]} fluid, {steps} frames, no grad; median frames per "
-        "second (T new frames over the wall time), ms per frame, and each path's ratio to the floor (one "
-        "grid_sample of the image per frame)"
-    )
-    rows: list[Row] = [
-        ("forward fps", lambda s: f"{s['forward_fps']:.1f}"),
-        ("iter_frames fps", lambda s: f"{s['iter_frames_fps']:.1f}"),
-        ("floor (grid_sample) fps", lambda s: f"{s['floor_fps']:.1f}"),
-        ("forward ms/frame", lambda s: f"{s['forward_ms']:.3f}"),
-        ("iter_frames ms/frame", lambda s: f"{s['iter_frames_ms']:.3f}"),
-        ("floor ms/frame", lambda s: f"{s['floor_ms']:.3f}"),
-        ("forward / floor", lambda s: f"{s['forward_over_floor']:.2f}x"),
-        ("iter_frames / floor", lambda s: f"{s['iter_frames_over_floor']:.2f}x"),
-        ("iter_frames(prefetch=False) fps", lambda s: f"{s['serial_fps']:.1f}"),
-        ("iter_frames(prefetch=False) / floor", lambda s: f"{s['serial_over_floor']:.2f}x"),
-        ("of a frame: fluid step ms", lambda s: f"{s['rollout_ms']:.3f}"),
-        ("of a frame: backward map ms", lambda s: f"{s['maps_ms']:.3f}"),
-    ]
-    speedups = [
-        ("forward", "forward_fps", True),
-        ("iter_frames", "iter_frames_fps", True),
-        ("floor", "floor_fps", True),
-    ]
-    return head + "\n" + device_table(runs, summaries, rows, speedups)
-
-
-def report_fit(cfg: Config, runs: Runs, summaries: dict[str, dict[str, Any]]) -> str:
-    params = 2 * cfg.fit_steps * FIT_CONTROL[0] * FIT_CONTROL[1]
-    head = (
-        f"Keyframe fit: flow instance seed {FIT_SEED}, {FIT_POINTS} points in a {FIT_FRAME[1]}x{FIT_FRAME[0]} px "
-        f"frame, {cfg.fit_grid[0]}x{cfg.fit_grid[1]} fluid, {cfg.fit_steps} steps, control "
-        f"{FIT_CONTROL[0]}x{FIT_CONTROL[1]} ({params} parameters), tolerance {FIT_TOLERANCE:g} px, float32; "
-        "median wall time of the call"
-    )
-    rows: list[Row] = [
-        ("fit s (wall, synchronised)", lambda s: f"{s['wall_s']:.3f}"),
-        ("KeyframeFit.seconds", lambda s: f"{s['fit_seconds']:.3f}"),
-        ("roll-outs of the quasi-Newton start", lambda s: f"{s['forwards']:g}"),
-        ("L-BFGS evaluations", lambda s: f"{s['evaluations']:g}"),
-        ("ms per L-BFGS evaluation", lambda s: f"{s['ms_per_evaluation']:.2f}"),
-        ("mean final error px", lambda s: f"{s['mean_error_px']:.4f}"),
-        ("max final error px", lambda s: f"{s['max_error_px']:.4f}"),
-        ("reached", lambda s: f"{s['reached']}/{s['repeats']}"),
-    ]
-    speedups = [("fit s", "wall_s", False)]
-    return head + "\n" + device_table(runs, summaries, rows, speedups)
-
-
-def report_morph(cfg: Config, n_points: int, runs: Runs, summaries: dict[str, dict[str, Any]]) -> str:
-    S = cfg.morph_size
-    head = (
-        f"Morph: {SAMPLE_A} -> {SAMPLE_B}, {S}x{S}, {n_points} points, {cfg.morph_frames} frames, morph()'s "
-        "defaults; median wall seconds of the call (fit and inverse), of streaming every frame "
-        "(result.iter_frames()), and of both (the whole morph)"
-    )
-    rows: list[Row] = [
-        ("whole morph s (call + frames)", lambda s: f"{s['total_s']:.3f}"),
-        ("morph() call s", lambda s: f"{s['call_s']:.3f}"),
-        ("frames s", lambda s: f"{s['render_s']:.3f}"),
-        ("fit evaluations", lambda s: f"{s['fit_evaluations']:g}"),
-        ("mean point error px", lambda s: f"{s['mean_error_px']:.4f}"),
-        ("max point error px", lambda s: f"{s['max_error_px']:.4f}"),
-    ]
-    speedups = [("whole morph", "total_s", False), ("morph() call", "call_s", False), ("frames", "render_s", False)]
-    return head + "\n" + device_table(runs, summaries, rows, speedups)
-
-
-# ----------------------------------------------------------------------------------------------- main
-
-
-def parse_devices(values: list[str]) -> list[torch.device]:
-    names = [v.strip() for item in values for v in item.split(",") if v.strip()]
-    devices: list[torch.device] = []
-    for name in names:
-        try:
-            d = torch.device(name)
-        except RuntimeError:
-            raise ValueError(f"not a torch device: {name!r}") from None
-        if d.type not in ("cpu", "cuda"):
-            raise ValueError(f"only cpu and cuda devices can be timed here (synchronised clocks), got {name!r}")
-        if d.type == "cuda" and not torch.cuda.is_available():
-            raise ValueError(f"{name!r} was asked for, but torch.cuda.is_available() is False")
-        if d.type == "cuda" and d.index is not None and d.index >= torch.cuda.device_count():
-            raise ValueError(f"{name!r}: only {torch.cuda.device_count()} CUDA device(s)")
-        if d in devices:
-            raise ValueError(f"device {name!r} is listed twice")
-        devices.append(d)
-    if not devices:
-        raise ValueError("--devices lists no device")
-    return devices
-
-
-def cuda_info(device: torch.device) -> dict[str, Any]:
-    props = torch.cuda.get_device_properties(device)
-    return {
-        "name": torch.cuda.get_device_name(device),
-        "capability": f"{props.major}.{props.minor}",
-        "memory_gib": props.total_memory / 2**30,
-        "cuda": torch.version.cuda,
-    }
+    cells = {d: rows(m, n) for d, m in med.items()}
+    body = [[k] + [cells[d][k] if d in cells else "FAILED" for d in names] for k in next(iter(cells.values()), {})]
+    for label, (key, higher) in speedups.items():
+        b = med.get("cpu", {}).get(key)
+        sp = [(med[d][key] / b if higher else b / med[d][key]) if b and d in med and d != "cpu" else None
+              for d in names]  # fmt: skip
+        body.append([f"speed-up over cpu: {label}"] + ["-" if x is None else f"{x:.2f}x" for x in sp])
+    body.append(["repeats"] + [str(len(runs[d]["runs"])) for d in names])
+    body.append(["peak GPU memory MiB"] + [f"{runs[d].get('peak_mib', math.nan):.0f}" for d in names])
+    errors = "".join(f"\n{d} FAILED: {r['error'][:300]}" for d, r in runs.items() if r["error"])
+    return table(["", *names], body) + errors
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--devices",
-        nargs="+",
-        metavar="DEV",
-        help="devices to measure, e.g. cpu cuda (or cpu,cuda:0); default: cpu, and cuda when available",
-    )
-    parser.add_argument("--repeats", type=int, default=3, help="interleaved timed repeats per device (default 3)")
-    parser.add_argument(
-        "--threads", type=int, help="torch CPU threads (default: torch's own default, which is printed)"
-    )
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help="smoke mode: 64x64 and 96x128 images over 8 fluid steps, the fit on a 32x32 fluid over 5 steps, a "
-        "128x128 morph of 5 frames",
-    )
-    parser.add_argument(
-        "--json", metavar="PATH", help="also write the results as JSON to PATH (after every measurement)"
-    )
-    parser.add_argument(
-        "--only",
-        nargs="+",
-        choices=SECTIONS,
-        default=list(SECTIONS),
-        help="measure only these (default: all of frames, fit, morph)",
-    )
-    parser.add_argument(
-        "--no-cuda-graphs",
-        action="store_true",
-        help="roll the fluid out step by step on CUDA too (torchfluidwarp.core.graphs.GRAPH_MIN_STEPS raised "
-        "out of reach), to compare with the default replay of a captured step",
-    )
-    args = parser.parse_args(argv)
-    if args.repeats < 1:
-        parser.error(f"--repeats must be >= 1, got {args.repeats}")
-    if args.threads is not None and args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
-    try:
-        devices = parse_devices(args.devices or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"]))
-    except ValueError as exc:
-        parser.error(str(exc))
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    p = parser(__doc__, quick="64x64 and 96x128 images over 8 steps, a 32x32 fit over 5 steps, a 128x128 morph of "
+               "5 frames", threads=None)  # fmt: skip
+    p.add_argument("--devices", nargs="+", help="devices, e.g. cpu cuda (default: cpu, and cuda when available)")
+    p.add_argument("--repeats", type=int, default=3, help="interleaved timed repeats per device (default 3)")
+    p.add_argument("--only", nargs="+", choices=("frames", "fit", "morph"), default=["frames", "fit", "morph"])
+    p.add_argument("--no-cuda-graphs", action="store_true", help="roll the fluid out step by step on CUDA too")
+    args = p.parse_args(argv)
+    devices = [torch.device(d) for d in args.devices or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"])]
     cfg = QUICK if args.quick else FULL
     if args.no_cuda_graphs:
         graphs.GRAPH_MIN_STEPS = sys.maxsize
-
-    info = machine()
-    info["threads_from"] = "--threads" if args.threads is not None else "torch's default"
-    info["load_start"] = machine_load()
-    info["sources_sha256"] = source_fingerprint()
-    info["cuda"] = {}
-    print(
-        f"bench_device: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
-        f"{info['torch_threads']} CPU thread(s) ({info['threads_from']}), Python {info['python']}, {info['date']}"
-        + (" [--quick]" if args.quick else "")
-        + (" [--no-cuda-graphs]" if args.no_cuda_graphs else ""),
-        flush=True,
-    )
+    info = start("bench_device", args.threads, " [--quick]" * args.quick + " [--no-cuda-graphs]" * args.no_cuda_graphs)
     for d in devices:
         if d.type == "cuda":
-            try:
-                c = info["cuda"][str(d)] = cuda_info(d)
-                print(
-                    f"{d}: {c['name']}, compute capability {c['capability']}, {c['memory_gib']:.1f} GiB, "
-                    f"CUDA {c['cuda']}",
-                    flush=True,
-                )
-            except Exception:
-                traceback.print_exc()
-    print(
-        f"devices: {', '.join(map(str, devices))}; {args.repeats} repeat(s); torchfluidwarp sources sha256 "
-        f"{info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
-        flush=True,
-    )
-    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
+            pr = torch.cuda.get_device_properties(d)
+            print(f"{d}: {pr.name}, compute capability {pr.major}.{pr.minor}, {pr.total_memory / 2**30:.1f} GiB, "
+                  f"CUDA {torch.version.cuda}")  # fmt: skip
+    result: dict[str, Any] = dict(args=vars(args), config=cfg, frames={})
+    save = lambda: args.json and write_json(args.json, {"machine": info, **result})
+    failed: list[str] = []
+    T = cfg["frame_steps"]
+    for size in cfg["frame_sizes"] if "frames" in args.only else []:
 
-    result: dict[str, Any] = {
-        "machine": info,
-        "args": vars(args),
-        "config": asdict(cfg),
-        "frames": {},
-        "fit": None,
-        "morph": None,
-    }
+        def setup(d: torch.device, size: tuple[int, int] = size) -> dict[str, Any]:
+            s = dict(warp=FluidWarp(FLUID, steps=T, dt=1.0).to(d), brushes=make_brushes(size).to(d),
+                     image=make_image(size).to(d), grid=smooth_grid(size, d))  # fmt: skip
+            frames_once(d, s)
+            return s
 
-    def save() -> None:
-        if args.json:
-            write_json(args.json, result, default=str)
-
-    save()
-    failed: list[str] = []  # "<measurement> on <device>", or the measurement alone when its shared inputs failed
-
-    def record(what: str, runs: Runs) -> None:
-        failed.extend(f"{what} on {n}" for n, r in runs.items() if r["error"])
+        runs = on_devices(f"frames {size[1]}x{size[0]}", devices, setup, frames_once, args.repeats)
+        failed += [f"frames on {d}" for d, r in runs.items() if r["error"]]
+        print(f"\nFrames: {size[1]}x{size[0]} RGB float32, {FLUID[0]}x{FLUID[1]} fluid, {T} frames, no grad; medians")
+        speed = {"forward": ("forward", False), "iter_frames": ("iter_frames", False), "floor": ("floor", False)}
+        print(device_table(runs, frames_rows, T, speed))
+        result["frames"][f"{size[1]}x{size[0]}"] = runs
         save()
-
-    def shared(what: str, make: Callable[[], Any]) -> Any:
-        """Inputs that every device shares, built once on the CPU: a failure skips this measurement only."""
-        try:
-            return make()
-        except Exception:
-            print(f"\n{what} FAILED while building its inputs:", file=sys.stderr, flush=True)
-            traceback.print_exc()
-            failed.append(what)
-            return None
-
-    t_start = time.perf_counter()
-
-    # 1. frames
-    for size in cfg.frame_sizes if "frames" in args.only else []:
-        what = f"frames {size[1]}x{size[0]}"
-        runs = interleaved(what, devices, frames_setup(size, cfg.frame_steps), frames_once, args.repeats, log)
-        summaries = summarise(runs, lambda r: frames_summary(r, cfg.frame_steps))
-        print("\n" + report_frames(size, cfg.frame_steps, runs, summaries), flush=True)
-        result["frames"][f"{size[1]}x{size[0]}"] = {"runs": runs, "summary": summaries}
-        record(what, runs)
-
-    # 2. keyframe fit
-    inst = None
     if "fit" in args.only:
-        log("  fit: building the flow instance ...")
-        inst = shared("fit", lambda: flow_instance(FIT_SEED, FIT_POINTS, cfg.fit_grid, cfg.fit_steps))
-    if inst is not None:
-        runs = interleaved("fit", devices, fit_setup(inst, cfg), fit_once(cfg), args.repeats, log)
-        summaries = summarise(runs, fit_summary)
-        print("\n" + report_fit(cfg, runs, summaries), flush=True)
-        result["fit"] = {"instance": asdict(inst), "runs": runs, "summary": summaries}
-        record("fit", runs)
+        inst = flow_instance(0, 14, cfg["fit_grid"], cfg["fit_steps"])
 
-    # 3. morph
-    pair = shared("morph", lambda: load_pair(cfg.morph_size)) if "morph" in args.only else None
-    if pair is not None:
-        once = lambda s: morph_run(s, cfg.morph_frames)  # noqa: E731
-        runs = interleaved("morph", devices, morph_setup(pair), once, args.repeats, log)
-        summaries = summarise(runs, morph_summary)
-        print("\n" + report_morph(cfg, pair[2].shape[0], runs, summaries), flush=True)
-        for name, r in runs.items():
-            for text in dict.fromkeys(w for run in r["runs"] for w in run["warnings"]):
-                print(f"{name} warned: {text[:300]}")
-        result["morph"] = {"runs": runs, "summary": summaries}
-        record("morph", runs)
+        def fit_setup(d: torch.device) -> dict[str, Any]:
+            s = dict(
+                points=[x.to(d) for x in inst.tensors(torch.float32)], grid=cfg["fit_grid"], steps=cfg["fit_steps"]
+            )
+            fit_once(d, s, max_iter=3)
+            return s
 
-    total = time.perf_counter() - t_start
-    info["load_end"] = machine_load()
-    result["total_s"] = total
-    print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
-    if source_fingerprint() != info["sources_sha256"]:
-        info["sources_changed"] = True
-        print("WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported)")
-    save()
+        runs = on_devices("fit", devices, fit_setup, fit_once, args.repeats)
+        failed += [f"fit on {d}" for d, r in runs.items() if r["error"]]
+        print(f"\nKeyframe fit: flow seed 0, 14 points, {cfg['fit_grid'][0]}x{cfg['fit_grid'][1]} fluid, "
+              f"{cfg['fit_steps']} steps, control 5x5, tolerance 0.05 px, float32; median wall time")  # fmt: skip
+        print(device_table(runs, fit_rows, 0, {"fit s": ("wall", False)}))
+        result["fit"] = runs
+        save()
+    if "morph" in args.only:
+        pair, S, n = load_pair(cfg["morph_size"]), cfg["morph_size"], cfg["morph_frames"]
+
+        def morph_setup(d: torch.device) -> dict[str, Any]:
+            s = dict(inputs=[x.to(d) for x in pair], frames=n)
+            morph_once(d, s, frames=2)  # warm-up: the same size, 2 frames
+            states.append(s)
+            return s
+
+        states: list[dict] = []
+        runs = on_devices("morph", devices, morph_setup, morph_once, args.repeats)
+        failed += [f"morph on {d}" for d, r in runs.items() if r["error"]]
+        print(f"\nMorph: astronaut -> cat, {S}x{S}, {len(pair[2])} points, {n} frames, morph()'s defaults; medians")
+        speed = {"whole morph": ("total", False), "morph() call": ("call", False), "frames": ("render", False)}
+        print(device_table(runs, morph_rows, 0, speed))
+        for text in {w for s in states for w in s.get("warnings", ())}:
+            print(f"warned: {text}")
+        result["morph"] = runs
+    finish(info, result, args.json)
     if failed:
         print(f"FAILED: {', '.join(failed)}")
-        return 1
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -40,20 +40,17 @@ import argparse
 import gc
 import json
 import math
-import os
 import resource
 import statistics
-import subprocess
 import sys
 import time
 import warnings
 import weakref
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import add_threads_argument, machine, reset_peak, save_figure, status_kib, table, verdict, write_json
+from _common import finish, log, parser, reset_peak, rows_table, run_child, save_figure, start, status_kib, verdict
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, FluidSimulator
@@ -95,25 +92,7 @@ def loss_of(out: Any) -> Tensor:
 # ----------------------------------------------------------------------------------------------- scaling
 
 
-@dataclass
-class ScalingRow:
-    """One grid and viscosity of measurement 1 (and 2)."""
-
-    grid: int
-    viscosity: float
-    steps: int
-    repeats: int
-    forward_ms_per_step: float
-    forward_backward_ms_per_step: float
-    forward_ns_per_cell_step: float
-    forward_backward_ns_per_cell_step: float
-    backward_over_forward: float
-    viscosity_iters_per_step: float
-    pressure_iters_per_step: float
-    convergence_warnings: int
-
-
-def time_grid(n: int, steps: int, viscosity: float, repeats: int) -> ScalingRow:
+def time_grid(n: int, steps: int, viscosity: float, repeats: int) -> dict[str, Any]:
     """Median ms per step of a forward (no grad) and a forward + backward roll-out, interleaved."""
     gen = torch.Generator().manual_seed(SEED)
     forces, points = make_inputs(n, steps, gen)
@@ -146,21 +125,9 @@ def time_grid(n: int, steps: int, viscosity: float, repeats: int) -> ScalingRow:
     n_warn = sum(issubclass(w.category, ConvergenceWarning) for w in caught)
     f_ms = statistics.median(fwd) / steps * 1e3
     fb_ms = statistics.median(fb) / steps * 1e3
-    cells = n * n
-    return ScalingRow(
-        grid=n,
-        viscosity=viscosity,
-        steps=steps,
-        repeats=repeats,
-        forward_ms_per_step=f_ms,
-        forward_backward_ms_per_step=fb_ms,
-        forward_ns_per_cell_step=f_ms * 1e6 / cells,
-        forward_backward_ns_per_cell_step=fb_ms * 1e6 / cells,
-        backward_over_forward=fb_ms / f_ms,
-        viscosity_iters_per_step=statistics.mean(i for i, _ in out.iterations),
-        pressure_iters_per_step=statistics.mean(p for _, p in out.iterations),
-        convergence_warnings=n_warn,
-    )
+    return dict(grid=n, visc=viscosity, steps=steps, repeats=repeats, f=f_ms, fb=fb_ms, f_ns=f_ms * 1e6 / n**2,
+                fb_ns=fb_ms * 1e6 / n**2, ratio=fb_ms / f_ms, visc_it=statistics.mean(i for i, _ in out.iterations),
+                pres_it=statistics.mean(p for _, p in out.iterations), warn=n_warn)  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------------------- memory
@@ -279,16 +246,6 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     return result
 
 
-def run_child(spec: dict[str, Any]) -> dict[str, Any]:
-    """Run :func:`memory_child` in a fresh interpreter, so that its ``ru_maxrss`` is its own."""
-    proc = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)], capture_output=True, text=True
-    )
-    if proc.returncode != 0:
-        return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 def _ratio(a: float, b: float) -> float:
     return a / b if b > 0 else math.inf
 
@@ -314,25 +271,29 @@ def memory_benchmark(
     )
     runs: dict[str, Any] = {}
     log(f"  memory: adjoint, {steps} steps, rtol {rtol:g} ...")
-    runs["adjoint"] = run_child({**base, "steps": steps, "rtol": rtol, "backward": "implicit"})
+    runs["adjoint"] = run_child(__file__, {**base, "steps": steps, "rtol": rtol, "backward": "implicit"})
     log(f"  memory: adjoint, {steps} steps, rtol {rtol / tight_factor:g} ...")
-    runs["adjoint_tight"] = run_child({**base, "steps": steps, "rtol": rtol / tight_factor, "backward": "implicit"})
+    runs["adjoint_tight"] = run_child(
+        __file__, {**base, "steps": steps, "rtol": rtol / tight_factor, "backward": "implicit"}
+    )
     log(f"  memory: unrolled unpreconditioned CG, {steps} steps, rtol {rtol:g} (with a budget check) ...")
-    unrolled = run_child({**base, "steps": steps, "rtol": rtol, "backward": "unrolled"})
+    unrolled = run_child(__file__, {**base, "steps": steps, "rtol": rtol, "backward": "unrolled"})
     compare_steps = steps
     if unrolled.get("aborted"):
         runs["unrolled_attempt"] = unrolled
         compare_steps = unrolled["steps_that_fit"]
         log(f"  memory: the unrolled run would overrun its budget; both configs again on {compare_steps} steps ...")
-        runs["adjoint_short"] = run_child({**base, "steps": compare_steps, "rtol": rtol, "backward": "implicit"})
-        unrolled = run_child({**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled"})
+        runs["adjoint_short"] = run_child(
+            __file__, {**base, "steps": compare_steps, "rtol": rtol, "backward": "implicit"}
+        )
+        unrolled = run_child(__file__, {**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled"})
         log(f"  memory: unrolled on {compare_steps} steps again, counting what it saves (checks the count) ...")
         runs["unrolled_counted_short"] = run_child(
-            {**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
+            __file__, {**base, "steps": compare_steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
         )
         log(f"  memory: unrolled on all {steps} steps, counting what it saves (dropped, no backward) ...")
         runs["unrolled_counted"] = run_child(
-            {**base, "steps": steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
+            __file__, {**base, "steps": steps, "rtol": rtol, "backward": "unrolled", "count_only": True}
         )
     runs["unrolled"] = unrolled
     adjoint_cmp = runs.get("adjoint_short", runs["adjoint"])
@@ -368,196 +329,70 @@ def memory_benchmark(
 # ----------------------------------------------------------------------------------------------- report
 
 
-def report_scaling(rows: list[ScalingRow], overhead_grid: int) -> tuple[str, dict[str, Any]]:
-    out = ["Scaling (float32, CPU; median ms per step; iterations = CG iterations per step, forward)"]
-    out.append(
-        table(
-            [
-                "grid",
-                "visc",
-                "steps",
-                "reps",
-                "fwd ms/step",
-                "fwd+bwd ms/step",
-                "fwd ns/cell",
-                "f+b ns/cell",
-                "f+b / fwd",
-                "visc it",
-                "pres it",
-                "warn",
-            ],
-            [
-                [
-                    f"{r.grid}^2",
-                    f"{r.viscosity:g}",
-                    str(r.steps),
-                    str(r.repeats),
-                    f"{r.forward_ms_per_step:.2f}",
-                    f"{r.forward_backward_ms_per_step:.2f}",
-                    f"{r.forward_ns_per_cell_step:.1f}",
-                    f"{r.forward_backward_ns_per_cell_step:.1f}",
-                    f"{r.backward_over_forward:.2f}",
-                    f"{r.viscosity_iters_per_step:g}",
-                    f"{r.pressure_iters_per_step:g}",
-                    str(r.convergence_warnings),
-                ]
-                for r in rows
-            ],
-        )
-    )
-    grids = sorted({r.grid for r in rows})
-    big, mid = grids[-1], grids[-2]
-    targets: dict[str, Any] = {"per_cell": [], "overhead": []}
-    out.append(f"\nPer-cell cost {big}^2 / {mid}^2 (target: within 2x, i.e. <= 2)")
-    ratio_rows = []
-    for mu in sorted({r.viscosity for r in rows}):
-        rb = next(r for r in rows if r.grid == big and r.viscosity == mu)
-        rm = next(r for r in rows if r.grid == mid and r.viscosity == mu)
-        for what, a, b in [
-            ("forward", rb.forward_ns_per_cell_step, rm.forward_ns_per_cell_step),
-            ("fwd+bwd", rb.forward_backward_ns_per_cell_step, rm.forward_backward_ns_per_cell_step),
-        ]:
-            ratio = a / b
-            targets["per_cell"].append({"viscosity": mu, "pass": what, "ratio": ratio, "met": ratio <= 2.0})
-            ratio_rows.append([f"{mu:g}", what, f"{a:.1f}", f"{b:.1f}", f"{ratio:.2f}", verdict(ratio <= 2.0)])
-    out.append(table(["visc", "pass", f"{big}^2 ns/cell", f"{mid}^2 ns/cell", "ratio", "target"], ratio_rows))
-    out.append(f"\nBackward overhead at {overhead_grid}^2: (forward + backward) / forward (target: <= 3)")
-    oh_rows = []
-    for r in rows:
-        if r.grid == overhead_grid:
-            met = r.backward_over_forward <= 3.0
-            targets["overhead"].append(
-                {"viscosity": r.viscosity, "steps": r.steps, "ratio": r.backward_over_forward, "met": met}
-            )
-            oh_rows.append(
-                [
-                    f"{r.viscosity:g}",
-                    str(r.steps),
-                    f"{r.forward_ms_per_step * r.steps:.1f}",
-                    f"{r.forward_backward_ms_per_step * r.steps:.1f}",
-                    f"{r.backward_over_forward:.2f}",
-                    verdict(met),
-                ]
-            )
-    out.append(table(["visc", "steps", "fwd ms", "fwd+bwd ms", "ratio", "target"], oh_rows))
-    return "\n".join(out), targets
+def report_scaling(rows: list[dict[str, Any]], overhead_grid: int) -> None:
+    print("\nScaling (float32, CPU; median ms per step; it = CG iterations per step, forward)")
+    print(rows_table(rows, "grid {grid}^2 | visc {visc:g} | steps {steps} | reps {repeats} | fwd ms/step {f:.2f} | "
+          "fwd+bwd ms/step {fb:.2f} | fwd ns/cell {f_ns:.1f} | f+b ns/cell {fb_ns:.1f} | f+b / fwd {ratio:.2f} | "
+          "visc it {visc_it:g} | pres it {pres_it:g} | warn {warn}"))  # fmt: skip
+    big, mid = sorted({r["grid"] for r in rows})[-1:-3:-1]
+    at = {(r["grid"], r["visc"]): r for r in rows}
+    passes = (("forward", "f_ns"), ("fwd+bwd", "fb_ns"))
+    ratios = [dict(visc=mu, what=w, a=at[(big, mu)][k], b=at[(mid, mu)][k], r=at[(big, mu)][k] / at[(mid, mu)][k])
+              for mu in sorted({r["visc"] for r in rows}) for w, k in passes]  # fmt: skip
+    for r in ratios:
+        r["ok"] = verdict(r["r"] <= 2.0)
+    print(f"\nPer-cell cost {big}^2 / {mid}^2 (target: within 2x)")
+    print(rows_table(ratios, f"visc {{visc:g}} | pass {{what}} | {big}^2 ns/cell {{a:.1f}} | {mid}^2 ns/cell "
+          "{b:.1f} | ratio {r:.2f} | target {ok}"))  # fmt: skip
+    over = [dict(r, tf=r["f"] * r["steps"], tfb=r["fb"] * r["steps"], ok=verdict(r["ratio"] <= 3.0)) for r in rows
+            if r["grid"] == overhead_grid]  # fmt: skip
+    print(f"\nBackward overhead at {overhead_grid}^2: (forward + backward) / forward (target: <= 3)")
+    print(rows_table(over, "visc {visc:g} | steps {steps} | fwd ms {tf:.1f} | fwd+bwd ms {tfb:.1f} | ratio {ratio:.2f} "
+          "| target {ok}"))  # fmt: skip
 
 
-def report_memory(mem: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def report_memory(mem: dict[str, Any]) -> None:
     s, runs = mem["summary"], mem["runs"]
-    out = [f"Memory of a backward, {s['grid']}^2, viscosity field requiring grad (each config in its own process)"]
+    print(f"\nMemory of a backward, {s['grid']}^2, viscosity field requiring grad (each config in its own process)")
     if "unrolled_attempt" in runs:
         a = runs["unrolled_attempt"]
-        out.append(
-            f"NOTE: the unrolled run on {s['requested_steps']} steps was stopped by its budget after "
-            f"{a['steps_done']} step(s) ({a['forward_s_at_abort']:.1f} s of forward, RSS +"
-            f"{a['rss_growth_gib_at_abort']:.2f} GiB, {a['saved_gib_at_abort']:.2f} GiB saved for backward; budget "
-            f"{a['mem_budget_gib']:g} GiB / {a['time_budget_s']:g} s), so adjoint and unrolled are compared on "
-            f"{s['compared_steps']} steps; the tolerance check runs on {s['requested_steps']} steps."
-        )
-    measure = {r.get("peak_measure") for r in runs.values() if "peak_measure" in r}
-    out.append(
-        f"peak RSS +MiB = {'/'.join(sorted(measure))} after the backward minus RSS at the baseline; "
-        "ru_maxrss +MiB = the same with ru_maxrss (floored by the parent's RSS at launch, see the module doc)"
-    )
-    rows = []
-    order = [
-        ("adjoint_short", "adjoint (implicit)"),
-        ("unrolled", "unrolled plain CG"),
-        ("adjoint", "adjoint (implicit)"),
-        ("adjoint_tight", "adjoint (implicit)"),
-    ]
-    for key, label in order:
-        r = runs.get(key)
-        if r is None:
-            continue
-        if r.get("failed"):
-            rows.append(
-                [label, str(r["steps"]), f"{r['rtol']:g}", "FAILED", f"rc {r['returncode']}", "", "", "", "", "", ""]
-            )
-            continue
-        rows.append(
-            [
-                label,
-                str(r["steps"]),
-                f"{r['rtol']:g}",
-                f"{r['peak_rss_growth_mib']:.1f}",
-                f"{r['maxrss_growth_mib']:.1f}",
-                f"{r['saved_for_backward_mib']:.1f}",
-                f"{r['forward_s']:.1f}",
-                f"{r['backward_s']:.1f}",
-                f"{r['viscosity_iters_per_step']:.1f}",
-                f"{r['pressure_iters_per_step']:.1f}",
-                str(r["convergence_warnings"]),
-            ]
-        )
-    out.append(
-        table(
-            [
-                "config",
-                "steps",
-                "rtol",
-                "peak RSS +MiB",
-                "ru_maxrss +MiB",
-                "saved MiB",
-                "fwd s",
-                "bwd s",
-                "visc it",
-                "pres it",
-                "warn",
-            ],
-            rows,
-        )
-    )
-    targets: dict[str, Any] = {}
-    if "rss_ratio" in s:
-        met = s["rss_ratio"] >= 10 and s["saved_ratio"] >= 10
-        targets["adjoint_vs_unrolled"] = {
-            "rss_ratio": s["rss_ratio"],
-            "saved_ratio": s["saved_ratio"],
-            "met": met,
-            "steps": s["compared_steps"],
-        }
-        out.append(
-            f"\nunrolled / adjoint on {s['compared_steps']} steps: peak RSS growth {s['rss_ratio']:.1f}x, "
-            f"saved for backward {s['saved_ratio']:.1f}x (target: >= 10x) -> {verdict(met)}"
-        )
-        # "unchanged": within 10% on RSS (allocator noise) and within 1% on the deterministic saved bytes
-        met_t = abs(s["tight_rss_ratio"] - 1) <= 0.10 and abs(s["tight_saved_ratio"] - 1) <= 0.01
-        targets["tight_tolerance"] = {
-            "rss_ratio": s["tight_rss_ratio"],
-            "saved_ratio": s["tight_saved_ratio"],
-            "met": met_t,
-        }
-        out.append(
-            f"adjoint rtol {s['tight_rtol']:g} / rtol {s['rtol']:g} on {s['requested_steps']} steps: peak RSS "
-            f"growth {s['tight_rss_ratio']:.2f}x, saved {s['tight_saved_ratio']:.2f}x (target: unchanged, "
-            f"within 10% RSS / 1% saved) -> {verdict(met_t)}"
-        )
-        if "counted_saved_mib" in s:
-            c = runs["unrolled_counted"]
-            met_c = s["counted_vs_adjoint_rss"] >= 10
-            targets["adjoint_vs_unrolled_full_steps"] = {
-                "unrolled_saved_mib_lower_bound": s["counted_saved_mib"],
-                "ratio_lower_bound": s["counted_vs_adjoint_rss"],
-                "met": met_c,
-                "steps": s["requested_steps"],
-            }
-            out.append(
-                f"unrolled on all {s['requested_steps']} steps, saved tensors counted and dropped: "
-                f"{s['counted_saved_mib']:.1f} MiB saved for backward ({c['forward_s']:.0f} s of forward, "
-                f"{c['pressure_iters_per_step']:.1f} pressure iterations per step); autograd would hold all of it "
-                f"when its backward starts, so its peak is at least {s['counted_vs_adjoint_rss']:.1f}x the "
-                f"adjoint's peak RSS growth ({s['counted_vs_adjoint_saved']:.1f}x its saved bytes) "
-                f"(target: >= 10x) -> {verdict(met_c)}; the count, checked on {s['compared_steps']} steps against the "
-                f"run that kept its tensors: {s['count_check']:.5f}x"
-            )
-    else:
-        out.append("a memory run failed; see the JSON for its stderr")
-    return "\n".join(out), targets
+        print(f"NOTE: the unrolled run on {s['requested_steps']} steps was stopped by its budget after "
+              f"{a['steps_done']} step(s) ({a['forward_s_at_abort']:.1f} s of forward, RSS +"
+              f"{a['rss_growth_gib_at_abort']:.2f} GiB, {a['saved_gib_at_abort']:.2f} GiB saved for backward; budget "
+              f"{a['mem_budget_gib']:g} GiB / {a['time_budget_s']:g} s), so adjoint and unrolled are compared on "
+              f"{s['compared_steps']} steps; the tolerance check runs on {s['requested_steps']} steps.")  # fmt: skip
+    names = {"adjoint_short": "adjoint (implicit)", "unrolled": "unrolled plain CG", "adjoint": "adjoint (implicit)",
+             "adjoint_tight": "adjoint (implicit)"}  # fmt: skip
+    rows = [dict(r, config=c) for k, c in names.items() if (r := runs.get(k)) and not r.get("failed")]
+    print("peak RSS +MiB = VmHWM after the backward minus RSS at the baseline; ru_maxrss +MiB = the same with "
+          "ru_maxrss (floored by the parent's RSS at launch)")  # fmt: skip
+    print(rows_table(rows, "config {config} | steps {steps} | rtol {rtol:g} | peak RSS +MiB {peak_rss_growth_mib:.1f} |"
+          " ru_maxrss +MiB {maxrss_growth_mib:.1f} | saved MiB {saved_for_backward_mib:.1f} | fwd s {forward_s:.1f} "
+          "| bwd s {backward_s:.1f} | visc it {viscosity_iters_per_step:.1f} | pres it {pressure_iters_per_step:.1f}"
+          " | warn {convergence_warnings}"))  # fmt: skip
+    if "rss_ratio" not in s:
+        print("a memory run failed; see the JSON for its stderr")
+        return
+    met = s["rss_ratio"] >= 10 and s["saved_ratio"] >= 10
+    print(f"\nunrolled / adjoint on {s['compared_steps']} steps: peak RSS growth {s['rss_ratio']:.1f}x, saved for "
+          f"backward {s['saved_ratio']:.1f}x (target: >= 10x) -> {verdict(met)}")  # fmt: skip
+    # "unchanged": within 10% on RSS (allocator noise) and within 1% on the deterministic saved bytes
+    met_t = abs(s["tight_rss_ratio"] - 1) <= 0.10 and abs(s["tight_saved_ratio"] - 1) <= 0.01
+    print(f"adjoint rtol {s['tight_rtol']:g} / rtol {s['rtol']:g} on {s['requested_steps']} steps: peak RSS growth "
+          f"{s['tight_rss_ratio']:.2f}x, saved {s['tight_saved_ratio']:.2f}x (target: unchanged, within 10% RSS / 1% "
+          f"saved) -> {verdict(met_t)}")  # fmt: skip
+    if "counted_saved_mib" in s:
+        c = runs["unrolled_counted"]
+        print(f"unrolled on all {s['requested_steps']} steps, saved tensors counted and dropped: "
+              f"{s['counted_saved_mib']:.1f} MiB saved for backward ({c['forward_s']:.0f} s of forward, "
+              f"{c['pressure_iters_per_step']:.1f} pressure iterations per step): its peak is at least "
+              f"{s['counted_vs_adjoint_rss']:.1f}x the adjoint's peak RSS growth ({s['counted_vs_adjoint_saved']:.1f}x"
+              f" its saved bytes) (target: >= 10x) -> {verdict(s['counted_vs_adjoint_rss'] >= 10)}; the count, "
+              f"checked on {s['compared_steps']} steps against the run that kept its tensors: "
+              f"{s['count_check']:.5f}x")  # fmt: skip
 
 
-def plot_scaling(path: str, rows: list[ScalingRow], title: str) -> None:
+def plot_scaling(path: str, rows: list[dict[str, Any]], title: str) -> None:
     """ms per step against grid size, forward and forward + backward, log-log, written to ``path`` (PNG)."""
     import matplotlib
 
@@ -565,22 +400,16 @@ def plot_scaling(path: str, rows: list[ScalingRow], title: str) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
-    for mu, color in zip(sorted({r.viscosity for r in rows}), ["#1b9e77", "#d95f02", "#7570b3"]):
-        rs = sorted((r for r in rows if r.viscosity == mu), key=lambda r: r.grid)
-        n = [r.grid for r in rs]
-        ax.plot(n, [r.forward_ms_per_step for r in rs], "o-", color=color, label=f"forward, viscosity {mu:g}")
-        ax.plot(
-            n,
-            [r.forward_backward_ms_per_step for r in rs],
-            "s--",
-            color=color,
-            label=f"forward + backward, viscosity {mu:g}",
-        )
+    grids = sorted({r["grid"] for r in rows})
+    for mu, color in zip(sorted({r["visc"] for r in rows}), ["#1b9e77", "#d95f02", "#7570b3"]):
+        rs = sorted((r for r in rows if r["visc"] == mu), key=lambda r: r["grid"])
+        n = [r["grid"] for r in rs]
+        ax.plot(n, [r["f"] for r in rs], "o-", color=color, label=f"forward, viscosity {mu:g}")
+        ax.plot(n, [r["fb"] for r in rs], "s--", color=color, label=f"forward + backward, viscosity {mu:g}")
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
-    ax.set_xticks(sorted({r.grid for r in rows}), [f"{g}^2" for g in sorted({r.grid for r in rows})])
-    ax.set_xlabel("grid (cells)")
-    ax.set_ylabel("ms per step (median)")
+    ax.set_xticks(grids, [f"{g}^2" for g in grids])
+    ax.set(xlabel="grid (cells)", ylabel="ms per step (median)")
     ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
@@ -588,96 +417,43 @@ def plot_scaling(path: str, rows: list[ScalingRow], title: str) -> None:
     save_figure(fig, path)
 
 
-# ----------------------------------------------------------------------------------------------- main
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true", help="smoke mode: small grids, few steps and repeats")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument("--plot", metavar="PATH.png", help="also plot ms per step against grid size to PATH.png")
-    add_threads_argument(parser)
-    parser.add_argument(
-        "--mem-budget-gib",
-        type=float,
-        default=8.0,
-        help="projected peak RSS growth above which the unrolled memory run is shortened",
-    )
-    parser.add_argument(
-        "--time-budget-s",
-        type=float,
-        default=150.0,
-        help="projected run time above which the unrolled memory run is shortened",
-    )
-    parser.add_argument("--memory-only", action="store_true", help="skip the timings; run only the memory part")
-    parser.add_argument("--_child", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    p = parser(__doc__, quick="grids 16^2 to 64^2, few steps and repeats; a 32^2 memory run")
+    p.add_argument("--plot", metavar="PATH.png", help="also plot ms per step against grid size to PATH.png")
+    p.add_argument("--mem-budget-gib", type=float, default=8.0, help="projected peak RSS growth above which the "
+                   "unrolled memory run is shortened")  # fmt: skip
+    p.add_argument("--time-budget-s", type=float, default=150.0, help="projected run time above which the unrolled "
+                   "memory run is shortened")  # fmt: skip
+    p.add_argument("--memory-only", action="store_true", help="skip the timings; run only the memory part")
+    p.add_argument("--_child", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
     if args._child:
         print(json.dumps(memory_child(json.loads(args._child))))
         return 0
-
-    torch.set_num_threads(args.threads)
     if args.quick:
         plan = [(16, 6, 3), (32, 4, 3), (64, 2, 2)]  # (grid, steps, repeats)
         overhead_grid, mem = 16, dict(n=32, steps=6, mem_budget_gib=1.0, time_budget_s=20.0)
     else:
         plan = [(64, 10, 7), (256, 5, 5), (1024, 3, 3)]
-        overhead_grid, mem = (
-            64,
-            dict(n=256, steps=50, mem_budget_gib=args.mem_budget_gib, time_budget_s=args.time_budget_s),
-        )
-    info = machine()
-    print(
-        f"bench_fluid: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
-        f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
-        + (" [--quick]" if args.quick else ""),
-        flush=True,
-    )
-    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
-
-    t0 = time.perf_counter()
+        overhead_grid, mem = 64, dict(n=256, steps=50, mem_budget_gib=args.mem_budget_gib,
+                                      time_budget_s=args.time_budget_s)  # fmt: skip
+    info = start("bench_fluid", args.threads, " [--quick]" if args.quick else "")
     rows = []
     for n, steps, reps in [] if args.memory_only else plan:
         for mu in (0.0, CONSTANT_VISCOSITY):
             log(f"  scaling: {n}^2, viscosity {mu:g}, {steps} steps x {reps} repeats ...")
             rows.append(time_grid(n, steps, mu, reps))
-    text_s, targets_s = report_scaling(rows, overhead_grid) if rows else ("", {})
-    print("\n" + text_s, flush=True)
+    if rows:
+        report_scaling(rows, overhead_grid)
     if args.plot and rows:
-        title = f"Fluid step, float32, {info['torch_threads']} thread(s), {info['cpu']}, {info['date'][:10]}"
-        plot_scaling(args.plot, rows, title)
-        print(f"plot written to {args.plot}", flush=True)
-
-    memory = memory_benchmark(
-        mem["n"],
-        mem["steps"],
-        rtol=1e-5,
-        tight_factor=100.0,
-        threads=args.threads,
-        mem_budget_gib=mem["mem_budget_gib"],
-        time_budget_s=mem["time_budget_s"],
-        unrolled_max_iter=2000,
-        log=log,
-    )
-    text_m, targets_m = report_memory(memory)
-    print("\n" + text_m)
-    total = time.perf_counter() - t0
-    print(f"\ntotal {total:.0f} s")
-
-    if args.json:
-        result = {
-            "machine": info,
-            "args": {k: v for k, v in vars(args).items() if k != "_child"},
-            "scaling": [asdict(r) for r in rows],
-            "memory": memory,
-            "targets": {**targets_s, **targets_m},
-            "total_s": total,
-        }
-        write_json(args.json, result)
+        plot_scaling(args.plot, rows, f"Fluid step, float32, {info['torch_threads']} thread(s), {info['cpu']}, "
+                     f"{info['date'][:10]}")  # fmt: skip
+    memory = memory_benchmark(mem["n"], mem["steps"], rtol=1e-5, tight_factor=100.0, threads=args.threads,
+                              mem_budget_gib=mem["mem_budget_gib"], time_budget_s=mem["time_budget_s"],
+                              unrolled_max_iter=2000, log=log)  # fmt: skip
+    report_memory(memory)
+    finish(info, dict(args={k: v for k, v in vars(args).items() if k != "_child"}, scaling=rows, memory=memory),
+           args.json)  # fmt: skip
     return 0
 
 

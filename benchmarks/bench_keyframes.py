@@ -1,1117 +1,318 @@
 """Benchmark of keyframe control: the paper's morphing set-up, fitted with :func:`fit_keyframes`.
 
-The set-up (from the issue): a 64x64 fluid, 10 steps, the paper's 500 control parameters
-(``ControlGrid`` with ``control=(5, 5)``), 14 points in a 64x64-pixel frame, targets 5 to 10 px away.
-Targets: a mean final error below 0.05 px and the whole fit under 3 s (the issue quotes 5 minutes for the
-paper). The fit stops once every point is within ``--tolerance`` px (0.05 by default), which implies the
-mean target whenever it is reached.
+The set-up (from the issue): a 64x64 fluid, 10 steps, the paper's 500 control parameters (``control=(5, 5)``),
+14 points in a 64x64-pixel frame, targets 5 to 10 px away. Targets: a mean final error below 0.05 px and the
+whole fit under 3 s (the issue quotes 5 minutes for the paper); issue #20: a median fit of 0.25 s. The fit stops
+once every point is within ``--tolerance`` px.
 
-**Problem instances.** The 0.05 px target only means something if the targets can be reached by an
-incompressible flow, so most instances are made by a flow:
+Instances (``_common.flow_instance``): *flow* instances, one per seed, whose targets a brush-driven flow of the
+library's own ``FluidWarp`` reaches, and one *random* instance (seed 1000) whose targets lie in random directions
+and may be unreachable (reported, no target).
 
-* *flow* instances (one per seed): four random steady Gaussian :class:`~torchfluidwarp.warp.forces.Brushes`
-  drive the library's own :class:`~torchfluidwarp.warp.layer.FluidWarp` (same fluid grid and step count as the fit,
-  float64). Candidate points lie on a jittered 1-px lattice at least 6 px from the walls; the brushes' strength
-  is scaled (bisection) so that 60% of the candidates move less than 7.5 px; then 14 sources are chosen in
-  random order among the candidates that move 5 to 10 px, at least 6 px apart. The targets are where the flow
-  carries them. The brushes are not the fit's control grid, so the fit does not merely recover the forces
-  that made the targets.
-* one *random* instance: sources drawn the same way (uniform, 6 px from the walls, 6 px apart), each target
-  5 to 10 px away in a uniformly random direction (inside the frame, 1 px from the walls). A flow need not
-  carry the points there (nearby points may be asked to cross), so this instance may be partly unreachable:
-  it is reported separately and carries no target.
-
-**Measurements.**
-
-1. Each instance is fitted in float64 and in float32, with ``method="auto"`` (the quasi-Newton start of
-   :mod:`torchfluidwarp.control.newton`, then L-BFGS if it stalls) and ``"lbfgs"`` (L-BFGS alone),
-   ``--repeats`` times, the repeats interleaved over all instances, dtypes and methods. Reported: mean and max
-   final error (px), the start's roll-outs (forwards, no autograd) and L-BFGS' evaluations (objective +
-   gradient), the median wall time of the fit against issue #20's 0.25 s, ms per evaluation, and
-   ``converged`` / ``reached`` as the fit reports them, and the ratio of the methods' median times.
-2. The cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), for
-   each dtype and control size, on the forces fitted to the first flow instance; interleaved repeats, medians.
-3. The same fit of the first flow instance with ``control=(3, 3)``, ``(5, 5)`` and ``(8, 8)`` (180, 500 and
-   1280 parameters), interleaved, to show that the time per evaluation does not grow with the parameter count.
-4. Peak memory of a fit of the first flow instance, per dtype, each in a fresh subprocess: ``VmHWM`` after the
-   fit minus ``VmRSS`` at a baseline taken after imports, a tiny warm-up fit and building the inputs (``VmHWM``
-   reset there through ``/proc/self/clear_refs``).
-5. The first fit of the first flow instance (float32) in a fresh subprocess, against the same fit repeated warm
-   in it: wall times of the whole calls (target of issue #20: at most 1.2x).
-
-Run ``python benchmarks/bench_keyframes.py --help`` for the options.
+1. Each instance fitted in float64 and float32 with ``method="auto"`` (the quasi-Newton start, then L-BFGS if it
+   stalls) and ``"lbfgs"``, ``--repeats`` times interleaved: errors, roll-outs, evaluations, wall and CPU time.
+2. One gradient (forward + backward of the objective) over one no-grad forward, at the forces fitted to the
+   first flow instance, per dtype and control size; interleaved repeats, medians.
+3. The first flow instance fitted with each of ``--controls`` (float64, L-BFGS): does the time per evaluation
+   grow with the parameter count?
+4. Peak memory of a fit, per dtype, each in a fresh process (``VmHWM`` reset at a baseline after imports, a tiny
+   warm-up fit and the inputs), with the warm-up's wall time (the first call of a process).
+5. The first fit (float32) of each of 5 fresh processes against the same fit warm (target: at most 1.2x).
 """
 
 from __future__ import annotations
 
 import argparse
-import gc
-import json
 import math
-import os
 import statistics
-import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
 import torch
 from _common import (
-    add_threads_argument,
-    describe_load,
-    machine,
-    machine_load,
+    FRAME,
+    Instance,
+    finish,
+    flow_instance,
+    interleaved,
+    log,
+    median_ms,
+    parser,
+    random_instance,
     reset_peak,
-    source_fingerprint,
+    rows_table,
+    run_child,
+    start,
     status_kib,
-    table,
     verdict,
-    write_json,
+    yes,
 )
-from torch import Tensor
 
 from torchfluidwarp.control import fit_keyframes, keyframe_loss
-from torchfluidwarp.warp import Brushes, FluidWarp
 
-FRAME = (64, 64)  # image size, pixels
-MARGIN = 6.0  # px: sources at least this far from the walls
-SPACING = 6.0  # px: sources at least this far apart
-DISPLACEMENT = (5.0, 10.0)  # px
-N_BRUSHES = 4
-TARGET_MEAN_PX = 0.05
-TARGET_SECONDS = 3.0
-TARGET_MEDIAN_SECONDS = 0.25  # issue #20: the median fit of the reachable instances
-METHODS = ("auto", "lbfgs")  # fit_keyframes' quasi-Newton start (then L-BFGS if it stalls), and L-BFGS alone
+TARGET_MEAN_PX, TARGET_SECONDS, TARGET_MEDIAN_SECONDS = 0.05, 3.0, 0.25
 PAPER_SECONDS = 300.0  # the issue's figure for the paper, quoted, not measured
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+METHODS = ("auto", "lbfgs")
+FIRST_FIT_PROCESSES = 5  # one process's first call varies with the machine's load: the median of 5 is read
 
 
-# ----------------------------------------------------------------------------------------------- instances
+def fit_kwargs(cfg: dict[str, Any], dtype: torch.dtype, control: tuple[int, int], method: str = "auto") -> dict:
+    return dict(image_size=FRAME, grid=tuple(cfg["grid"]), steps=cfg["steps"], control=tuple(control),
+                max_iter=cfg["max_iter"], tolerance=cfg["tolerance"], dtype=dtype, progress=False, method=method,
+                viscosity=cfg["viscosity"], compressible=cfg["compressible"])  # fmt: skip
 
 
-@dataclass
-class Instance:
-    """One problem: ``source`` and ``target`` ``(M, 2)`` in pixels, and how it was made."""
-
-    name: str
-    kind: str  # "flow" or "random"
-    seed: int
-    source: list[list[float]]
-    target: list[list[float]]
-    min_displacement: float = 0.0
-    max_displacement: float = 0.0
-    min_spacing: float = 0.0
-    min_wall_distance_target: float = 0.0
-    brush_scale: float | None = None
-    attempts: int = 1
-
-    def tensors(self, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
-        return torch.tensor(self.source, dtype=dtype), torch.tensor(self.target, dtype=dtype)
-
-    def describe(self) -> None:
-        src, tgt = self.tensors(torch.float64)
-        d = (tgt - src).norm(dim=-1)
-        self.min_displacement, self.max_displacement = float(d.min()), float(d.max())
-        pair = torch.cdist(src, src) + torch.eye(len(src), dtype=src.dtype) * 1e9
-        self.min_spacing = float(pair.min())
-        H, W = FRAME
-        walls = torch.stack([tgt[:, 0] + 0.5, W - 0.5 - tgt[:, 0], tgt[:, 1] + 0.5, H - 0.5 - tgt[:, 1]])
-        self.min_wall_distance_target = float(walls.min())
+def tiny_fit(dtype: torch.dtype) -> Any:
+    """A 3-iteration fit on an 8x8 fluid: loads every code path (autograd, L-BFGS, FFT and BLAS kernels)."""
+    a, b = torch.tensor([[10.0, 10.0]]), torch.tensor([[12.0, 10.0]])
+    return fit_keyframes(a, b, image_size=(24, 24), grid=8, steps=2, control=(3, 3), max_iter=3, dtype=dtype,
+                         progress=False)  # fmt: skip
 
 
-def _greedy_pick(points: Tensor, ok: Tensor, m: int, gen: torch.Generator) -> list[int]:
-    """Indices of up to ``m`` points with ``ok``, visited in random order, at least ``SPACING`` apart."""
-    chosen: list[int] = []
-    for i in torch.randperm(len(points), generator=gen).tolist():
-        if not ok[i]:
-            continue
-        if all(float((points[i] - points[j]).norm()) >= SPACING for j in chosen):
-            chosen.append(i)
-            if len(chosen) == m:
-                break
-    return chosen
-
-
-def flow_instance(seed: int, m: int, grid: tuple[int, int], steps: int, max_attempts: int = 20) -> Instance:
-    """Targets made by carrying the sources through a random brush-driven flow (see the module doc)."""
-    H, W = FRAME
-    lo, hi = DISPLACEMENT
-    warp = FluidWarp(grid, steps, image_size=FRAME).double()
-    for attempt in range(max_attempts):
-        gen = torch.Generator().manual_seed(10_000 * seed + attempt)
-        centers = MARGIN + torch.rand(N_BRUSHES, 2, generator=gen, dtype=torch.float64) * torch.tensor(
-            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64
-        )
-        angle = torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64) * 2 * math.pi
-        radius = 8.0 + 8.0 * torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
-        base = 0.5 + torch.rand(N_BRUSHES, generator=gen, dtype=torch.float64)
-        brushes = Brushes(centers, torch.stack([angle.cos(), angle.sin()], -1), radius=radius, amplitude=base).double()
-        ys, xs = torch.meshgrid(
-            torch.arange(MARGIN, H - MARGIN, dtype=torch.float64),
-            torch.arange(MARGIN, W - MARGIN, dtype=torch.float64),
-            indexing="ij",
-        )
-        cand = torch.stack([xs, ys], -1).reshape(-1, 2)
-        cand = (cand + torch.rand(cand.shape, generator=gen, dtype=torch.float64) - 0.5).clamp(
-            torch.tensor([MARGIN, MARGIN], dtype=torch.float64),
-            torch.tensor([W - 1 - MARGIN, H - 1 - MARGIN], dtype=torch.float64),
-        )
-
-        def carry(scale: float) -> Tensor:
-            with torch.no_grad():
-                brushes.amplitude.copy_(base * scale)
-                return warp.carry_points(cand[None], brushes)[0, -1]  # (N, 2) pixels
-
-        s_lo, s_hi = 0.0, 4.0
-        for _ in range(16):  # the displacement grows about linearly with the strength
-            s = 0.5 * (s_lo + s_hi)
-            if float((carry(s) - cand).norm(dim=-1).quantile(0.6)) < 0.5 * (lo + hi):
-                s_lo = s
-            else:
-                s_hi = s
-        end = carry(s_hi)
-        d = (end - cand).norm(dim=-1)
-        chosen = _greedy_pick(cand, (d >= lo) & (d <= hi), m, gen)
-        if len(chosen) == m:
-            inst = Instance(
-                name=f"flow seed {seed}",
-                kind="flow",
-                seed=seed,
-                source=cand[chosen].tolist(),
-                target=end[chosen].tolist(),
-                brush_scale=s_hi,
-                attempts=attempt + 1,
-            )
-            inst.describe()
-            return inst
-    raise RuntimeError(f"no flow instance with {m} points for seed {seed} in {max_attempts} attempts")
-
-
-def random_instance(seed: int, m: int) -> Instance:
-    """Sources spread over the frame; targets 5 to 10 px away in random directions (maybe unreachable)."""
-    H, W = FRAME
-    lo, hi = DISPLACEMENT
-    gen = torch.Generator().manual_seed(seed)
-    src: list[Tensor] = []
-    while len(src) < m:
-        p = MARGIN + torch.rand(2, generator=gen, dtype=torch.float64) * torch.tensor(
-            [W - 1 - 2 * MARGIN, H - 1 - 2 * MARGIN], dtype=torch.float64
-        )
-        if all(float((p - q).norm()) >= SPACING for q in src):
-            src.append(p)
-    tgt: list[Tensor] = []
-    for p in src:
-        while True:
-            a = float(torch.rand((), generator=gen, dtype=torch.float64)) * 2 * math.pi
-            r = lo + float(torch.rand((), generator=gen, dtype=torch.float64)) * (hi - lo)
-            q = p + r * torch.tensor([math.cos(a), math.sin(a)], dtype=torch.float64)
-            if 0.5 <= float(q[0]) <= W - 1.5 and 0.5 <= float(q[1]) <= H - 1.5:  # 1 px inside the frame
-                tgt.append(q)
-                break
-    inst = Instance(
-        name=f"random seed {seed}",
-        kind="random",
-        seed=seed,
-        source=torch.stack(src).tolist(),
-        target=torch.stack(tgt).tolist(),
-    )
-    inst.describe()
-    return inst
-
-
-# ----------------------------------------------------------------------------------------------- fits
-
-
-@dataclass
-class FitRun:
-    """One fit (one repeat)."""
-
-    seconds: float
-    cpu_seconds: float
-    evaluations: int
-    forwards: int
-    mean_error: float
-    max_error: float
-    converged: bool
-    reached: bool
-    final_loss: float
-
-
-def run_fit(
-    inst: Instance, dtype: torch.dtype, cfg: dict[str, Any], control: tuple[int, int], method: str = "auto"
-) -> tuple[FitRun, Any]:
-    src, tgt = inst.tensors(dtype)
+def run_fit(inst: Instance, dtype: str, cfg: dict, control: tuple[int, int], method: str) -> tuple[dict, Any]:
+    src, tgt = inst.tensors(DTYPES[dtype])
     cpu0 = time.process_time()
-    fit = fit_keyframes(
-        src,
-        tgt,
-        image_size=FRAME,
-        grid=cfg["grid"],
-        steps=cfg["steps"],
-        control=control,
-        max_iter=cfg["max_iter"],
-        tolerance=cfg["tolerance"],
-        dtype=dtype,
-        progress=False,
-        method=method,
-        viscosity=cfg["viscosity"],
-        compressible=cfg["compressible"],
-    )
-    cpu = time.process_time() - cpu0
-    run = FitRun(
-        seconds=fit.seconds,
-        cpu_seconds=cpu,
-        evaluations=fit.evaluations,
-        forwards=fit.forwards,
-        mean_error=float(fit.error.mean()),
-        max_error=float(fit.error.max()),
-        converged=fit.converged,
-        reached=fit.reached,
-        final_loss=fit.loss_history[-1] if fit.loss_history else math.nan,
-    )
+    fit = fit_keyframes(src, tgt, **fit_kwargs(cfg, DTYPES[dtype], control, method))
+    run = dict(seconds=fit.seconds, cpu=time.process_time() - cpu0, evals=fit.evaluations, forwards=fit.forwards,
+               mean=float(fit.error.mean()), max=float(fit.error.max()), converged=fit.converged,
+               reached=fit.reached)  # fmt: skip
     return run, fit
 
 
-@dataclass
-class FitRow:
-    """Medians over the repeats of one instance, dtype and control."""
-
-    instance: str
-    kind: str
-    dtype: str
-    method: str
-    control: tuple[int, int]
-    parameters: int
-    repeats: int
-    seconds: float
-    cpu_seconds: float
-    evaluations: int
-    forwards: int
-    ms_per_evaluation: float
-    cpu_ms_per_evaluation: float
-    mean_error: float
-    max_error: float
-    converged: bool
-    reached: bool
-    deterministic: bool
-    seconds_all: list[float] = field(default_factory=list)
-
-
-def summarise_fits(
-    inst: Instance, dtype: str, control: tuple[int, int], steps: int, runs: list[FitRun], method: str = "lbfgs"
-) -> FitRow:
-    """Medians over repeats. ``ms_per_evaluation`` divides the time by the L-BFGS evaluations (the forwards of a
-    quasi-Newton start excluded), so it reads as the cost of one gradient only for ``method="lbfgs"``."""
+def summarise(inst: Instance, dtype: str, method: str, control: tuple[int, int], steps: int, runs: list) -> dict:
+    """Medians over the repeats; ms/eval divides by L-BFGS' evaluations only (the start's roll-outs excluded)."""
+    med = {k: statistics.median(r[k] for r in runs) for k in ("seconds", "cpu", "evals", "forwards")}
     first = runs[0]
-    same = all(
-        (r.evaluations, r.forwards, r.mean_error, r.max_error, r.reached)
-        == (first.evaluations, first.forwards, first.mean_error, first.max_error, first.reached)
-        for r in runs
-    )
-    secs = statistics.median(r.seconds for r in runs)
-    cpu = statistics.median(r.cpu_seconds for r in runs)
-    evals = int(statistics.median(r.evaluations for r in runs))
-    return FitRow(
-        instance=inst.name,
-        kind=inst.kind,
-        dtype=dtype,
-        method=method,
-        control=control,
-        parameters=2 * steps * control[0] * control[1],
-        repeats=len(runs),
-        seconds=secs,
-        cpu_seconds=cpu,
-        evaluations=evals,
-        forwards=int(statistics.median(r.forwards for r in runs)),
-        ms_per_evaluation=secs / evals * 1e3 if evals else math.nan,
-        cpu_ms_per_evaluation=cpu / evals * 1e3 if evals else math.nan,
-        mean_error=first.mean_error,
-        max_error=first.max_error,
-        converged=first.converged,
-        reached=first.reached,
-        deterministic=same,
-        seconds_all=[r.seconds for r in runs],
-    )
+    same = all((r["evals"], r["forwards"], r["mean"], r["reached"]) == (first["evals"], first["forwards"],
+               first["mean"], first["reached"]) for r in runs)  # fmt: skip
+    ev = med["evals"]
+    return dict(instance=inst.name, kind=inst.kind, dtype=dtype, method=method, control=f"{control[0]}x{control[1]}",
+                params=2 * steps * control[0] * control[1], **med, mean=first["mean"], max=first["max"],
+                ms_eval=med["seconds"] / ev * 1e3 if ev else math.nan, cpu_ms_eval=med["cpu"] / ev * 1e3 if ev else
+                math.nan, converged=yes(first["converged"]), reached=yes(first["reached"]), same=yes(same),
+                ok_mean=verdict(first["mean"] < TARGET_MEAN_PX), ok_time=verdict(med["seconds"] < TARGET_SECONDS),
+                seconds_all=[r["seconds"] for r in runs])  # fmt: skip
 
 
-# ----------------------------------------------------------------------------------------------- gradient cost
-
-
-@dataclass
-class GradRow:
-    dtype: str
-    control: tuple[int, int]
-    parameters: int
-    repeats: int
-    forward_ms: float
-    gradient_ms: float
-    ratio: float
-    forward_cpu_ms: float
-    gradient_cpu_ms: float
-    ratio_cpu: float
-
-
-def time_gradient(
-    inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int
-) -> list[GradRow]:
+def time_gradient(inst: Instance, fits: dict[tuple[str, tuple[int, int]], Any], steps: int, repeats: int) -> list:
     """Forward (no grad) against forward + backward of the fit's objective, at each fit's own forces."""
-    cases = []
-    for (dtype_name, control), fit in fits.items():
-        src, tgt = inst.tensors(DTYPES[dtype_name])
-        src, tgt = src[None], tgt[None]
-        warp, forces = fit.warp, fit.forces
-        params = [p for p in forces.parameters() if p.requires_grad]
+    cases = {}
+    for (dtype, control), fit in fits.items():
+        src, tgt = (x[None] for x in inst.tensors(DTYPES[dtype]))
+        params = [p for p in fit.forces.parameters() if p.requires_grad]
 
-        def forward(warp=warp, forces=forces, src=src) -> None:
+        def forward(fit=fit, src=src) -> None:
             with torch.no_grad():
-                warp.carry_points(src, forces)
+                fit.warp.carry_points(src, fit.forces)
 
-        def gradient(warp=warp, forces=forces, src=src, tgt=tgt, params=params) -> None:
+        def gradient(fit=fit, src=src, tgt=tgt, params=params) -> None:
             for p in params:
                 p.grad = None
-            keyframe_loss(warp.carry_points(src, forces), [(steps, tgt)]).backward()
+            keyframe_loss(fit.warp.carry_points(src, fit.forces), [(steps, tgt)]).backward()
 
-        forward()
-        gradient()  # warm-up
-        cases.append((dtype_name, control, forward, gradient, [], []))
-    for _ in range(repeats):
-        for _dt, _c, forward, gradient, f_times, g_times in cases:
-            t0, c0 = time.perf_counter(), time.process_time()
-            forward()
-            t1, c1 = time.perf_counter(), time.process_time()
-            gradient()
-            t2, c2 = time.perf_counter(), time.process_time()
-            f_times.append((t1 - t0, c1 - c0))
-            g_times.append((t2 - t1, c2 - c1))
+        cases[(dtype, control, "f")], cases[(dtype, control, "g")] = forward, gradient
+    times = interleaved(cases, repeats)  # type: ignore[arg-type]
     rows = []
-    for dtype_name, control, _f, _g, f_times, g_times in cases:
-        f, g = (statistics.median(t[0] for t in x) * 1e3 for x in (f_times, g_times))
-        fc, gc_ = (statistics.median(t[1] for t in x) * 1e3 for x in (f_times, g_times))
-        rows.append(
-            GradRow(
-                dtype=dtype_name,
-                control=control,
-                parameters=2 * steps * control[0] * control[1],
-                repeats=repeats,
-                forward_ms=f,
-                gradient_ms=g,
-                ratio=g / f,
-                forward_cpu_ms=fc,
-                gradient_cpu_ms=gc_,
-                ratio_cpu=gc_ / fc,
-            )
-        )
-    return rows
+    for dtype, control in fits:
+        f, g = (times[(dtype, control, k)] for k in "fg")
+        fw, gw, fc, gc = median_ms(t[0] for t in f), median_ms(t[0] for t in g), median_ms(t[1] for t in f), median_ms(
+            t[1] for t in g)  # fmt: skip
+        rows.append(dict(dtype=dtype, control=f"{control[0]}x{control[1]}", params=2 * steps * control[0] * control[1],
+                         fwd=fw, grad=gw, ratio=gw / fw, fwd_cpu=fc, grad_cpu=gc, ratio_cpu=gc / fc,
+                         ok=verdict(gw / fw <= 2.0)))  # fmt: skip
+    return sorted(rows, key=lambda r: (r["dtype"], r["params"]))
 
 
-# ----------------------------------------------------------------------------------------------- memory
-
-
-def child_fit_kwargs(spec: dict[str, Any], dtype: torch.dtype) -> dict[str, Any]:
-    """``fit_keyframes``' keyword arguments for the paper's fit described by a child's ``spec``."""
-    return dict(
-        image_size=FRAME,
-        grid=tuple(spec["grid"]),
-        steps=spec["steps"],
-        control=tuple(spec["control"]),
-        max_iter=spec["max_iter"],
-        tolerance=spec["tolerance"],
-        dtype=dtype,
-        progress=False,
-        viscosity=spec["viscosity"],
-        compressible=spec["compressible"],
-    )
-
-
-def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
-    """One fit in this (fresh) process; peak RSS growth over a baseline taken just before it."""
-    torch.set_num_threads(spec["threads"])
-    dtype = DTYPES[spec["dtype"]]
-    inst = Instance(**spec["instance"])
-    # warm-up on a tiny problem loads every code path (autograd, L-BFGS, FFT and BLAS kernels); timed, as the
-    # one-time cost of the first fit in a process (fit.seconds starts after the optimiser is built)
-    t0 = time.perf_counter()
-    tiny = fit_keyframes(
-        torch.tensor([[10.0, 10.0]]),
-        torch.tensor([[12.0, 10.0]]),
-        image_size=(24, 24),
-        grid=8,
-        steps=2,
-        control=(3, 3),
-        max_iter=3,
-        dtype=dtype,
-        progress=False,
-    )
-    first_call_s, first_fit_s = time.perf_counter() - t0, tiny.seconds
-    src, tgt = inst.tensors(dtype)
-    gc.collect()
-    hwm_reset = reset_peak()
-    base = status_kib("VmRSS")
-    fit = fit_keyframes(src, tgt, **child_fit_kwargs(spec, dtype))
-    peak = status_kib("VmHWM")
-    return {
-        **{k: v for k, v in spec.items() if k != "instance"},
-        "instance": inst.name,
-        "peak_measure": "VmHWM" if hwm_reset else "VmHWM (not reset: includes the warm-up)",
-        "baseline_rss_mib": base / 1024,
-        "peak_rss_mib": peak / 1024,
-        "peak_rss_growth_mib": (peak - base) / 1024,
-        "evaluations": fit.evaluations,
-        "seconds": fit.seconds,
-        "reached": fit.reached,
-        "first_call_wall_s": first_call_s,
-        "first_call_fit_seconds": first_fit_s,
-    }
-
-
-def first_fit_child(spec: dict[str, Any]) -> dict[str, Any]:
-    """The paper's fit as the first fit of this (fresh) process, then the same fit warm: wall times of the calls."""
+def child(spec: dict[str, Any]) -> dict[str, Any]:
+    """In a fresh process: the memory of one fit (``kind`` "memory") or the first fit against warm ones."""
     torch.set_num_threads(spec["threads"])
     dtype = DTYPES[spec["dtype"]]
     src, tgt = Instance(**spec["instance"]).tensors(dtype)
-    kwargs = child_fit_kwargs(spec, dtype)
-    walls, evals = [], []
-    for _ in range(1 + spec["warm_repeats"]):
-        t0 = time.perf_counter()
-        fit = fit_keyframes(src, tgt, **kwargs)
-        walls.append(time.perf_counter() - t0)
-        evals.append(fit.evaluations)
-    warm = statistics.median(walls[1:])
-    return {
-        **{k: v for k, v in spec.items() if k != "instance"},
-        "first_wall_s": walls[0],
-        "warm_wall_s": warm,
-        "first_over_warm": walls[0] / warm,
-        "evaluations": evals,
-        "dynamo_imported": "torch._dynamo" in sys.modules,
-    }
-
-
-FIRST_FIT_PROCESSES = 5
-"""Fresh processes of the first-fit section: one process's first call varies with what else the machine does
-(1.05-1.12x in six processes here, and once 1.44x), so the section reports their median."""
-
-
-def report_first_fit(runs: list[dict[str, Any]]) -> str:
-    failed = [r for r in runs if r.get("failed")]
-    if failed:
-        return f"### First fit of a process\n\nfailed: {failed[0].get('stderr_tail', '')}"
-    ratios = [r["first_over_warm"] for r in runs]
-    ratio = statistics.median(ratios)
-    return "\n".join(
-        [
-            "### First fit of a process",
-            "",
-            "The paper's fit of the first flow instance (float32) as the first `fit_keyframes` call of a fresh process "
-            f"(imports done, nothing warmed up), then the same fit again; wall times of the whole calls, in each of "
-            f"{len(runs)} fresh processes one after another; the target is read on the median ratio.",
-            "",
-            table(
-                [
-                    "process",
-                    "first fit s",
-                    f"warm fit s (median of {runs[0]['warm_repeats']})",
-                    "first / warm",
-                    "evaluations",
-                    "`torch._dynamo` imported",
-                ],
-                [
-                    [
-                        str(k + 1),
-                        f"{r['first_wall_s']:.3f}",
-                        f"{r['warm_wall_s']:.3f}",
-                        f"{r['first_over_warm']:.2f}x",
-                        "/".join(map(str, r["evaluations"])),
-                        yes(r["dynamo_imported"]),
-                    ]
-                    for k, r in enumerate(runs)
-                ],
-            ),
-            "",
-            f"median first / warm {ratio:.2f}x (range {min(ratios):.2f}-{max(ratios):.2f}x); target <= 1.2x: "
-            f"{verdict(ratio <= 1.2 and not any(r['dynamo_imported'] for r in runs))}",
-        ]
-    )
-
-
-def run_child(spec: dict[str, Any]) -> dict[str, Any]:
-    proc = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--_child", json.dumps(spec)], capture_output=True, text=True
-    )
-    if proc.returncode != 0:
-        return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-# ----------------------------------------------------------------------------------------------- report
-
-
-def yes(b: bool) -> str:
-    return "yes" if b else "no"
-
-
-def report_instances(instances: list[Instance]) -> str:
-    out = [f"Problem instances ({FRAME[1]}x{FRAME[0]} px frame; displacement = |target - source| px)"]
-    out.append(
-        table(
-            [
-                "instance",
-                "points",
-                "min disp",
-                "max disp",
-                "min spacing",
-                "target min wall dist",
-                "brush scale",
-                "attempts",
-            ],
-            [
-                [
-                    i.name,
-                    str(len(i.source)),
-                    f"{i.min_displacement:.2f}",
-                    f"{i.max_displacement:.2f}",
-                    f"{i.min_spacing:.2f}",
-                    f"{i.min_wall_distance_target:.2f}",
-                    "-" if i.brush_scale is None else f"{i.brush_scale:.3f}",
-                    str(i.attempts),
-                ]
-                for i in instances
-            ],
-        )
-    )
-    return "\n".join(out)
-
-
-def _median_defined(values: Any) -> float:
-    """Median of the values that are not NaN (ms per evaluation is undefined for a fit without evaluations)."""
-    kept = [v for v in values if not math.isnan(v)]
-    return statistics.median(kept) if kept else math.nan
-
-
-def report_fits(rows: list[FitRow], tolerance: float) -> tuple[str, dict[str, Any]]:
-    head = [
-        "instance",
-        "dtype",
-        "method",
-        "forwards",
-        "evals",
-        "fit s",
-        "CPU s",
-        "ms/eval",
-        "CPU ms/eval",
-        "mean err px",
-        "max err px",
-        "converged",
-        "reached",
-        "same each rep",
-        "mean < 0.05",
-        "< 3 s",
-    ]
-
-    def cells(r: FitRow, with_target: bool) -> list[str]:
-        c = [
-            r.instance,
-            r.dtype,
-            r.method,
-            str(r.forwards),
-            str(r.evaluations),
-            f"{r.seconds:.2f}",
-            f"{r.cpu_seconds:.2f}",
-            f"{r.ms_per_evaluation:.1f}",
-            f"{r.cpu_ms_per_evaluation:.1f}",
-            f"{r.mean_error:.4f}",
-            f"{r.max_error:.4f}",
-            yes(r.converged),
-            yes(r.reached),
-            yes(r.deterministic),
-        ]
-        if with_target:
-            c += [verdict(r.mean_error < TARGET_MEAN_PX), verdict(r.seconds < TARGET_SECONDS)]
-        else:
-            c += ["(none)", "(none)"]
-        return c
-
-    flow = [r for r in rows if r.kind == "flow"]
-    rand = [r for r in rows if r.kind != "flow"]
-    out = [
-        f"Fits, control {flow[0].control[0]}x{flow[0].control[1]} ({flow[0].parameters} parameters), tolerance "
-        f"{tolerance:g} px (stop when every point is within it); fit s = wall time (KeyframeFit.seconds), "
-        f"CPU s = this process's CPU time around the call, both medians over {flow[0].repeats} repeats; "
-        "method auto = the quasi-Newton start (forwards: roll-outs without autograd), then L-BFGS if it stalls "
-        "(evals: L-BFGS evaluations, objective + gradient); lbfgs = L-BFGS alone; ms/eval divides by evals only"
-    ]
-    out.append("\nReachable instances (targets made by a flow)")
-    out.append(table(head, [cells(r, True) for r in flow]))
-    if rand:
-        out.append("\nRandom-direction instance (may be partly unreachable; no target)")
-        out.append(table(head, [cells(r, False) for r in rand]))
-    targets: dict[str, Any] = {}
-    out.append(
-        "\nSummary over the reachable instances (the 3 s target is judged on wall time; CPU time, with 1 "
-        "thread, estimates the wall time on a core of its own)"
-    )
-    s_rows = []
-    for dtype, method in [(d, m) for m in METHODS for d in DTYPES]:
-        rs = [r for r in flow if r.dtype == dtype and r.method == method]
-        if not rs:
-            continue
-        acc = all(r.mean_error < TARGET_MEAN_PX for r in rs)
-        fast = all(r.seconds < TARGET_SECONDS for r in rs)
-        fast_cpu = all(r.cpu_seconds < TARGET_SECONDS for r in rs)
-        med_s = statistics.median(r.seconds for r in rs)
-        med_c = statistics.median(r.cpu_seconds for r in rs)
-        targets[f"{dtype} {method}"] = {
-            "median_seconds_met_issue_20": med_s <= TARGET_MEDIAN_SECONDS,
-            "median_forwards": statistics.median(r.forwards for r in rs),
-            "mean_error_met": acc,
-            "time_met": fast,
-            "time_met_by_cpu": fast_cpu,
-            "median_seconds": med_s,
-            "max_seconds": max(r.seconds for r in rs),
-            "median_cpu_seconds": med_c,
-            "max_cpu_seconds": max(r.cpu_seconds for r in rs),
-            "worst_mean_error": max(r.mean_error for r in rs),
-            "median_evaluations": statistics.median(r.evaluations for r in rs),
-            "median_ms_per_evaluation": _median_defined(r.ms_per_evaluation for r in rs),
-            "median_cpu_ms_per_evaluation": _median_defined(r.cpu_ms_per_evaluation for r in rs),
-        }
-        s_rows.append(
-            [
-                dtype,
-                method,
-                f"{len(rs)}",
-                f"{max(r.mean_error for r in rs):.4f}",
-                verdict(acc),
-                f"{min(r.seconds for r in rs):.2f} / {med_s:.2f} / {max(r.seconds for r in rs):.2f}",
-                f"{sum(r.seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast)}",
-                f"{min(r.cpu_seconds for r in rs):.2f} / {med_c:.2f} / {max(r.cpu_seconds for r in rs):.2f}",
-                f"{sum(r.cpu_seconds < TARGET_SECONDS for r in rs)}/{len(rs)} {verdict(fast_cpu)}",
-                f"{med_s:.3f} {verdict(med_s <= TARGET_MEDIAN_SECONDS)}",
-                f"{statistics.median(r.forwards for r in rs):g}",
-                f"{statistics.median(r.evaluations for r in rs):g}",
-                f"{_median_defined(r.ms_per_evaluation for r in rs):.1f}",
-                f"{_median_defined(r.cpu_ms_per_evaluation for r in rs):.1f}",
-                f"{PAPER_SECONDS / med_s:.0f}x",
-            ]
-        )
-    out.append(
-        table(
-            [
-                "dtype",
-                "method",
-                "instances",
-                "worst mean err",
-                "mean < 0.05 px",
-                "fit s min/med/max",
-                "fit < 3 s",
-                "CPU s min/med/max",
-                "CPU < 3 s",
-                f"median fit s <= {TARGET_MEDIAN_SECONDS} (#20)",
-                "median forwards",
-                "median evals",
-                "med ms/eval",
-                "med CPU ms/eval",
-                "vs 5 min (quoted)",
-            ],
-            s_rows,
-        )
-    )
-    for dtype in DTYPES:
-        pair = [targets.get(f"{dtype} {m}") for m in METHODS]
-        if all(pair):
-            ratio = pair[1]["median_seconds"] / pair[0]["median_seconds"]  # type: ignore[index]
-            out.append(f"{dtype}: median fit, lbfgs / auto = {ratio:.2f}x (same run, same instances)")
-    return "\n".join(out), targets
-
-
-def report_gradient(rows: list[GradRow], control: tuple[int, int]) -> tuple[str, dict[str, Any]]:
-    out = [
-        "Cost of one gradient (forward + backward of the objective) over one forward simulation (no grad), "
-        "at the fitted forces of the first flow instance; medians of interleaved repeats (wall, and CPU time)"
-    ]
-    out.append(
-        table(
-            [
-                "dtype",
-                "control",
-                "params",
-                "reps",
-                "forward ms",
-                "gradient ms",
-                "gradient / forward",
-                "CPU fwd ms",
-                "CPU grad ms",
-                "CPU grad / fwd",
-                "expected ~1-2x",
-            ],
-            [
-                [
-                    r.dtype,
-                    f"{r.control[0]}x{r.control[1]}",
-                    str(r.parameters),
-                    str(r.repeats),
-                    f"{r.forward_ms:.1f}",
-                    f"{r.gradient_ms:.1f}",
-                    f"{r.ratio:.2f}",
-                    f"{r.forward_cpu_ms:.1f}",
-                    f"{r.gradient_cpu_ms:.1f}",
-                    f"{r.ratio_cpu:.2f}",
-                    verdict(r.ratio <= 2.0),
-                ]
-                for r in rows
-            ],
-        )
-    )
-    targets = {
-        r.dtype: {"ratio": r.ratio, "ratio_cpu": r.ratio_cpu, "met": r.ratio <= 2.0}
-        for r in rows
-        if r.control == control
-    }
-    return "\n".join(out), targets
-
-
-def report_controls(fit_rows: list[FitRow], grad_rows: list[GradRow]) -> tuple[str, dict[str, Any]]:
-    out = [
-        f"Parameter count: the same fit ({fit_rows[0].instance}, {fit_rows[0].dtype}) with each control grid, "
-        "interleaved in one run; gradient ms from the table above"
-    ]
-    rows = []
-    fit_rows = sorted(fit_rows, key=lambda r: r.parameters)
-    grads = {x.control: x for x in grad_rows if x.dtype == fit_rows[0].dtype}
-    base, big = fit_rows[0], fit_rows[-1]
-    for r in fit_rows:
-        g = grads.get(r.control)
-        rows.append(
-            [
-                f"{r.control[0]}x{r.control[1]}",
-                str(r.parameters),
-                str(r.evaluations),
-                f"{r.seconds:.2f}",
-                f"{r.ms_per_evaluation:.1f}",
-                f"{r.cpu_ms_per_evaluation:.1f}",
-                f"{r.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation:.2f}",
-                "-" if g is None else f"{g.gradient_ms:.1f}",
-                "-" if g is None else f"{g.gradient_cpu_ms:.1f}",
-                f"{r.mean_error:.4f}",
-                yes(r.reached),
-            ]
-        )
-    out.append(
-        table(
-            [
-                "control",
-                "params",
-                "evals",
-                "fit s",
-                "ms/eval",
-                "CPU ms/eval",
-                "CPU ms/eval vs fewest",
-                "gradient ms",
-                "CPU gradient ms",
-                "mean err px",
-                "reached",
-            ],
-            rows,
-        )
-    )
-    growth = big.ms_per_evaluation / base.ms_per_evaluation
-    growth_cpu = big.cpu_ms_per_evaluation / base.cpu_ms_per_evaluation
-    g_growth = g_growth_cpu = math.nan
-    if base.control in grads and big.control in grads:
-        g_growth = grads[big.control].gradient_ms / grads[base.control].gradient_ms
-        g_growth_cpu = grads[big.control].gradient_cpu_ms / grads[base.control].gradient_cpu_ms
-    # judged on CPU time: the claim is about the work per gradient, which wall time on a shared machine blurs
-    met = growth_cpu <= 1.25 and (math.isnan(g_growth_cpu) or g_growth_cpu <= 1.25)
-    out.append(
-        f"\n{big.parameters} / {base.parameters} parameters ({big.parameters / base.parameters:.1f}x): CPU ms "
-        f"per evaluation {growth_cpu:.2f}x (wall {growth:.2f}x), CPU ms per gradient {g_growth_cpu:.2f}x (wall "
-        f"{g_growth:.2f}x). Target: does not grow, read as within 25% in CPU time -> {verdict(met)}"
-    )
-    return "\n".join(out), {
-        "ms_per_eval_growth": growth,
-        "cpu_ms_per_eval_growth": growth_cpu,
-        "gradient_growth": g_growth,
-        "gradient_cpu_growth": g_growth_cpu,
-        "met": met,
-    }
-
-
-def report_memory(runs: list[dict[str, Any]]) -> str:
-    out = [
-        "Peak memory of a fit (each in a fresh process; peak RSS growth = VmHWM after the fit minus VmRSS at the "
-        "baseline)"
-    ]
-    rows = []
-    for r in runs:
-        if r.get("failed"):
-            rows.append([r["dtype"], "FAILED", f"rc {r['returncode']}", "", "", "", ""])
-            continue
-        rows.append(
-            [
-                r["dtype"],
-                r["instance"],
-                f"{r['control'][0]}x{r['control'][1]}",
-                str(r["evaluations"]),
-                f"{r['seconds']:.2f}",
-                f"{r['baseline_rss_mib']:.1f}",
-                f"{r['peak_rss_mib']:.1f}",
-                f"{r['peak_rss_growth_mib']:.1f}",
-                f"{r['first_call_wall_s']:.2f}",
-                f"{r['first_call_fit_seconds']:.2f}",
-            ]
-        )
-    out.append(
-        table(
-            [
-                "dtype",
-                "instance",
-                "control",
-                "evals",
-                "fit s",
-                "baseline RSS MiB",
-                "peak RSS MiB",
-                "peak RSS growth MiB",
-                "1st call wall s",
-                "1st call fit s",
-            ],
-            rows,
-        )
-    )
-    out.append(
-        "1st call = the warm-up, the first fit_keyframes call of the fresh process (a 3-iteration fit on an 8x8 "
-        "fluid): its wall time around the call against its KeyframeFit.seconds, which starts after the "
-        "optimiser is built"
-    )
-    return "\n".join(out)
-
-
-# ----------------------------------------------------------------------------------------------- main
+    kwargs = fit_kwargs(spec, dtype, spec["control"])
+    if spec["kind"] == "first":
+        walls, evals = [], []
+        for _ in range(1 + spec["warm_repeats"]):
+            t0 = time.perf_counter()
+            evals.append(fit_keyframes(src, tgt, **kwargs).evaluations)
+            walls.append(time.perf_counter() - t0)
+        warm = statistics.median(walls[1:])
+        return dict(first=walls[0], warm=warm, ratio=walls[0] / warm, evals="/".join(map(str, evals)),
+                    dynamo=yes("torch._dynamo" in sys.modules))  # fmt: skip
+    t0 = time.perf_counter()
+    first_fit_s = tiny_fit(dtype).seconds  # the warm-up: the first call of this process
+    first_call_s = time.perf_counter() - t0
+    reset = reset_peak()
+    base = status_kib("VmRSS")
+    fit = fit_keyframes(src, tgt, **kwargs)
+    peak = status_kib("VmHWM")
+    return dict(dtype=spec["dtype"], measure="VmHWM" if reset else "VmHWM (not reset)", base=base / 1024,
+                peak=peak / 1024, growth=(peak - base) / 1024, evals=fit.evaluations, seconds=fit.seconds,
+                first_call=first_call_s, first_call_fit=first_fit_s)  # fmt: skip
 
 
 def parse_control(text: str) -> tuple[int, int]:
-    try:
-        ky, kx = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"a control grid is written KYxKX, e.g. 5x5, got {text!r}") from None
-    if ky < 2 or kx < 2:
-        raise argparse.ArgumentTypeError(f"control points per axis must be >= 2, got {text!r}")
+    ky, kx = (int(v) for v in text.lower().split("x"))
     return ky, kx
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="smoke mode: 32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat"
-    )
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    add_threads_argument(parser)
-    parser.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
-    parser.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
-    parser.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")
-    parser.add_argument(
-        "--tolerance", type=float, default=0.05, help="px: the fit stops once every point is within it (default 0.05)"
-    )
-    parser.add_argument("--max-iter", type=int, default=200, help="L-BFGS iterations at most (default 200)")
-    parser.add_argument(
-        "--controls",
-        type=parse_control,
-        nargs="+",
-        help="control grids of the parameter-count sweep (default 3x3 5x5 8x8)",
-    )
-    parser.add_argument(
-        "--methods",
-        nargs="+",
-        choices=METHODS,
-        default=list(METHODS),
-        help="fit_keyframes methods of the fits, interleaved (default: both, auto and lbfgs)",
-    )
-    parser.add_argument(
-        "--viscosity",
-        type=float,
-        default=0.0,
-        help="the fits' viscosity (default 0, the paper's; the instances are made by an inviscid flow either way)",
-    )
-    parser.add_argument(
-        "--compressible",
-        type=float,
-        default=0.0,
-        help="the fits' compressible weight in [0, 1] (default 0, the paper's incompressible fluid)",
-    )
-    parser.add_argument("--_child", help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    p = parser(__doc__, quick="32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat")
+    p.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
+    p.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
+    p.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="px: stop once every point is within it")
+    p.add_argument("--max-iter", type=int, default=200, help="L-BFGS iterations at most (default 200)")
+    p.add_argument("--controls", type=parse_control, nargs="+", default=[(3, 3), (5, 5), (8, 8)],
+                   help="control grids of the parameter-count sweep (default 3x3 5x5 8x8)")  # fmt: skip
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS), help="fit_keyframes methods")
+    p.add_argument("--viscosity", type=float, default=0.0, help="the fits' viscosity (default 0, the paper's)")
+    p.add_argument("--compressible", type=float, default=0.0, help="the fits' compressible weight (default 0)")
+    p.add_argument("--_child", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
     if args._child:
-        spec = json.loads(args._child)
-        print(json.dumps(first_fit_child(spec) if spec.get("kind") == "first" else memory_child(spec)))
+        import json
+
+        print(json.dumps(child(json.loads(args._child))))
         return 0
-    if args.threads < 1 or not args.tolerance > 0 or args.max_iter < 1:
-        parser.error("--threads and --max-iter must be >= 1 and --tolerance > 0")
-
-    torch.set_num_threads(args.threads)
-    if args.quick:
-        cfg = dict(
-            grid=(32, 32),
-            steps=5,
-            points=6,
-            seeds=args.seeds or 2,
-            repeats=args.repeats or 1,
-            grad_repeats=args.grad_repeats or 3,
-        )
-    else:
-        cfg = dict(
-            grid=(64, 64),
-            steps=10,
-            points=14,
-            seeds=args.seeds or 5,
-            repeats=args.repeats or 3,
-            grad_repeats=args.grad_repeats or 9,
-        )
-    cfg.update(
-        tolerance=args.tolerance,
-        max_iter=args.max_iter,
-        methods=args.methods,
-        viscosity=args.viscosity,
-        compressible=args.compressible,
-    )
-    control = (5, 5)
-    controls = args.controls or [(3, 3), (5, 5), (8, 8)]
-    if min(cfg["repeats"], cfg["grad_repeats"], cfg["seeds"]) < 1:
-        parser.error("--seeds, --repeats and --grad-repeats must be >= 1")
-
-    info = machine()
-    info["load_start"] = machine_load()
-    info["sources_sha256"] = source_fingerprint()
-    print(
-        f"bench_keyframes: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with "
-        f"{info['torch_threads']} thread(s), Python {info['python']}, {info['date']}"
-        + (" [--quick]" if args.quick else ""),
-        flush=True,
-    )
-    print(
-        f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}",
-        flush=True,
-    )
-    print(
-        f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {cfg['steps']} steps, {cfg['points']} points in a "
-        f"{FRAME[1]}x{FRAME[0]} px frame, control {control[0]}x{control[1]} "
-        f"({2 * cfg['steps'] * control[0] * control[1]} parameters), tolerance {cfg['tolerance']:g} px, "
-        f"max_iter {cfg['max_iter']}, viscosity {cfg['viscosity']:g}, compressible {cfg['compressible']:g}",
-        flush=True,
-    )
-    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
-    t_start = time.perf_counter()
+    q = args.quick
+    cfg = dict(grid=(32, 32) if q else (64, 64), steps=5 if q else 10, points=6 if q else 14,
+               seeds=args.seeds or (2 if q else 5), repeats=args.repeats or (1 if q else 3),
+               grad_repeats=args.grad_repeats or (3 if q else 9), tolerance=args.tolerance, max_iter=args.max_iter,
+               viscosity=args.viscosity, compressible=args.compressible)  # fmt: skip
+    control, steps = (5, 5), cfg["steps"]
+    info = start("bench_keyframes", args.threads, " [--quick]" if q else "")
+    print(f"set-up: {cfg['grid'][0]}x{cfg['grid'][1]} fluid, {steps} steps, {cfg['points']} points in a "
+          f"{FRAME[1]}x{FRAME[0]} px frame, control 5x5 ({2 * steps * 25} parameters), tolerance "
+          f"{cfg['tolerance']:g} px, max_iter {cfg['max_iter']}, viscosity {cfg['viscosity']:g}, compressible "
+          f"{cfg['compressible']:g}")  # fmt: skip
 
     log("  instances ...")
-    instances = [flow_instance(s, cfg["points"], cfg["grid"], cfg["steps"]) for s in range(cfg["seeds"])]
+    instances = [flow_instance(s, cfg["points"], cfg["grid"], steps) for s in range(cfg["seeds"])]
     instances.append(random_instance(1000, cfg["points"]))
-    print("\n" + report_instances(instances), flush=True)
-
-    # warm-up: one small fit per dtype (kernels, caches)
+    print("\nProblem instances (px; displacement = |target - source|)")
+    described = [dict(name=i.name, n=len(i.source), scale=i.brush_scale or 0.0, attempts=i.attempts, **i.describe())
+                 for i in instances]  # fmt: skip
+    print(rows_table(described, "instance {name} | points {n} | min disp {min_disp:.2f} | max disp {max_disp:.2f} | "
+          "min spacing {min_spacing:.2f} | target min wall dist {min_wall:.2f} | brush scale {scale:.3f} | "
+          "attempts {attempts}"))  # fmt: skip
     for dtype in DTYPES.values():
-        fit_keyframes(
-            torch.tensor([[10.0, 10.0]]),
-            torch.tensor([[12.0, 10.0]]),
-            image_size=(24, 24),
-            grid=8,
-            steps=2,
-            control=(3, 3),
-            max_iter=3,
-            dtype=dtype,
-            progress=False,
-        )
+        tiny_fit(dtype)  # warm-up
 
-    # 1. the fits, interleaved over instances and dtypes
-    runs: dict[tuple[str, str, str], list[FitRun]] = {}
+    # 1. the fits, interleaved over instances, dtypes and methods
+    runs: dict[tuple[str, str, str], list[dict]] = {}
     fits: dict[tuple[str, tuple[int, int]], Any] = {}
     for rep in range(cfg["repeats"]):
         for inst in instances:
-            for dname, dtype in DTYPES.items():
-                for method in cfg["methods"]:
-                    log(f"  fit {inst.name}, {dname}, {method}, repeat {rep + 1}/{cfg['repeats']} ...")
+            for dtype in DTYPES:
+                for method in args.methods:
+                    log(f"  fit {inst.name}, {dtype}, {method}, repeat {rep + 1}/{cfg['repeats']} ...")
                     run, fit = run_fit(inst, dtype, cfg, control, method)
-                    runs.setdefault((inst.name, dname, method), []).append(run)
-                    if inst is instances[0] and (method == "lbfgs" or (dname, control) not in fits):
-                        fits[(dname, control)] = fit
-    fit_rows = [
-        summarise_fits(inst, dname, control, cfg["steps"], runs[(inst.name, dname, method)], method)
-        for inst in instances
-        for dname in DTYPES
-        for method in cfg["methods"]
-    ]
-    text_f, targets_f = report_fits(fit_rows, cfg["tolerance"])
-    print("\n" + text_f, flush=True)
+                    runs.setdefault((inst.name, dtype, method), []).append(run)
+                    if inst is instances[0] and (method == "lbfgs" or (dtype, control) not in fits):
+                        fits[(dtype, control)] = fit
+    rows = [summarise(i, d, m, control, steps, runs[(i.name, d, m)]) for i in instances for d in DTYPES
+            for m in args.methods]  # fmt: skip
+    spec = ("instance {instance} | dtype {dtype} | method {method} | forwards {forwards:g} | evals {evals:g} | "
+            "fit s {seconds:.2f} | CPU s {cpu:.2f} | ms/eval {ms_eval:.1f} | CPU ms/eval {cpu_ms_eval:.1f} | "
+            "mean err px {mean:.4f} | max err px {max:.4f} | converged {converged} | reached {reached} | "
+            "same each rep {same}")  # fmt: skip
+    print(f"\nFits, control 5x5, tolerance {cfg['tolerance']:g} px; medians over {cfg['repeats']} repeats; auto = the "
+          "quasi-Newton start (forwards: roll-outs without autograd), then L-BFGS (evals) if it stalls")  # fmt: skip
+    print("\nReachable instances (targets made by a flow)")
+    flow = [r for r in rows if r["kind"] == "flow"]
+    print(rows_table(flow, spec + " | mean < 0.05 {ok_mean} | < 3 s {ok_time}"))
+    print("\nRandom-direction instance (may be partly unreachable; no target)")
+    print(rows_table([r for r in rows if r["kind"] != "flow"], spec))
+    summary = []
+    for method in args.methods:
+        for dtype in DTYPES:
+            rs = [r for r in flow if r["dtype"] == dtype and r["method"] == method]
+            s, c = [r["seconds"] for r in rs], [r["cpu"] for r in rs]
+            med = statistics.median(s)
+            summary.append(dict(dtype=dtype, method=method, n=len(rs), worst=max(r["mean"] for r in rs),
+                                ok_mean=verdict(all(r["mean"] < TARGET_MEAN_PX for r in rs)), s_min=min(s), s_med=med,
+                                s_max=max(s), under=f"{sum(x < TARGET_SECONDS for x in s)}/{len(rs)}",
+                                c_min=min(c), c_med=statistics.median(c), c_max=max(c),
+                                ok_median=verdict(med <= TARGET_MEDIAN_SECONDS),
+                                forwards=statistics.median(r["forwards"] for r in rs),
+                                evals=statistics.median(r["evals"] for r in rs),
+                                ms_eval=statistics.median(r["ms_eval"] for r in rs),
+                                paper=PAPER_SECONDS / med))  # fmt: skip
+    print("\nSummary over the reachable instances (CPU time, with 1 thread, estimates the wall time on a core of "
+          "its own)")  # fmt: skip
+    print(rows_table(summary, "dtype {dtype} | method {method} | instances {n} | worst mean err {worst:.4f} | "
+          "mean < 0.05 px {ok_mean} | fit s min/med/max {s_min:.2f} / {s_med:.3f} / {s_max:.2f} | fits < 3 s "
+          "{under} | CPU s min/med/max {c_min:.2f} / {c_med:.2f} / {c_max:.2f} | median <= 0.25 s (#20) "
+          "{ok_median} | median forwards {forwards:g} | median evals {evals:g} | med ms/eval {ms_eval:.1f} | "
+          "vs 5 min (quoted) {paper:.0f}x"))  # fmt: skip
+    for dtype in DTYPES:
+        pair = {r["method"]: r["s_med"] for r in summary if r["dtype"] == dtype}
+        if len(pair) == 2:
+            print(f"{dtype}: median fit lbfgs / auto {pair['lbfgs'] / pair['auto']:.2f}x")
 
-    # 3. parameter count (float64, the library's default), interleaved; its fits also feed measurement 2
-    sweep: dict[tuple[int, int], list[FitRun]] = {c: [] for c in controls}
+    # 3. parameter count (float64, L-BFGS alone), interleaved; its fits also feed 2.
+    sweep: dict[tuple[int, int], list[dict]] = {c: [] for c in args.controls}
     for rep in range(cfg["repeats"]):
-        for c in controls:
-            log(f"  fit {instances[0].name}, float64, control {c[0]}x{c[1]}, repeat {rep + 1}/{cfg['repeats']} ...")
-            run, fit = run_fit(instances[0], torch.float64, cfg, c, "lbfgs")
+        for c in args.controls:
+            log(f"  fit {instances[0].name}, float64, control {c[0]}x{c[1]}, repeat {rep + 1} ...")
+            run, fit = run_fit(instances[0], "float64", cfg, c, "lbfgs")
             sweep[c].append(run)
             fits.setdefault(("float64", c), fit)
-    sweep_rows = [summarise_fits(instances[0], "float64", c, cfg["steps"], sweep[c]) for c in controls]
+    sweep_rows = [summarise(instances[0], "float64", "lbfgs", c, steps, sweep[c]) for c in args.controls]
 
-    # 2. gradient over forward, at every fitted forces of the first instance
+    # 2. gradient over forward
     log("  gradient / forward ...")
-    grad_rows = time_gradient(instances[0], fits, cfg["steps"], cfg["grad_repeats"])
-    grad_rows.sort(key=lambda r: (r.dtype, r.parameters))
-    text_g, targets_g = report_gradient(grad_rows, control)
-    print("\n" + text_g, flush=True)
-    text_c, targets_c = report_controls(sweep_rows, grad_rows)
-    print("\n" + text_c, flush=True)
+    grad_rows = time_gradient(instances[0], fits, steps, cfg["grad_repeats"])
+    print(f"\nCost of a gradient: forward (no grad) against forward + backward of the objective at the fitted "
+          f"forces of {instances[0].name}; medians of {cfg['grad_repeats']} interleaved repeats")  # fmt: skip
+    print(rows_table(grad_rows, "dtype {dtype} | control {control} | params {params} | forward ms {fwd:.1f} | "
+          "gradient ms {grad:.1f} | grad / fwd {ratio:.2f} | CPU fwd ms {fwd_cpu:.1f} | CPU grad ms {grad_cpu:.1f} "
+          "| CPU grad / fwd {ratio_cpu:.2f} | expected ~1-2x {ok}"))  # fmt: skip
+    grads = {r["control"]: r for r in grad_rows if r["dtype"] == "float64"}
+    base = sweep_rows[0]
+    for r in sweep_rows:
+        g = grads.get(r["control"], {})
+        r.update(vs=r["cpu_ms_eval"] / base["cpu_ms_eval"], gms=g.get("grad", math.nan), gcpu=g.get("grad_cpu", 0.0))
+    print(f"\nParameter count: {instances[0].name}, float64, L-BFGS, each control grid, interleaved")
+    print(rows_table(sweep_rows, "control {control} | params {params} | evals {evals:g} | fit s {seconds:.2f} | "
+          "ms/eval {ms_eval:.1f} | CPU ms/eval {cpu_ms_eval:.1f} | CPU ms/eval vs first {vs:.2f} | gradient ms "
+          "{gms:.1f} | CPU gradient ms {gcpu:.1f} | mean err px {mean:.4f} | reached {reached}"))  # fmt: skip
+    big = sweep_rows[-1]
+    g_growth = big["gcpu"] / base["gcpu"] if base["gcpu"] else math.nan
+    met = big["vs"] <= 1.25 and (math.isnan(g_growth) or g_growth <= 1.25)
+    print(f"{big['params']} / {base['params']} parameters: CPU ms per evaluation {big['vs']:.2f}x, CPU ms per "
+          f"gradient {g_growth:.2f}x; target: does not grow (within 25% in CPU time) -> {verdict(met)}")  # fmt: skip
 
-    # the paper's fit of the first instance, as the subprocesses of 4. and 5. run it
-    child = {
-        "threads": args.threads,
-        "instance": asdict(instances[0]),
-        "grid": cfg["grid"],
-        "steps": cfg["steps"],
-        "control": control,
-        "max_iter": cfg["max_iter"],
-        "tolerance": cfg["tolerance"],
-        "viscosity": cfg["viscosity"],
-        "compressible": cfg["compressible"],
-    }
-    # 4. memory, each dtype in its own process
-    mem_runs = []
-    for dname in DTYPES:
-        log(f"  memory: {dname} ...")
-        mem_runs.append(run_child({**child, "dtype": dname}))
-    print("\n" + report_memory(mem_runs))
-    # 5. the first fit of a fresh process against the same fit warm
+    # 4. and 5. in fresh processes
+    keys = ("grid", "steps", "max_iter", "tolerance", "viscosity", "compressible")
+    spec_child = dict(threads=args.threads, instance=asdict(instances[0]), control=control, **{k: cfg[k] for k in keys})
+    log("  memory ...")
+    mem = [run_child(__file__, {**spec_child, "kind": "memory", "dtype": d}) for d in DTYPES]
+    print("\nPeak memory of a fit (a fresh process each; growth = VmHWM after the fit - VmRSS at the baseline); "
+          "1st call = the warm-up, the process's first fit_keyframes call: wall time, KeyframeFit.seconds")  # fmt: skip
+    ok = [m for m in mem if not m.get("failed")]
+    print(rows_table(ok, "dtype {dtype} | evals {evals} | fit s {seconds:.2f} | baseline RSS MiB {base:.1f} | peak "
+          "RSS MiB {peak:.1f} | peak RSS growth MiB {growth:.1f} | 1st call wall s {first_call:.2f} | 1st call fit "
+          "s {first_call_fit:.2f}") if ok else "failed")  # fmt: skip
     log("  first fit of a process ...")
-    first_runs = [
-        run_child({**child, "kind": "first", "dtype": "float32", "warm_repeats": 3}) for _ in range(FIRST_FIT_PROCESSES)
-    ]
-    print("\n" + report_first_fit(first_runs), flush=True)
-    total = time.perf_counter() - t_start
-    info["load_end"] = machine_load()
-    print(f"\ntotal {total:.0f} s; at the end: {describe_load(info['load_end'])}")
-    if source_fingerprint() != info["sources_sha256"]:
-        info["sources_changed"] = True
-        print(
-            "WARNING: the torchfluidwarp sources changed during the run (this process kept the code it imported "
-            "at the start; any subprocess imported the new code)"
-        )
-
-    if args.json:
-        result = {
-            "machine": info,
-            "args": {k: v for k, v in vars(args).items() if k != "_child"},
-            "config": cfg,
-            "instances": [asdict(i) for i in instances],
-            "fits": [asdict(r) for r in fit_rows],
-            "fit_runs": {f"{k[0]} / {k[1]}": [asdict(r) for r in v] for k, v in runs.items()},
-            "gradient": [asdict(r) for r in grad_rows],
-            "controls": [asdict(r) for r in sweep_rows],
-            "memory": mem_runs,
-            "first_fit": first_runs,
-            "targets": {"fits": targets_f, "gradient_over_forward": targets_g, "parameter_count": targets_c},
-            "total_s": total,
-        }
-        write_json(args.json, result)
+    first = [run_child(__file__, {**spec_child, "kind": "first", "dtype": "float32", "warm_repeats": 3})
+             for _ in range(FIRST_FIT_PROCESSES)]  # fmt: skip
+    ok = [dict(k=k + 1, **r) for k, r in enumerate(first) if not r.get("failed")]
+    print(f"\nFirst fit of a process (float32) against the same fit warm, in {len(first)} fresh processes")
+    if ok:
+        print(rows_table(ok, "process {k} | first fit s {first:.3f} | warm fit s (median of 3) {warm:.3f} | "
+              "first / warm {ratio:.2f}x | evaluations {evals} | torch._dynamo imported {dynamo}"))  # fmt: skip
+        ratio = statistics.median(r["ratio"] for r in ok)
+        print(f"median first / warm {ratio:.2f}x; target <= 1.2x: "
+              f"{verdict(ratio <= 1.2 and all(r['dynamo'] == 'no' for r in ok))}")  # fmt: skip
+    else:
+        print(f"failed: {first[0].get('stderr_tail', '')}")
+    result = dict(config=cfg, instances=[asdict(i) for i in instances], fits=rows, summary=summary,
+                  gradient=grad_rows, controls=sweep_rows, memory=mem, first_fit=first)  # fmt: skip
+    finish(info, result, args.json)
     return 0
 
 

@@ -13,20 +13,19 @@ same map, so every image has the same 23 points in the same order:
 
 Float32 on CPU, one process, one run each (the figures are seconds, not milliseconds)::
 
-    python benchmarks/bench_morph_features.py [--frames 60]
+    python benchmarks/bench_morph_features.py [--frames 60] [--threads N] [--quick] [--json PATH]
 """
 
 from __future__ import annotations
 
-import argparse
 import math
+import sys
 import time
 
 import torch
 import torch.nn.functional as F
-from _common import describe_load, machine, machine_load
+from _common import finish, load_pair, parser, start
 
-from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.morph import average, morph_sequence
 
 
@@ -52,34 +51,34 @@ MAPS = [(0.0, 1.0, (0.0, 0.0)), (1.0, 0.96, (4.0, -3.0)), (-1.0, 0.97, (-3.0, 4.
 """(degrees, scale, shift in pixels) of each copy: mild, and they keep the cat's border points inside the picture."""
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=60, help="frames of the sequence (default 60)")
-    args = parser.parse_args()
-    samples = {name: (load_sample(name), load_sample_points(name)) for name in ("astronaut", "cat")}
+def main(argv: list[str] | None = None) -> int:
+    p = parser(__doc__, quick="the images at 128x128, 6 frames, an average of 4", threads=None)
+    p.add_argument("--frames", type=int, default=60, help="frames of the sequence (default 60)")
+    args = p.parse_args(argv)
+    size, frames = (128, 6) if args.quick else (None, args.frames)
+    a, b, pa, pb = load_pair(size)
+    samples = {"astronaut": (a, pa), "cat": (b, pb)}
     copies = {name: [affine_copy(img, pts, *m) for m in MAPS] for name, (img, pts) in samples.items()}
-    info = machine()
-    print(f"machine: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} ({info['torch_threads']} threads)")
-    print(f"load before: {describe_load(machine_load())}")
-
+    info = start("bench_morph_features", args.threads, " [--quick]" if args.quick else "")
+    side = a.shape[-1]
     order = [copies["astronaut"][0], copies["cat"][0], copies["astronaut"][1], copies["cat"][1], copies["astronaut"][2]]
     t0 = time.perf_counter()
-    seq = morph_sequence([im for im, _ in order], [p for _, p in order], frames=args.frames, progress=False)
+    seq = morph_sequence([im for im, _ in order], [p for _, p in order], frames=frames, progress=False)
     fitted = time.perf_counter() - t0
     count = sum(1 for _ in seq.iter_frames())
     total = time.perf_counter() - t0
-    print(f"sequence of 5 images at 512x512, {count} frames: fit {fitted:.1f} s, total with rendering {total:.1f} s")
-
-    ten = copies["astronaut"] + copies["cat"]
+    print(f"sequence of 5 images at {side}x{side}, {count} frames: fit {fitted:.1f} s, total with frames {total:.1f} s")
+    ten = (copies["astronaut"][:2] + copies["cat"][:2]) if args.quick else copies["astronaut"] + copies["cat"]
     t0 = time.perf_counter()
     mean = average([im for im, _ in ten], [p for _, p in ten], progress=False)
     seconds = time.perf_counter() - t0
-    print(
-        f"average of 10 images at 512x512: {seconds:.1f} s, folded {mean.folded:.2e}, "
-        f"mean point error {float(mean.errors.mean()):.2f} px"
-    )
-    print(f"load after: {describe_load(machine_load())}")
+    print(f"average of {len(ten)} images at {side}x{side}: {seconds:.1f} s, folded {mean.folded:.2e}, "
+          f"mean point error {float(mean.errors.mean()):.2f} px")  # fmt: skip
+    result = dict(sequence=dict(frames=count, fit_s=fitted, total_s=total), average=dict(
+        images=len(ten), seconds=seconds, folded=mean.folded, error_px=float(mean.errors.mean())))  # fmt: skip
+    finish(info, result, args.json)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -15,8 +15,9 @@ The methods, on the same crops and the same marked points, ``N`` frames (``--fra
 ``s = k / (N - 1)``; each returns ``frames (N, C, H, W)`` and backward maps ``maps``, ``maps_b`` ``(N, H, W, 2)``
 (output pixel -> A's / B's pixel, ``(x, y)``, pixel centres at integers):
 
-* ``fluid``: :func:`torchfluidwarp.morph.morphing` with the keyword arguments of ``--morph-kwargs`` (default ``{}``: the
-  library's defaults); ``--config NAME=JSON`` adds more fluid rows.
+* ``fluid``: :func:`torchfluidwarp.morph.morph` with the settings of ``--settings JSON`` (``"method"``, ``"natural"``
+  or ``"paper"``, and that class's fields; default ``{}``: ``NaturalSettings()``); ``--config NAME=JSON`` adds
+  more fluid rows.
 * ``tps``: the textbook thin-plate spline to the average shape ``S_s = (1 - s) a + s b``: A's map interpolates
   ``S_s -> a`` (kernel centres at ``S_s``, with the affine part, solved in float64), B's ``S_s -> b``;
   cross-dissolve ``(1 - s) A + s B``.
@@ -50,13 +51,13 @@ converge to within 0.1 px is "not located" and left out (the JSON counts them).
 The script prints the machine, torch's threads and its command line, a per-pair table and the medians over each
 half (Markdown), with the ratio of each median to the thin-plate spline's. ``--json PATH`` writes everything,
 per-point distances included; ``--sheets DIR`` writes a contact sheet per pair (rows: the methods in the table's
-order, labelled; columns: ``s`` = 0, 1/4, 1/2, 3/4, 1). ``--selftest`` checks the metrics on known maps and exits.
+order, labelled; columns: ``s`` = 0, 1/4, 1/2, 3/4, 1). The metrics are tested in ``tests/metrics``.
 
 Python use (from the repository root)::
 
     import sys; sys.path.insert(0, "benchmarks")
     from bench_morph_quality import load_pairs, run_method, evaluate, summarize
-    rows = [evaluate(run_method("fluid", p, 21, compressible=True), p) for p in load_pairs("tune", bundled=False)]
+    rows = [evaluate(run_method("fluid", p, 21, {"straightness": 1.0}), p) for p in load_pairs("tune", bundled=False)]
     summarize(rows)  # medians
 """
 
@@ -67,7 +68,6 @@ import json
 import os
 import shlex
 import statistics
-import subprocess
 import sys
 import time
 import warnings
@@ -77,15 +77,15 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from _common import describe_load, machine, machine_load, source_fingerprint, write_json
+from _common import finish, log, morph_settings, parser, start, table
 from matplotlib.tri import Triangulation
 from morph_quality_data import FACES, SPLIT_FACES, load_faces
 from scipy.spatial import Delaunay
 from torch import Tensor
 
-import torchfluidwarp
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.metrics import end_error, folded_pixels, ghosting, seam_figure
+from torchfluidwarp.morph import morph
 from torchfluidwarp.warp import warp_image
 
 Split = Literal["tune", "report", "all"]
@@ -270,31 +270,22 @@ def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -
     return MethodResult(out, maps_t, maps_b_t, time.perf_counter() - t0)
 
 
-def run_method(name: str, pair: Pair, frames: int = 21, **kwargs: Any) -> MethodResult:
-    """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph.morphing` with ``kwargs``), ``"tps"`` or ``"delaunay"``.
-
-    Warnings that the fluid morph raises are recorded in ``info["warnings"]``, not printed.
-    """
+def run_method(name: str, pair: Pair, frames: int = 21, spec: dict[str, Any] | None = None) -> MethodResult:
+    """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph.morph` with the settings ``spec``, a dict for
+    :func:`_common.morph_settings`), ``"tps"`` or ``"delaunay"``. The fluid's warnings go to ``info["warnings"]``."""
     if name in BASELINES:
-        if kwargs:
-            raise ValueError(f"{name} takes no keyword arguments, got {sorted(kwargs)}")
         return classical_morph(name, pair, frames)  # type: ignore[arg-type]
-    if name != "fluid":
-        raise ValueError(f"method must be 'fluid', 'tps' or 'delaunay', got {name!r}")
+    settings = morph_settings(spec)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
-        res = torchfluidwarp.morph(
-            pair.image_a, pair.image_b, pair.marked_a, pair.marked_b, frames=frames, progress=False, **kwargs
-        )
+        res = morph(pair.image_a, pair.image_b, pair.marked_a, pair.marked_b, settings=settings, frames=frames,
+                    progress=False)  # fmt: skip
+        maps, maps_b, out = res.maps, res.maps_b, res.frames
         seconds = time.perf_counter() - t0
-    info: dict[str, Any] = {"warnings": sorted({str(w.message) for w in caught})}
-    fit = getattr(res, "fit", None)
-    if fit is not None and getattr(fit, "error", None) is not None:
-        info["fit_error_px"] = float(fit.error.double().mean())
-    if isinstance(getattr(res, "seconds", None), dict):
-        info["phases_s"] = {k: float(v) for k, v in res.seconds.items()}
-    return MethodResult(res.frames, res.maps, res.maps_b, seconds, info, raw=res)
+    info = {"warnings": sorted({str(w.message) for w in caught}), "error_px": float(res.error.double().mean()),
+            "fit_error_box_px": float(res.fit.error.double().mean()), "phases_s": dict(res.seconds)}  # fmt: skip
+    return MethodResult(out, maps, maps_b, seconds, info, raw=res)
 
 
 # ----------------------------------------------------------------------------------------------- metrics
@@ -367,90 +358,6 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-# ----------------------------------------------------------------------------------------------- self-test
-
-
-def _affine_result(size: int, frames: int, R: Tensor, t: Tensor) -> MethodResult:
-    """The exact morph for B = A moved by ``p -> R p + t``: frame ``s`` moves A by ``F_s = (1 - s) I + s F``."""
-    grid = pixel_grid(size, size)
-    eye = torch.eye(2, dtype=torch.float64)
-    maps, maps_b = [], []
-    for k in range(frames):
-        s = k / (frames - 1)
-        Rs, ts = (1 - s) * eye + s * R, s * t
-        back = (grid - ts) @ torch.linalg.inv(Rs).T  # F_s^-1(y): A's pixel
-        maps.append(back.float().view(size, size, 2))
-        maps_b.append((back @ R.T + t).float().view(size, size, 2))  # F(F_s^-1(y)): B's pixel
-    maps_t, maps_b_t = torch.stack(maps), torch.stack(maps_b)
-    return MethodResult(torch.zeros(frames, 1, size, size), maps_t, maps_b_t, 0.0)
-
-
-def selftest() -> int:
-    """Check the metrics on maps whose answers are known; return 0 when all hold."""
-    size, frames = 96, 5
-    gen = torch.Generator().manual_seed(0)
-    R = torch.tensor([[1.1, 0.15], [-0.1, 0.95]], dtype=torch.float64)
-    t = torch.tensor([3.0, -2.0], dtype=torch.float64)
-    pa = (30 + 36 * torch.rand(24, 2, generator=gen, dtype=torch.float64)).round()  # at pixel centres
-    pb = pa @ R.T + t
-    ma, ha = _hold_out(pa)
-    mb, hb = _hold_out(pb)
-    image = torch.rand(1, 3, size, size, generator=gen)
-    pair = Pair("affine", "selftest", image, image, ma.float(), mb.float(), ha.float(), hb.float())
-    checks: list[tuple[str, bool, str]] = []
-
-    def check(name: str, ok: bool, got: Any) -> None:
-        checks.append((name, ok, str(got)))
-
-    exact = evaluate(_affine_result(size, frames, R, t), pair)
-    for key in ("held_end_px", "held_ghost_px", "marked_ghost_px", "marked_end_px"):
-        check(f"exact affine map: {key} ~ 0", exact[key] < 1e-3, f"{exact[key]:.2e} px")
-    check("exact affine map: no fold", exact["folded"] == 0, exact["folded"])
-    check("exact affine map: seam ~ 0", exact["seam"] < 1e-3, f"{exact['seam']:.2e}")
-    check("exact affine map: every point located", exact["not_located"] == 0, exact["not_located"])
-
-    # B's held-out points moved by d: the end error is |d|; in the middle frame B's points show at
-    # F_s(F^-1(b + d)) = y + L d with L = R_s R^-1 (R_s = (I + R) / 2), so the ghosting is |L d|
-    d = torch.tensor([3.0, -4.0], dtype=torch.float64)
-    moved = Pair(pair.name, pair.split, image, image, ma.float(), mb.float(), ha.float(), (hb + d).float())
-    off = evaluate(_affine_result(size, frames, R, t), moved)
-    L = (torch.eye(2, dtype=torch.float64) + R) / 2 @ torch.linalg.inv(R)
-    ghost = float((L @ d).norm())
-    check("held-out points moved by (3, -4): end error 5 px", abs(off["held_end_px"] - 5) < 1e-3, off["held_end_px"])
-    check(f"... and mid-frame ghosting {ghost:.3f} px", abs(off["held_ghost_px"] - ghost) < 1e-3, off["held_ghost_px"])
-
-    flipped = _affine_result(size, frames, R, t)
-    flipped.maps[..., 0] = size - 1 - flipped.maps[..., 0]  # mirrored: det < 0 everywhere
-    fl = evaluate(flipped, pair)
-    check("mirrored A maps: half of all map pixels fold", abs(fl["folded_fraction"] - 0.5) < 1e-9, fl["folded"])
-
-    # a stretch that jumps from 1 to 1.5 at one column: its second difference there is 0.5 px/px^2
-    x = torch.arange(size, dtype=torch.float64)
-    kink = torch.where(x <= 50, x, 50 + 1.5 * (x - 50))
-    m = torch.stack(torch.broadcast_tensors(kink.view(1, -1), x.view(-1, 1)), dim=-1)
-    seam = seam_figure(m)
-    check("a kink in the stretch (1 -> 1.5) at one column: seam figure 0.5", abs(seam - 0.5) < 1e-9, seam)
-
-    # the baselines interpolate: frame 0 (shape = A's points, at pixel centres) reads B at B's marked points
-    for name in BASELINES:
-        res = run_method(name, pair, frames)
-        at = res.maps_b[0][ma[:, 1].long(), ma[:, 0].long()].double()  # (M, 2)
-        err = float((at - mb).norm(dim=-1).max())
-        check(f"{name}: frame 0 reads B's marked points at A's", err < 1e-3, f"{err:.1e} px")
-        ends = max(float((res.frames[i] - image[0]).abs().max()) for i in (0, -1))
-        check(f"{name}: first and last frames are A and B", ends < 1e-4, f"{ends:.1e}")
-    tps = evaluate(run_method("tps", pair, frames), pair)
-    check("tps on an affine pair: held-out end error ~ 0", tps["held_end_px"] < 1e-2, tps["held_end_px"])
-    check("tps on an affine pair: no fold", tps["folded"] == 0, tps["folded"])
-    check("tps on an affine pair: seam ~ 0", tps["seam"] < 1e-3, tps["seam"])
-
-    for name, ok, got in checks:
-        print(f"{'ok  ' if ok else 'FAIL'}  {name}  ({got})")
-    failed = sum(not ok for _, ok, _ in checks)
-    print(f"{len(checks) - failed} passed, {failed} failed")
-    return 1 if failed else 0
-
-
 # ----------------------------------------------------------------------------------------------- output
 
 
@@ -458,45 +365,28 @@ def _f(x: float | None, digits: int = 2) -> str:
     return "—" if x is None or x != x else f"{x:.{digits}f}"
 
 
-def _folds(count: int, fraction: float) -> str:
-    return "0" if count == 0 else f"{count} ({100 * fraction:.3g}%)"
-
-
 def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
-    head = "| pair | method | held-out end (mean) | held-out ghost (median) | marked ghost (median) "
-    head += "| marked end (mean) | folded px | seam | time s |\n|---|---|---|---|---|---|---|---|---|"
-    lines = [head]
+    rows = []
     for rec in records:
         for label in labels:
             r = rec["methods"][label]
-            mark = "*" if r["not_located"] else ""
-            lines.append(
-                f"| {rec['pair']} | {label} | {_f(r['held_end_px'])}{mark} | {_f(r['held_ghost_px'])} | "
-                f"{_f(r['marked_ghost_px'])} | {_f(r['marked_end_px'])} | "
-                f"{_folds(r['folded'], r['folded_fraction'])} | {_f(r['seam'], 3)} | {_f(r['seconds'])} |"
-            )
-    return "\n".join(lines)
+            folded = "0" if r["folded"] == 0 else f"{r['folded']} ({100 * r['folded_fraction']:.3g}%)"
+            rows.append([rec["pair"], label, _f(r["held_end_px"]) + ("*" if r["not_located"] else ""),
+                         *(_f(r[k]) for k in HEADLINE[1:4]), folded, _f(r["seam"], 3), _f(r["seconds"])])  # fmt: skip
+    heads = ["pair", "method", "held-out end (mean)", "held-out ghost (median)", "marked ghost (median)"]
+    return table([*heads, "marked end (mean)", "folded px", "seam", "time s"], rows, markdown=True)
 
 
 def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
     ref = summary.get("tps")
-    head = "| method | held-out end | held-out ghost | marked ghost | marked end | pairs folding | worst folded "
-    head += "| seam | time s | held-out end / tps | held-out ghost / tps | seam / tps |\n"
-    head += "|---|---|---|---|---|---|---|---|---|---|---|---|"
-    lines = [head]
-    for label in labels:
-        s = summary[label]
-
-        def ratio(key: str, s: dict[str, Any] = s) -> str:
-            return "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"
-
-        lines.append(
-            f"| {label} | {_f(s['held_end_px'])} | {_f(s['held_ghost_px'])} | {_f(s['marked_ghost_px'])} | "
-            f"{_f(s['marked_end_px'])} | {s['pairs_folding']}/{s['pairs']} | {100 * s['folded_fraction_max']:.3g}% | "
-            f"{_f(s['seam'], 3)} | {_f(s['seconds'])} | {ratio('held_end_px')} | {ratio('held_ghost_px')} | "
-            f"{ratio('seam')} |"
-        )
-    return "\n".join(lines)
+    ratio = lambda s, key: "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
+    rows = [[label, *(_f(s[k]) for k in HEADLINE[:4]), f"{s['pairs_folding']}/{s['pairs']}",
+             f"{100 * s['folded_fraction_max']:.3g}%", _f(s["seam"], 3), _f(s["seconds"]),
+             *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "seam"))]
+            for label, s in ((label, summary[label]) for label in labels)]  # fmt: skip
+    heads = ["method", "held-out end", "held-out ghost", "marked ghost", "marked end", "pairs folding"]
+    heads += ["worst folded", "seam", "time s", "held-out end / tps", "held-out ghost / tps", "seam / tps"]
+    return table(heads, rows, markdown=True)
 
 
 def _thumb(frame: Tensor) -> np.ndarray:
@@ -529,14 +419,6 @@ def write_sheet(path: Path, pair: str, rows: dict[str, list[Tensor]]) -> None:
     os.replace(tmp, path)
 
 
-def cpu_model() -> str:
-    try:
-        text = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        return next(line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("Model name"))
-    except (OSError, subprocess.CalledProcessError, StopIteration):
-        return machine()["cpu"]
-
-
 # ----------------------------------------------------------------------------------------------- main
 
 
@@ -544,130 +426,82 @@ def _config(text: str) -> tuple[str, dict[str, Any]]:
     name, sep, spec = text.partition("=")
     if not sep or not name or name in BASELINES:
         raise argparse.ArgumentTypeError(f"expected NAME=JSON with NAME not in {BASELINES}, got {text!r}")
-    return name, _kwargs(spec)
+    return name, _spec(spec)
 
 
-def _kwargs(spec: str) -> dict[str, Any]:
+def _spec(text: str) -> dict[str, Any]:
     try:
-        kwargs = json.loads(spec)
-    except json.JSONDecodeError as err:
-        raise argparse.ArgumentTypeError(f"not JSON: {spec!r} ({err})") from None
-    if not isinstance(kwargs, dict):
-        raise argparse.ArgumentTypeError(f"expected a JSON object of morph keyword arguments, got {spec!r}")
-    return kwargs
+        spec = json.loads(text)
+        morph_settings(spec)  # checked now, not after the first pairs
+    except (json.JSONDecodeError, TypeError, ValueError) as err:
+        raise argparse.ArgumentTypeError(f"not settings of a morph method: {text!r} ({err})") from None
+    return spec
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--split", choices=("tune", "report", "all"), default="all", help="face pairs (default all)")
-    parser.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
-    parser.add_argument("--methods", default="tps,delaunay,fluid", help="comma-separated rows: tps, delaunay, fluid")
-    parser.add_argument(
-        "--morph-kwargs", type=_kwargs, default={}, metavar="JSON", help="keyword arguments of the 'fluid' row"
-    )
-    parser.add_argument(
-        "--config",
-        type=_config,
-        action="append",
-        default=[],
-        metavar="NAME=JSON",
-        help="another fluid row NAME with these morph keyword arguments (repeatable)",
-    )
-    parser.add_argument("--pairs", help="comma-separated pair names to keep (e.g. t1-1_t1-3,astronaut_cat)")
-    parser.add_argument("--no-bundled", action="store_true", help="leave out the bundled astronaut -> cat pair")
-    parser.add_argument("--sheets", metavar="DIR", help="write a contact sheet per pair into DIR")
-    parser.add_argument("--json", metavar="PATH", help="write every figure to PATH")
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    parser.add_argument("--selftest", action="store_true", help="check the metrics on known maps and exit")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    if args.selftest:
-        return selftest()
+    p = parser(__doc__, quick="the bundled pair alone (no download), 5 frames, 10 fit iterations, tps and fluid")
+    p.add_argument("--split", choices=("tune", "report", "all"), default="all", help="face pairs (default all)")
+    p.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
+    p.add_argument("--methods", default="tps,delaunay,fluid", help="comma-separated rows: tps, delaunay, fluid")
+    p.add_argument("--settings", type=_spec, default={}, metavar="JSON",
+                   help='the fluid row\'s settings: {"method": "natural" or "paper", and its fields}')  # fmt: skip
+    p.add_argument("--config", type=_config, action="append", default=[], metavar="NAME=JSON",
+                   help="another fluid row NAME with these settings (repeatable)")  # fmt: skip
+    p.add_argument("--pairs", help="comma-separated pair names to keep (e.g. t1-1_t1-3,astronaut_cat)")
+    p.add_argument("--no-bundled", action="store_true", help="leave out the bundled astronaut -> cat pair")
+    p.add_argument("--sheets", metavar="DIR", help="write a contact sheet per pair into DIR")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.frames, args.methods = 5, "tps,fluid"
+        args.settings = {**args.settings, "max_iter": 10}
     if args.frames < 2:
-        parser.error(f"--frames must be >= 2, got {args.frames}")
+        p.error(f"--frames must be >= 2, got {args.frames}")
     rows: dict[str, tuple[str, dict[str, Any]]] = {}
     for name in filter(None, args.methods.split(",")):
         if name not in (*BASELINES, "fluid"):
-            parser.error(f"--methods: unknown method {name!r} (tps, delaunay, fluid)")
-        rows[name] = (name, args.morph_kwargs if name == "fluid" else {})
-    for name, kwargs in args.config:
-        rows[name] = ("fluid", kwargs)
+            p.error(f"--methods: unknown method {name!r} (tps, delaunay, fluid)")
+        rows[name] = (name, args.settings if name == "fluid" else {})
+    rows.update((name, ("fluid", spec)) for name, spec in args.config)
     labels = list(rows)
-
-    pairs = load_pairs(args.split, bundled=not args.no_bundled)
+    pairs = [bundled_pair()] if args.quick else load_pairs(args.split, bundled=not args.no_bundled)
     if args.pairs:
         keep = set(args.pairs.split(","))
-        unknown = keep - {p.name for p in pairs}
-        if unknown:
-            parser.error(f"--pairs: not in split {args.split!r}: {sorted(unknown)}")
-        pairs = [p for p in pairs if p.name in keep]
-    command = shlex.join([sys.executable, *sys.argv]) if argv is None else shlex.join(["bench_morph_quality", *argv])
-    load0 = machine_load()
-    print(f"command: {command}")
-    print(f"CPU: {cpu_model()} ({os.cpu_count()} cores); torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print(f"torchfluidwarp {torchfluidwarp.__file__} (sources {source_fingerprint()}); {describe_load(load0)}")
-    described = ", ".join(f"{label} = {method} {kwargs}" for label, (method, kwargs) in rows.items())
+        if keep - {pair.name for pair in pairs}:
+            p.error(f"--pairs: not in split {args.split!r}: {sorted(keep - {pair.name for pair in pairs})}")
+        pairs = [pair for pair in pairs if pair.name in keep]
+    info = start("bench_morph_quality", args.threads, " [--quick]" if args.quick else "")
+    print(f"command: {shlex.join(sys.argv if argv is None else ['bench_morph_quality', *argv])}")
+    described = ", ".join(f"{label} = {method} {spec}" for label, (method, spec) in rows.items())
     print(f"{len(pairs)} pairs, {args.frames} frames; rows: {described}")
     if args.sheets:
         Path(args.sheets).mkdir(parents=True, exist_ok=True)
-
     records = []
     for pair in pairs:
         rec: dict[str, Any] = {"pair": pair.name, "split": pair.split, "methods": {}}
         sheet_rows: dict[str, list[Tensor]] = {}
-        for label, (method, kwargs) in rows.items():
-            res = run_method(method, pair, args.frames, **kwargs)
-            metrics = evaluate(res, pair)
-            metrics["info"] = res.info
-            rec["methods"][label] = metrics
+        for label, (method, spec) in rows.items():
+            res = run_method(method, pair, args.frames, spec)
+            m = rec["methods"][label] = {**evaluate(res, pair), "info": res.info}
             n = res.frames.shape[0]
             sheet_rows[label] = [res.frames[round(s * (n - 1))].detach().cpu() for s in SHEET_AT]
-            print(
-                f"  {pair.name} {label}: held-out {_f(metrics['held_end_px'])} px, ghost {_f(metrics['held_ghost_px'])}"
-                f" / {_f(metrics['marked_ghost_px'])} px, folded {metrics['folded']}, seam {_f(metrics['seam'], 3)},"
-                f" {res.seconds:.2f} s",
-                file=sys.stderr,
-                flush=True,
-            )
-            del res
+            ghost = f"{_f(m['held_ghost_px'])} / {_f(m['marked_ghost_px'])} px"
+            log(f"  {pair.name} {label}: held-out {_f(m['held_end_px'])} px, ghost {ghost}, folded {m['folded']}, "
+                f"seam {_f(m['seam'], 3)}, {res.seconds:.2f} s")  # fmt: skip
         if args.sheets:
             write_sheet(Path(args.sheets) / f"{pair.name}.png", pair.name, sheet_rows)
         records.append(rec)
-
     groups = {half: [r for r in records if r["split"] == half] for half in (*SPLITS, "bundled")}
-    summaries = {
-        half: {label: summarize([r["methods"][label] for r in recs]) for label in labels}
-        for half, recs in groups.items()
-        if recs
-    }
-    print("\n## Per pair\n")
-    print(pair_table(records, labels))
+    summaries = {half: {label: summarize([r["methods"][label] for r in recs]) for label in labels}
+                 for half, recs in groups.items() if recs}  # fmt: skip
+    print("\n## Per pair\n\n" + pair_table(records, labels))
     print("\n(*: some points were not located in a frame; see the JSON.) Ghosting at frame", args.frames // 2)
     for half, summary in summaries.items():
         names = ", ".join(r["pair"] for r in groups[half])
-        print(f"\n## Medians, {half} ({len(groups[half])} pairs: {names})\n")
-        print(median_table(summary, labels))
-    load1 = machine_load()
-    print(f"\n{describe_load(load1)}")
-    if args.json:
-        write_json(
-            args.json,
-            {
-                "command": command,
-                "machine": {**machine(), "cpu_lscpu": cpu_model()},
-                "load": {"start": load0, "end": load1},
-                "source_fingerprint": source_fingerprint(),
-                "frames": args.frames,
-                "rows": {k: {"method": m, "kwargs": kw} for k, (m, kw) in rows.items()},
-                "pairs": records,
-                "medians": summaries,
-            },
-        )
-        print(f"wrote {args.json}")
+        print(f"\n## Medians, {half} ({len(groups[half])} pairs: {names})\n\n" + median_table(summary, labels))
     if args.sheets:
         print(f"wrote {len(records)} contact sheets to {args.sheets} (rows: {', '.join(labels)})")
+    result = {"frames": args.frames, "rows": {k: {"method": m, "settings": spec} for k, (m, spec) in rows.items()}}
+    finish(info, {**result, "pairs": records, "medians": summaries}, args.json)
     return 0
 
 

@@ -4,7 +4,7 @@ The set-up is the one of ``bench_keyframes.py`` (the paper's morphing fit): a 64
 frame in a closed box (solid walls), 10 steps with ``dt = 1``, no viscosity, 14 points whose targets lie 5 to
 10 px away, forces parametrised by a 5x5x2 control grid per step (500 parameters), the objective
 ``1/2 sum_i ||p_i(T) - q_i||^2`` (px^2), and L-BFGS with a strong-Wolfe line search, started from zero forces.
-The instance is ``bench_keyframes.flow_instance`` (``--seed``, default 0: the "flow seed 0" instance of that
+The instance is ``_common.flow_instance`` (``--seed``, default 0: the "flow seed 0" instance of that
 benchmark), whose targets are where a random brush-driven flow carries the sources, so they are reachable. That
 flow is torchfluidwarp's own: its targets are reachable exactly by torchfluidwarp's discretisation and only
 approximately by PhiFlow's, though both use the same scheme (below) and the brushes are not the control grid.
@@ -13,7 +13,8 @@ Both fits stop once every point is within ``--tolerance`` px (0.05; this implies
 after ``--max-iter`` L-BFGS iterations, or after ``--time-cap-s`` of wall time.
 
 * **torchfluidwarp**: ``fit_keyframes(source, target, image_size=(64, 64), grid=(64, 64), steps=10,
-  control=(5, 5), tolerance=0.05, dtype=float64)``. Its gradient is autograd through the solver, with the
+  control=(5, 5), tolerance=0.05, dtype=float64, method="lbfgs")`` (L-BFGS alone, as PhiFlow's fit). Its
+  gradient is autograd through the solver, with the
   pressure solve's implicit adjoint.
 * **PhiFlow 3.4**, torch backend (``phi.torch.flow``), float64, eager. Per step:
   ``v + dt * resample(f, to=v)``; ``advect.semi_lagrangian(v, v, dt)``; ``fluid.make_incompressible(v)``
@@ -45,9 +46,7 @@ Needs ``pip install "phiflow>=3.4,<3.5"`` (or ``pip install -e ".[bench]"``). Ru
 
 from __future__ import annotations
 
-import argparse
 import math
-import os
 import re
 import statistics
 import sys
@@ -60,21 +59,10 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import save_figure, write_json
-from bench_keyframes import (
-    FRAME,
-    PAPER_SECONDS,
-    Instance,
-    describe_load,
-    flow_instance,
-    machine,
-    machine_load,
-    source_fingerprint,
-    table,
-)
+from _common import FRAME, Instance, finish, flow_instance, log, parser, rows_table, save_figure, start
+from bench_keyframes import PAPER_SECONDS
 from torch import Tensor
 
-import torchfluidwarp
 from torchfluidwarp.control import fit_keyframes
 from torchfluidwarp.warp import FluidWarp
 
@@ -322,78 +310,15 @@ def gradient_at(endpoints: Callable[[Tensor], Tensor], control: Tensor, target: 
 # ----------------------------------------------------------------------------------------------- report
 
 
-def summary(runs: list[FitRun]) -> dict[str, Any]:
-    return {
-        "library": runs[0].library,
-        "repeats": len(runs),
-        "seconds": statistics.median(r.seconds for r in runs),
-        "cpu_seconds": statistics.median(r.cpu_seconds for r in runs),
-        "evaluations": statistics.median(r.evaluations for r in runs),
-        "ms_per_evaluation": statistics.median(r.ms_per_evaluation for r in runs),
-        "mean_error": statistics.median(r.mean_error for r in runs),
-        "max_error": statistics.median(r.max_error for r in runs),
-        "reached": f"{sum(r.reached for r in runs)}/{len(runs)}",
-        "stopped": "; ".join(sorted(Counter(r.stopped for r in runs))),
-        "same_each_repeat": len({(r.evaluations, round(r.mean_error, 10)) for r in runs}) == 1,
-    }
-
-
-def markdown(headers: list[str], rows: list[list[str]], left: tuple[int, ...] = (0,)) -> str:
-    align = ["---" if i in left else "---:" for i in range(len(headers))]
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(align) + "|"]
-    return "\n".join([*lines, *("| " + " | ".join(r) + " |" for r in rows)])
-
-
-def report_table(rows: dict[str, dict[str, Any]], labels: dict[str, str], ours: str) -> str:
-    base = rows[ours]
-    out = [
-        [
-            "paper (as quoted in the issue, not measured)",
-            "-",
-            f"{PAPER_SECONDS:.0f}",
-            "-",
-            "-",
-            "-",
-            "-",
-            "-",
-            "-",
-            "-",
-            f"{PAPER_SECONDS / base['seconds']:.0f}x",
-        ]
-    ]
-    for key, s in rows.items():
-        out.append(
-            [
-                labels[key],
-                str(s["repeats"]),
-                f"{s['seconds']:.2f}",
-                f"{s['cpu_seconds']:.2f}",
-                f"{s['evaluations']:g}",
-                f"{s['ms_per_evaluation']:.1f}",
-                f"{s['mean_error']:.4f}",
-                f"{s['max_error']:.4f}",
-                s["reached"],
-                s["stopped"],
-                f"{s['seconds'] / base['seconds']:.1f}x",
-            ]
-        )
-    return markdown(
-        [
-            "fit",
-            "repeats",
-            "fit s (median)",
-            "CPU s",
-            "evals",
-            "ms/eval",
-            "mean err px",
-            "max err px",
-            "reached",
-            "stopped by",
-            "time / torchfluidwarp",
-        ],
-        out,
-        left=(0, 9),
-    )
+def summary(runs: list[FitRun], label: str) -> dict[str, Any]:
+    med = lambda key: statistics.median(getattr(r, key) for r in runs)  # noqa: E731
+    return dict(
+        label=label, repeats=len(runs), seconds=med("seconds"), cpu_seconds=med("cpu_seconds"),
+        evaluations=med("evaluations"), ms_per_evaluation=med("ms_per_evaluation"), mean_error=med("mean_error"),
+        max_error=med("max_error"), reached=f"{sum(r.reached for r in runs)}/{len(runs)}",
+        stopped="; ".join(sorted(Counter(r.stopped for r in runs))),
+        same_each_repeat=len({(r.evaluations, round(r.mean_error, 10)) for r in runs}) == 1,
+    )  # fmt: skip
 
 
 def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], title: str) -> None:
@@ -406,10 +331,10 @@ def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], titl
     labels = ["paper\n(5 min, quoted,\nnot measured)"] + list(names.values())
     secs = [PAPER_SECONDS] + [rows[k]["seconds"] for k in names]
     notes = ["300 s"] + [
-        f"{rows[k]['seconds']:.1f} s: {rows[k]['evaluations']:g} evals x {rows[k]['ms_per_evaluation']:.0f} ms,\n"
-        f"mean err {rows[k]['mean_error']:.3f} px, max {rows[k]['max_error']:.3f} px"
-        + ("" if rows[k]["reached"].startswith(str(rows[k]["repeats"])) else f" (not reached: {rows[k]['stopped']})")
-        for k in names
+        f"{r['seconds']:.1f} s: {r['evaluations']:g} evals x {r['ms_per_evaluation']:.0f} ms,\n"
+        f"mean err {r['mean_error']:.3f} px, max {r['max_error']:.3f} px"
+        + ("" if r["reached"].startswith(str(r["repeats"])) else f" (not reached: {r['stopped']})")
+        for r in (rows[k] for k in names)
     ]
     fig, ax = plt.subplots(figsize=(8.0, 0.9 * len(labels) + 1.3), dpi=120)
     bars = ax.barh(range(len(labels)), secs, color=["#9e9e9e", "#d95f02", "#1b9e77"][: len(labels)])
@@ -428,38 +353,48 @@ def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], titl
 # ----------------------------------------------------------------------------------------------- main
 
 
+def solver_lines(solver: dict[str, Any], steps: int, ours_iters: list[int]) -> list[str]:
+    """What :meth:`PhiFlowSim.solver_report` found, and torchfluidwarp's pressure solve."""
+    fw, gr, dflt = solver["forward"], solver["gradient"], solver["default_solve_run"]
+    return [
+        "\nPressure solve in the closed box (control 0.01 everywhere; SolveTape records every solve)",
+        f"  PhiFlow make_incompressible's default solve argument: Solve({solver['make_incompressible_default_solve']})",
+        f"  with it, a forward: {dflt['solves_run']} of {steps} solves ran, method {dflt['method_setting']}, "
+        f"implementation {dflt['implementation']}, residual norms up to {dflt['max_residual_norm']:.3g}; "
+        f"outcome: {dflt['outcome']}",
+        f"  the fit's solve: {solver['fit_solve']}",
+        f"  PhiFlow, forward: {fw['solves']} solves, Solve {fw['requested']}, i.e. method {fw['method_setting']}, "
+        f"ran {fw['implementation']}, rank_deficiency {fw['rank_deficiency']}, iterations {fw['iterations']}, "
+        f"converged {fw['converged']}, residual norms up to {fw['max_residual_norm']:.3g}, median "
+        f"{fw['median_solve_ms']:.1f} ms per solve",
+        f"  PhiFlow, gradient: {gr['solves']} solves, method {gr['method_setting']}, ran {gr['implementation']}, "
+        f"converged {gr['converged']}",
+        *(f"  PhiFlow warning (x{n}): {msg}" for msg, n in solver["warnings"].items()),
+        "  torchfluidwarp: pressure by its exact DCT Neumann solve (its CG's preconditioner), implicit adjoint; "
+        f"iterations per step {sorted(set(ours_iters))}",
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--quick", action="store_true", help="smoke mode: 32x32 fluid, 5 steps, 6 points, short caps")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    parser.add_argument("--plot", metavar="PATH.png", help="also write a bar chart of the fit times to PATH.png")
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="the flow instance (default 0)")
-    parser.add_argument("--repeats", type=int, help="torchfluidwarp fits (default 3; --quick 1)")
-    parser.add_argument("--phiflow-repeats", type=int, default=1, help="PhiFlow fits (default 1)")
-    parser.add_argument("--tolerance", type=float, default=0.05, help="px: stop once every point is within it")
-    parser.add_argument("--max-iter", type=int, help="L-BFGS iterations at most (default 200; --quick 50)")
-    parser.add_argument("--time-cap-s", type=float, help="wall-time cap of one fit (default 600; --quick 60)")
-    parser.add_argument(
-        "--phiflow-solve",
-        default="auto",
-        help="method of PhiFlow's pressure Solve (default 'auto', the method of make_incompressible's default Solve())",
-    )
-    parser.add_argument(
-        "--phiflow-tol",
-        type=float,
-        default=1e-9,
-        help="rel_tol and abs_tol of PhiFlow's pressure Solve (default 1e-9; 0: PhiFlow's own, 1e-12 in float64, "
-        "with which its direct solve fails its own residual check on these flows)",
-    )
-    args = parser.parse_args(argv)
+    p = parser(__doc__, quick="32x32 fluid, 5 steps, 6 points, short caps")
+    p.add_argument("--plot", metavar="PATH.png", help="also write a bar chart of the fit times to PATH.png")
+    p.add_argument("--seed", type=int, default=0, help="the flow instance (default 0)")
+    p.add_argument("--repeats", type=int, help="torchfluidwarp fits (default 3; --quick 1)")
+    p.add_argument("--phiflow-repeats", type=int, default=1, help="PhiFlow fits (default 1)")
+    p.add_argument("--tolerance", type=float, default=0.05, help="px: stop once every point is within it")
+    p.add_argument("--max-iter", type=int, help="L-BFGS iterations at most (default 200; --quick 50)")
+    p.add_argument("--time-cap-s", type=float, help="wall-time cap of one fit (default 600; --quick 60)")
+    p.add_argument("--phiflow-solve", default="auto",
+                   help="method of PhiFlow's pressure Solve (default 'auto', make_incompressible's)")  # fmt: skip
+    p.add_argument("--phiflow-tol", type=float, default=1e-9,
+                   help="rel_tol and abs_tol of PhiFlow's pressure Solve (default 1e-9; 0: PhiFlow's own, 1e-12 in "
+                   "float64, with which its direct solve fails its own residual check on these flows)")  # fmt: skip
+    args = p.parse_args(argv)
     repeats = args.repeats or (1 if args.quick else 3)
     max_iter = args.max_iter or (50 if args.quick else 200)
     cap = args.time_cap_s or (60.0 if args.quick else 600.0)
     if min(args.threads, repeats, args.phiflow_repeats, max_iter) < 1 or not (args.tolerance > 0 and cap > 0):
-        parser.error("--threads, --repeats, --phiflow-repeats, --max-iter must be >= 1; --tolerance, --time-cap-s > 0")
+        p.error("--threads, --repeats, --phiflow-repeats, --max-iter must be >= 1; --tolerance, --time-cap-s > 0")
     try:
         import phi
 
@@ -469,100 +404,50 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as exc:
         print(f'bench_phiflow: PhiFlow is needed: pip install "phiflow>=3.4,<3.5" ({exc})', file=sys.stderr)
         return 2
-
-    torch.set_num_threads(args.threads)
     grid, steps, points = ((32, 32), 5, 6) if args.quick else ((64, 64), 10, 14)
     dtype = torch.float64
     phi.math.set_global_precision(64)
-    info = machine()
-    info.update(phiflow=phi.__version__, load_start=machine_load(), sources_sha256=source_fingerprint())
-    print(
-        f"bench_phiflow: {info['cpu']}, {info['cpu_count']} CPUs, torch {info['torch']} with {info['torch_threads']} "
-        f"thread(s), PhiFlow {info['phiflow']}, Python {info['python']}, {info['date']}"
-        + (" [--quick]" if args.quick else ""),
-        flush=True,
-    )
-    print(
-        f"torchfluidwarp from {os.path.dirname(torchfluidwarp.__file__)}, sources sha256 {info['sources_sha256']}; "
-        f"at the start: {describe_load(info['load_start'])}"
-    )
+    info = start("bench_phiflow", args.threads, f", PhiFlow {phi.__version__}" + (" [--quick]" if args.quick else ""))
     n_params = 2 * steps * CONTROL[0] * CONTROL[1]
-    print(
-        f"set-up: {grid[0]}x{grid[1]} fluid in a closed box, {FRAME[1]}x{FRAME[0]} px frame, {steps} steps, dt {DT:g}, "
-        f"{points} points, control {CONTROL[0]}x{CONTROL[1]} ({n_params} parameters), float64, tolerance "
-        f"{args.tolerance:g} px (every point), max_iter {max_iter}, time cap {cap:g} s per fit",
-        flush=True,
-    )
-    log = lambda msg: print(msg, file=sys.stderr, flush=True)  # noqa: E731
-    t_total = time.perf_counter()
-
+    print(f"set-up: {grid[0]}x{grid[1]} fluid in a closed box, {FRAME[1]}x{FRAME[0]} px frame, {steps} steps, "
+          f"dt {DT:g}, {points} points, control {CONTROL[0]}x{CONTROL[1]} ({n_params} parameters), float64, "
+          f"tolerance {args.tolerance:g} px (every point), max_iter {max_iter}, time cap {cap:g} s a fit")  # fmt: skip
     log("  instance ...")
     inst: Instance = flow_instance(args.seed, points, grid, steps)
     src, tgt = inst.tensors(dtype)
-    print(
-        f"instance: {inst.name}, {len(inst.source)} points, displacement {inst.min_displacement:.2f} to "
-        f"{inst.max_displacement:.2f} px, min spacing {inst.min_spacing:.2f} px, targets at least "
-        f"{inst.min_wall_distance_target:.2f} px from the walls"
-    )
-
+    d = inst.describe()
+    print(f"instance: {inst.name}, {len(inst.source)} points, displacement {d['min_disp']:.2f} to "
+          f"{d['max_disp']:.2f} px, min spacing {d['min_spacing']:.2f} px, targets at least {d['min_wall']:.2f} px "
+          "from the walls")  # fmt: skip
     ours = TorchfluidwarpSim(src, grid, steps)
     theirs = PhiFlowSim(src, grid, steps, args.phiflow_solve, args.phiflow_tol)
     zero = torch.zeros(steps, 2, *CONTROL, dtype=dtype)
+    fit_args = dict(image_size=FRAME, grid=grid, steps=steps, control=CONTROL, max_iter=max_iter, dtype=dtype,
+                    tolerance=args.tolerance, progress=False, method="lbfgs")  # fmt: skip
 
-    # warm-ups (one-time costs kept out of the fits: kernels, caches, torch's first LBFGS constructor)
-    log("  warm-up ...")
-    fit_keyframes(src[:1], src[:1] + 1.0, image_size=FRAME, grid=8, steps=2, control=(3, 3), max_iter=3, progress=False)
-    g_ours, t_ours = gradient_at(ours.endpoints, zero, tgt)
-    g_ours, t_ours = gradient_at(ours.endpoints, zero, tgt)
+    log("  warm-up ...")  # one-time costs kept out of the fits: kernels, caches, the first LBFGS constructor
+    fit_keyframes(src[:1], src[:1] + 1.0, **{**fit_args, "grid": 8, "steps": 2, "control": (3, 3), "max_iter": 3})
+    for _ in range(2):
+        g_ours, t_ours = gradient_at(ours.endpoints, zero, tgt)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         g_phi, t_phi_first = gradient_at(theirs.endpoints, zero, tgt)
         g_phi, t_phi = gradient_at(theirs.endpoints, zero, tgt)
     cosine = float(F.cosine_similarity(g_ours.flatten(), g_phi.flatten(), dim=0))
     norm_ratio = float(g_phi.norm() / g_ours.norm())
-    print(
-        f"\nGradient at zero forces (objective + gradient, one evaluation): torchfluidwarp {1e3 * t_ours:.0f} ms, "
-        f"PhiFlow {1e3 * t_phi:.0f} ms (its first call {1e3 * t_phi_first:.0f} ms); cosine between the two "
-        f"gradients {cosine:.6f}, |g PhiFlow| / |g torchfluidwarp| {norm_ratio:.6f}",
-        flush=True,
-    )
-
+    print(f"\nGradient at zero forces (objective + gradient, one evaluation): torchfluidwarp {1e3 * t_ours:.0f} ms, "
+          f"PhiFlow {1e3 * t_phi:.0f} ms (its first call {1e3 * t_phi_first:.0f} ms); cosine between the two "
+          f"gradients {cosine:.6f}, |g PhiFlow| / |g torchfluidwarp| {norm_ratio:.6f}")  # fmt: skip
     log("  PhiFlow's solver, recorded with math.SolveTape ...")
     solver = theirs.solver_report(zero + 0.01)
     ours_iters = ours.pressure_iterations(zero + 0.01)
-    fw, gr, dflt = solver["forward"], solver["gradient"], solver["default_solve_run"]
-    print("\nPressure solve in the closed box (control 0.01 everywhere; SolveTape records every solve)")
-    print(
-        f"  PhiFlow make_incompressible's default solve argument: Solve({solver['make_incompressible_default_solve']})"
-    )
-    print(
-        f"  with it, a forward: {dflt['solves_run']} of {steps} solves ran, method {dflt['method_setting']}, "
-        f"implementation {dflt['implementation']}, residual norms up to {dflt['max_residual_norm']:.3g}; "
-        f"outcome: {dflt['outcome']}"
-    )
-    print(f"  the fit's solve: {solver['fit_solve']}")
-    print(
-        f"  PhiFlow, forward: {fw['solves']} solves, Solve {fw['requested']}, i.e. method {fw['method_setting']}, "
-        f"ran {fw['implementation']}, rank_deficiency {fw['rank_deficiency']}, iterations {fw['iterations']}, "
-        f"converged {fw['converged']}, residual norms up to {fw['max_residual_norm']:.3g}, median "
-        f"{fw['median_solve_ms']:.1f} ms per solve"
-    )
-    print(
-        f"  PhiFlow, gradient: {gr['solves']} solves, method {gr['method_setting']}, ran {gr['implementation']}, "
-        f"converged {gr['converged']}"
-    )
-    for msg, n in solver["warnings"].items():
-        print(f"  PhiFlow warning (x{n}): {msg}")
-    print(
-        "  torchfluidwarp: pressure by its exact DCT Neumann solve (its CG's preconditioner), implicit adjoint; "
-        f"iterations per step {sorted(set(ours_iters))}",
-        flush=True,
-    )
+    print("\n".join(solver_lines(solver, steps, ours_iters)), flush=True)
 
+    impl = "/".join(solver["forward"]["implementation"])
     labels = {
         "fit_keyframes": "torchfluidwarp `fit_keyframes`",
         "ours_loop": "torchfluidwarp, this script's copy of the loop",
-        "phiflow": f"PhiFlow {phi.__version__} (torch backend, eager, pressure: {'/'.join(fw['implementation'])})",
+        "phiflow": f"PhiFlow {phi.__version__} (torch backend, eager, pressure: {impl})",
     }
     runs: dict[str, list[FitRun]] = {k: [] for k in labels}
     fitted: dict[str, Tensor] = {}
@@ -570,32 +455,13 @@ def main(argv: list[str] | None = None) -> int:
         if rep < repeats:
             log(f"  torchfluidwarp fit_keyframes, repeat {rep + 1}/{repeats} ...")
             cpu0 = time.process_time()
-            fit = fit_keyframes(
-                src,
-                tgt,
-                image_size=FRAME,
-                grid=grid,
-                steps=steps,
-                control=CONTROL,
-                max_iter=max_iter,
-                tolerance=args.tolerance,
-                dtype=dtype,
-                progress=False,
-            )
+            fit = fit_keyframes(src, tgt, **fit_args)
             err = fit.error[0]
-            runs["fit_keyframes"].append(
-                FitRun(
-                    library="torchfluidwarp",
-                    seconds=fit.seconds,
-                    cpu_seconds=time.process_time() - cpu0,
-                    evaluations=fit.evaluations,
-                    mean_error=float(err.mean()),
-                    max_error=float(err.max()),
-                    reached=fit.reached,
-                    stopped="targets reached" if fit.reached else ("L-BFGS stopped" if fit.converged else "max_iter"),
-                    final_loss=min(fit.loss_history) if fit.loss_history else math.nan,
-                )
-            )
+            stopped = "targets reached" if fit.reached else ("L-BFGS stopped" if fit.converged else "max_iter")
+            runs["fit_keyframes"].append(FitRun(
+                "torchfluidwarp", fit.seconds, time.process_time() - cpu0, fit.evaluations, float(err.mean()),
+                float(err.max()), fit.reached, stopped, min(fit.loss_history, default=math.nan),
+            ))  # fmt: skip
             fitted["ours"] = fit.forces.weight.detach()[0]
             log(f"  torchfluidwarp, the script's loop, repeat {rep + 1}/{repeats} ...")
             c = zero.clone().requires_grad_()
@@ -607,108 +473,71 @@ def main(argv: list[str] | None = None) -> int:
             c = zero.clone().requires_grad_()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                runs["phiflow"].append(
-                    lbfgs_fit(
-                        "phiflow",
-                        [c],
-                        lambda: theirs.endpoints(c),
-                        tgt,
-                        args.tolerance,
-                        max_iter,
-                        cap,
-                        errors=(theirs.pf.math.ConvergenceException,),
-                    )
+                stop = (theirs.pf.math.ConvergenceException,)
+                fit_run = lbfgs_fit(
+                    "phiflow", [c], lambda: theirs.endpoints(c), tgt, args.tolerance, max_iter, cap, stop
                 )
+                runs["phiflow"].append(fit_run)
             fitted["phiflow"] = c.detach()
 
-    rows = {k: summary(v) for k, v in runs.items()}
-    print(
-        f"\nKeyframe fit, {inst.name}: wall time of the fit (median over repeats), CPU time of this process, "
-        "evaluations (objective + gradient), final errors (px)\n"
-    )
-    print(report_table(rows, labels, "fit_keyframes"))
-    ratio = {
-        "seconds": rows["phiflow"]["seconds"] / rows["fit_keyframes"]["seconds"],
-        "cpu_seconds": rows["phiflow"]["cpu_seconds"] / rows["fit_keyframes"]["cpu_seconds"],
-        "ms_per_evaluation": rows["phiflow"]["ms_per_evaluation"] / rows["fit_keyframes"]["ms_per_evaluation"],
-        "evaluations": rows["phiflow"]["evaluations"] / rows["fit_keyframes"]["evaluations"],
-    }
+    rows = {k: summary(v, labels[k]) for k, v in runs.items()}
+    base = rows["fit_keyframes"]
+    paper = dict(label="paper (as quoted in the issue, not measured)", repeats="-", seconds=PAPER_SECONDS)
+    table_rows = [{**paper, "cpu": "-", "evals": "-", "ms": "-", "mean": "-", "max": "-", "reached": "-",
+                   "stopped": "-", "ratio": f"{PAPER_SECONDS / base['seconds']:.0f}x"}]  # fmt: skip
+    for r in rows.values():
+        table_rows.append(
+            {
+                **r,
+                "cpu": f"{r['cpu_seconds']:.2f}",
+                "evals": f"{r['evaluations']:g}",
+                "ms": f"{r['ms_per_evaluation']:.1f}",
+                "mean": f"{r['mean_error']:.4f}",
+                "max": f"{r['max_error']:.4f}",
+                "ratio": f"{r['seconds'] / base['seconds']:.1f}x",
+            }
+        )
+    print(f"\nKeyframe fit, {inst.name}: wall time of the fit (median over repeats), CPU time of this process, "
+          "evaluations (objective + gradient), final errors (px)\n")  # fmt: skip
+    spec = "fit {label} | repeats {repeats} | fit s (median) {seconds:.2f} | CPU s {cpu} | evals {evals} | ms/eval "
+    spec += "{ms} | mean err px {mean} | max err px {max} | reached {reached} | stopped by {stopped} | time / "
+    print(rows_table(table_rows, spec + "torchfluidwarp {ratio}", markdown=True))
+    ratio = {k: rows["phiflow"][k] / base[k] for k in ("seconds", "cpu_seconds", "ms_per_evaluation", "evaluations")}
     print(
         f"\nPhiFlow / torchfluidwarp: fit time {ratio['seconds']:.1f}x, CPU time {ratio['cpu_seconds']:.1f}x, "
         f"time per evaluation {ratio['ms_per_evaluation']:.1f}x, evaluations {ratio['evaluations']:.2f}x"
     )
-    print(
-        f"paper (5 min, quoted) / torchfluidwarp: {PAPER_SECONDS / rows['fit_keyframes']['seconds']:.0f}x; "
-        f"paper / PhiFlow: {PAPER_SECONDS / rows['phiflow']['seconds']:.1f}x"
-    )
+    print(f"paper (5 min, quoted) / torchfluidwarp: {PAPER_SECONDS / base['seconds']:.0f}x; "
+          f"paper / PhiFlow: {PAPER_SECONDS / rows['phiflow']['seconds']:.1f}x")  # fmt: skip
 
     # each fitted control replayed in the other library: how far apart the two discretisations are
+    cross = []
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        cross = {}
         for name, u in fitted.items():
             a, b = ours.endpoints(u), theirs.endpoints(u)
-            cross[name] = {
-                "torchfluidwarp_mean_error": float((a - tgt).norm(dim=-1).mean()),
-                "phiflow_mean_error": float((b - tgt).norm(dim=-1).mean()),
-                "endpoint_gap_max_px": float((a - b).norm(dim=-1).max()),
-                "endpoint_gap_mean_px": float((a - b).norm(dim=-1).mean()),
-            }
+            gap = (a - b).norm(dim=-1)
+            cross.append(dict(by=name, ours=float((a - tgt).norm(dim=-1).mean()), gap_max=float(gap.max()),
+                              phiflow=float((b - tgt).norm(dim=-1).mean()), gap_mean=float(gap.mean())))  # fmt: skip
     print("\nEach fitted control replayed in both libraries (mean error to the targets, px; end-point gap, px)")
-    print(
-        table(
-            ["control fitted by", "torchfluidwarp mean err", "PhiFlow mean err", "gap mean", "gap max"],
-            [
-                [
-                    k,
-                    f"{v['torchfluidwarp_mean_error']:.4f}",
-                    f"{v['phiflow_mean_error']:.4f}",
-                    f"{v['endpoint_gap_mean_px']:.4f}",
-                    f"{v['endpoint_gap_max_px']:.4f}",
-                ]
-                for k, v in cross.items()
-            ],
-        )
-    )
-    info["load_end"] = machine_load()
-    total = time.perf_counter() - t_total
-    print(f"\nat the end: {describe_load(info['load_end'])}; total {total:.0f} s")
-    if source_fingerprint() != info["sources_sha256"]:
-        print("WARNING: the torchfluidwarp sources changed during the run")
-
+    spec = "control fitted by {by} | torchfluidwarp mean err {ours:.4f} | PhiFlow mean err {phiflow:.4f} | "
+    print(rows_table(cross, spec + "gap mean {gap_mean:.4f} | gap max {gap_max:.4f}"))
     if args.plot:
-        title = (
-            f"Keyframe fit ({inst.name}): {grid[0]}x{grid[1]} fluid, {steps} steps, {n_params} parameters, "
-            f"{points} points, float64\n1 torch thread, {info['cpu']}, {info['date'][:16].replace('T', ' ')}"
-        )
-        impl = "/".join(fw["implementation"]).replace("scipy.sparse.linalg.", "scipy ")
-        names = {
-            "phiflow": f"PhiFlow {phi.__version__}\n(torch backend, eager,\npressure: {impl})",
-            "fit_keyframes": "torchfluidwarp\nfit_keyframes",
-        }
+        title = f"Keyframe fit ({inst.name}): {grid[0]}x{grid[1]} fluid, {steps} steps, {n_params} parameters, "
+        title += f"{points} points, float64\n1 torch thread, {info['cpu']}, {info['date'][:16].replace('T', ' ')}"
+        short = impl.replace("scipy.sparse.linalg.", "scipy ")
+        names = {"phiflow": f"PhiFlow {phi.__version__}\n(torch backend, eager,\npressure: {short})"}
+        names["fit_keyframes"] = "torchfluidwarp\nfit_keyframes"
         plot(args.plot, rows, names, title)
         print(f"plot written to {args.plot}")
-    if args.json:
-        result = {
-            "machine": info,
-            "args": vars(args),
-            "instance": asdict(inst),
-            "gradient_at_zero": {
-                "cosine": cosine,
-                "norm_ratio": norm_ratio,
-                "torchfluidwarp_s": t_ours,
-                "phiflow_s": t_phi,
-                "phiflow_first_s": t_phi_first,
-            },
-            "solver": {"phiflow": solver, "torchfluidwarp_pressure_iterations": ours_iters},
-            "runs": {k: [asdict(r) for r in v] for k, v in runs.items()},
-            "summary": rows,
-            "ratio_phiflow_over_torchfluidwarp": ratio,
-            "cross": cross,
-            "paper_seconds_quoted": PAPER_SECONDS,
-            "total_s": total,
-        }
-        write_json(args.json, result, default=str)
+    gradient = dict(cosine=cosine, norm_ratio=norm_ratio, torchfluidwarp_s=t_ours, phiflow_s=t_phi,
+                    phiflow_first_s=t_phi_first)  # fmt: skip
+    info["phiflow"] = phi.__version__
+    finish(info, {"args": vars(args), "instance": asdict(inst), "gradient_at_zero": gradient,
+                  "solver": {"phiflow": solver, "torchfluidwarp_pressure_iterations": ours_iters},
+                  "runs": {k: [asdict(r) for r in v] for k, v in runs.items()}, "summary": rows,
+                  "ratio_phiflow_over_torchfluidwarp": ratio, "cross": cross, "paper_seconds_quoted": PAPER_SECONDS},
+           args.json)  # fmt: skip
     return 0
 
 

@@ -15,29 +15,21 @@ and two photos already on the machine: ``astronaut``, the library's bundled ``as
 ``t1-5`` are detected but not used (see :data:`DETECTED`); the ten faces used are split into a tune and a report
 half (:data:`SPLIT_FACES`).
 
-Each face is cropped as a square twice the side of the box that mediapipe's face detector found (shifted to lie
-inside the photo), and resized to 512 x 512 (antialiased bilinear). On each crop mediapipe's 468-point face mesh
-gives :data:`IBUG68`, a 68-point set laid out like iBUG's (jaw 17, brows 10, nose 9, eyes 12, mouth 20), and
-:data:`EXTRA`, 12 points on the forehead, temples and cheeks where iBUG has none. The landmarks, in pixels of the
-512 x 512 crops with pixel centres at integers, and the crop boxes are committed in
-``data/morph_quality_landmarks.json``, so that only the photos are fetched at run time. They were written by
-``python benchmarks/morph_quality_data.py --detect`` and not edited by hand. ``--detect`` needs
-``mediapipe==0.10.14`` (the last release whose wheel bundles the face-detection and face-mesh models)::
-
-    pip install --target /tmp/mp mediapipe==0.10.14
-    PYTHONPATH=/tmp/mp python benchmarks/morph_quality_data.py --detect
-
-``python benchmarks/morph_quality_data.py --show DIR`` draws every crop with its marked (green) and held-out
-(red: the iBUG third, orange: the extra points) landmarks.
+Each face is a square crop, twice the side of the box that mediapipe's face detector found (shifted to lie inside
+the photo), resized to 512 x 512 (antialiased bilinear). On each crop mediapipe 0.10.14's 468-point face mesh gave
+68 points laid out like iBUG's 300-W set (jaw 17, brows 10, nose 9, eyes 12, mouth 20) and 12 more on the
+forehead, temples and cheeks, where iBUG has none. The landmarks (pixels of the crops, pixel centres at integers),
+the crop boxes and the mesh indices are committed in ``data/morph_quality_landmarks.json``, so only the photos are
+fetched at run time. They were written once by this module's ``--detect`` and not edited by hand; that code (and
+``--show``, which drew the crops with their landmarks) is in the history: ``git show
+7d1a1c6:benchmarks/morph_quality_data.py``.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
-import re
 import subprocess
 import sys
 import tarfile
@@ -122,28 +114,6 @@ SPLIT_FACES: dict[str, tuple[str, ...]] = {
 }
 FACES: tuple[str, ...] = tuple(f for f in DETECTED if f in SPLIT_FACES["tune"] + SPLIT_FACES["report"])
 
-# mediapipe face-mesh indices of a 68-point set laid out like iBUG's 300-W annotation, "left" as seen in the image
-IBUG68: tuple[int, ...] = (
-    *(234, 93, 132, 58, 172, 136, 150, 176, 152, 400, 379, 365, 397, 288, 361, 323, 454),  # jaw 0-16
-    *(70, 63, 105, 66, 107),  # left brow 17-21, outer to inner
-    *(336, 296, 334, 293, 300),  # right brow 22-26, inner to outer
-    *(168, 197, 5, 4),  # nose bridge 27-30, top to tip
-    *(98, 97, 2, 326, 327),  # nostrils 31-35, left to right
-    *(33, 160, 158, 133, 153, 144),  # left eye 36-41: outer corner, upper lid, inner corner, lower lid
-    *(362, 385, 387, 263, 373, 380),  # right eye 42-47: inner corner, upper lid, outer corner, lower lid
-    *(61, 40, 37, 0, 267, 270, 291, 321, 314, 17, 84, 91),  # outer lips 48-59, clockwise from the left corner
-    *(78, 81, 13, 311, 308, 402, 14, 178),  # inner lips 60-67, clockwise from the left corner
-)
-# held out on every face: where iBUG's set has no point at all
-EXTRA: tuple[int, ...] = (
-    *(10, 151),  # forehead: top of the mesh (near the hairline), middle
-    *(67, 297),  # forehead, left and right
-    *(54, 284),  # upper temples
-    *(162, 389),  # temples at brow level
-    *(50, 280),  # cheekbones
-    *(207, 427),  # lower cheeks
-)
-
 
 def cache_dir() -> Path:
     return Path(os.environ.get("TORCHFLUIDWARP_BENCH_CACHE", Path.home() / ".cache" / "torchfluidwarp-bench"))
@@ -219,15 +189,6 @@ def crop(image: np.ndarray, box: tuple[int, int, int]) -> Tensor:
     return F.interpolate(t, size=(SIZE, SIZE), mode="bilinear", align_corners=False, antialias=True).clamp(0, 1)
 
 
-def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -> tuple[int, int, int]:
-    """A square ``CROP_FACTOR`` times the face box ``(x, y, w, h)``, centred on it and shifted inside the photo."""
-    H, W = shape[:2]
-    side = min(round(CROP_FACTOR * max(w, h)), H, W)
-    x0 = min(max(round(x + w / 2 - side / 2), 0), W - side)
-    y0 = min(max(round(y + h / 2 - side / 2), 0), H - side)
-    return x0, y0, side
-
-
 @dataclass(frozen=True)
 class Face:
     """One face crop and its landmarks, in pixels of the crop (pixel centres at integers)."""
@@ -258,141 +219,3 @@ def load_faces(names: tuple[str, ...] | list[str] = FACES) -> dict[str, Face]:
             extra=torch.tensor(entry["extra"], dtype=torch.float32),
         )
     return out
-
-
-# ----------------------------------------------------------------------------------------------- detection
-
-
-def _face_boxes(image: np.ndarray, tiled: bool) -> list[tuple[float, float, float, float, float]]:  # pragma: no cover
-    """Face boxes ``(x, y, w, h, score)`` in the photo's pixels, by mediapipe's face detector.
-
-    A group photo is scanned in overlapping 400 x 400 tiles with the short-range model (the full-range model
-    finds only three of t1's six faces on the whole photo); detections are merged by their centres, and those
-    seen in a single tile only dropped. A portrait is passed whole to the full-range model.
-    """
-    import mediapipe as mp
-
-    H, W = image.shape[:2]
-    found: list[tuple[float, float, float, float, float]] = []
-    if tiled:
-        det = mp.solutions.face_detection.FaceDetection(model_selection=0)
-        det_min = 0.75
-        tile, stride = 400, 150
-        windows = [
-            (x, y)
-            for y in range(0, max(H - tile, 0) + stride, stride)
-            for x in range(0, max(W - tile, 0) + stride, stride)
-        ]
-    else:
-        det = mp.solutions.face_detection.FaceDetection(model_selection=1)
-        det_min = 0.5
-        tile, windows = max(H, W), [(0, 0)]
-    for x0, y0 in windows:
-        part = np.ascontiguousarray(image[y0 : y0 + tile, x0 : x0 + tile])
-        h, w = part.shape[:2]
-        for d in det.process(part).detections or []:
-            b = d.location_data.relative_bounding_box
-            if d.score[0] >= det_min:
-                found.append((b.xmin * w + x0, b.ymin * h + y0, b.width * w, b.height * h, float(d.score[0])))
-    clusters: list[list[tuple[float, float, float, float, float]]] = []
-    for box in sorted(found, key=lambda b: -b[4]):
-        cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
-        for c in clusters:
-            ref = c[0]
-            if abs(cx - ref[0] - ref[2] / 2) < ref[2] / 2 and abs(cy - ref[1] - ref[3] / 2) < ref[3] / 2:
-                c.append(box)
-                break
-        else:
-            clusters.append([box])
-    # a face seen in one tile only is a false detection (a hand, a glass); every face of t1 is seen in 3 or more
-    clusters = [c for c in clusters if len(c) >= (2 if tiled else 1)]
-    merged = [tuple(float(np.median([b[i] for b in c])) for i in range(4)) + (max(b[4] for b in c),) for c in clusters]
-    return sorted(merged, key=lambda b: b[0])  # left to right
-
-
-def _mesh(mesh, image: Tensor) -> np.ndarray:  # pragma: no cover
-    """The 468 face-mesh points of the face nearest the centre of a crop ``(1, 3, 512, 512)``, crop pixels."""
-    rgb = np.ascontiguousarray((image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
-    found = mesh.process(rgb).multi_face_landmarks
-    if not found:
-        raise RuntimeError("the face mesh found no face")
-    # mediapipe's normalised coordinates: 0 and 1 are the image's outer edges
-    meshes = [np.array([[p.x * SIZE - 0.5, p.y * SIZE - 0.5] for p in f.landmark]) for f in found]
-    return min(meshes, key=lambda m: float(np.linalg.norm(m.mean(0) - (SIZE - 1) / 2)))
-
-
-def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
-    import mediapipe as mp
-
-    mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=3)
-    faces: dict[str, dict] = {}
-    for photo in (*PHOTOS, "astronaut", "hopper"):
-        image = read_photo(photo)
-        boxes = _face_boxes(image, tiled=photo == "t1")
-        names = [f"t1-{i + 1}" for i in range(len(boxes))] if photo == "t1" else [photo]
-        if len(boxes) != len(names):
-            raise RuntimeError(f"{photo}: found {len(boxes)} faces, expected {len(names)}: {boxes}")
-        for name, (x, y, w, h, score) in zip(names, boxes):
-            box = square_box(x, y, w, h, image.shape)
-            points = _mesh(mesh, crop(image, box))
-            faces[name] = {
-                "photo": photo,
-                "box": list(box),
-                "detector_box": [round(v, 1) for v in (x, y, w, h)],
-                "detector_score": round(score, 3),
-                "ibug68": np.round(points[list(IBUG68)], 2).tolist(),
-                "extra": np.round(points[list(EXTRA)], 2).tolist(),
-            }
-            print(f"{name}: box {box}, detector score {score:.2f}")
-    missing = set(DETECTED) - set(faces)
-    if missing:
-        raise RuntimeError(f"faces not found: {sorted(missing)}")
-    return {
-        "about": (
-            "Landmarks of 512 x 512 face crops (pixels, pixel centres at integers), by mediapipe 0.10.14's face "
-            "mesh; box = (x0, y0, side) of the square crop in the photo's pixels. Written by "
-            "benchmarks/morph_quality_data.py --detect."
-        ),
-        "mesh_indices": {"ibug68": list(IBUG68), "extra": list(EXTRA)},
-        "faces": {name: faces[name] for name in DETECTED},
-    }
-
-
-def show(folder: str) -> None:
-    from PIL import Image, ImageDraw
-
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    for name, face in load_faces().items():
-        img = Image.fromarray((face.image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
-        draw = ImageDraw.Draw(img)
-        for i, (x, y) in enumerate(face.ibug.tolist()):
-            color = (255, 40, 40) if i % 3 == 2 else (40, 255, 40)
-            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=color)
-            draw.text((x + 4, y - 4), str(i), fill=(255, 255, 0))
-        for x, y in face.extra.tolist():
-            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=(255, 160, 0))
-        draw.text((6, 6), name, fill=(255, 255, 255))
-        img.save(Path(folder) / f"{name}.png")
-    print(f"wrote {len(FACES)} crops to {folder}")
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--detect", action="store_true", help=f"detect the landmarks and write {LANDMARKS.name}")
-    parser.add_argument("--show", metavar="DIR", help="draw every crop and its landmarks into DIR")
-    args = parser.parse_args(argv)
-    if args.detect:
-        LANDMARKS.parent.mkdir(exist_ok=True)
-        tmp = LANDMARKS.with_suffix(".tmp")
-        # one point or one index list per line
-        text = re.sub(r"\[[-\d\s.,]+\]", lambda m: json.dumps(json.loads(m.group())), json.dumps(detect(), indent=1))
-        tmp.write_text(text + "\n")
-        os.replace(tmp, LANDMARKS)
-        print(f"wrote {LANDMARKS}")
-    if args.show:
-        show(args.show)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

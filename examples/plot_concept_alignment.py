@@ -8,12 +8,12 @@ part of it. Two faces in two photos usually differ by a global move and scale, a
 
 * estimates a global **pre-alignment** ``M`` from the points (``align="similarity"``, the default, or
   ``"affine"``), interpolates it over the morph, and lets the fluid produce only the local, non-rigid rest;
-* can let the fluid **compress** (``compressible=True`` skips the pressure projection, a weight in ``[0, 1]``
-  keeps part of it), for features whose sizes differ beyond what ``M`` explains.
+* can let the fluid **compress** (``PaperSettings(compressible=True)`` skips the pressure projection, a weight
+  in ``[0, 1]`` keeps part of it), for features whose sizes differ beyond what ``M`` explains.
 
 This example morphs the bundled astronaut into the cat three ways with the paper's keyframe fit
-(``method="paper"``, an incompressible fluid by default) and shows the middle frame of each, with the
-Jacobian determinant of the fluid's own part of the warp. The default ``method="natural"`` is compressible
+(``settings=PaperSettings(...)``, an incompressible fluid by default) and shows the middle frame of each, with
+the Jacobian determinant of the fluid's own part of the warp. The default ``NaturalSettings`` is compressible
 from the start (see :doc:`/guide/morphing`).
 """
 
@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from matplotlib.colors import LogNorm
 
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import PaperSettings, morph
 from torchfluidwarp.warp import jacobian_determinant
 
 S = 128
@@ -40,10 +40,10 @@ points = {name: (load_sample_points(name) + 0.5) * (S / 512) - 0.5 for name in i
 # ------------
 # The same fluid (32 x 32, 10 steps, 8 x 8 control points per step) and a short fit budget for each.
 settings = {
-    "no pre-alignment": dict(method="paper", align=None),
-    "similarity pre-alignment": dict(method="paper", align="similarity"),
-    "similarity + compressible": dict(method="paper", align="similarity", compressible=True),
-}
+    "no pre-alignment": dict(align=None),
+    "similarity pre-alignment": dict(align="similarity"),
+    "similarity + compressible": dict(align="similarity", compressible=True),
+}  # the fields of PaperSettings that differ
 results = {}
 for title, options in settings.items():
     result = morph(
@@ -51,20 +51,16 @@ for title, options in settings.items():
         images["cat"],
         points["astronaut"],
         points["cat"],
+        settings=PaperSettings(grid=(32, 32), steps=10, max_iter=40, tolerance=0.25, **options),
         frames=3,
-        grid=(32, 32),
-        steps=10,
-        max_iter=40,
-        tolerance=0.25,
         progress=False,
-        **options,
     )
     with torch.no_grad():  # the fluid's own part, without the pre-alignment
         rollout = result.fit.warp.rollout(result.fit.forces, (S, S))
         fluid_map = result.fit.warp.maps(result.fit.forces)[:, -1]  # (1, S, S, 2) pixels
     det = jacobian_determinant(fluid_map)[0].float()
     results[title] = (result, det)
-    error = result.fit.error[0].detach()
+    error = result.error  # pixels of the last frame
     print(
         f"{title}: point error mean {float(error.mean()):.2f} px, max {float(error.max()):.2f} px; "
         f"fastest flow {float(rollout.velocities.abs().max()):.1f} cells per step; "
@@ -87,7 +83,7 @@ for title, options in settings.items():
 fig, axes = plt.subplots(2, 3, figsize=(11, 7.6), layout="constrained")
 norm = LogNorm(vmin=0.25, vmax=4.0)
 for col, (title, (result, det)) in enumerate(results.items()):
-    error = result.fit.error[0].detach()
+    error = result.error
     axes[0, col].imshow(result.frames[1].detach().permute(1, 2, 0).clamp(0, 1).numpy())
     axes[0, col].set_title(
         f"{title}\nerror: mean {float(error.mean()):.1f} px, max {float(error.max()):.1f} px", fontsize=10

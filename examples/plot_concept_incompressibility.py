@@ -84,7 +84,7 @@ tps_map = ((tps_norm + 1) / scale - 0.5).reshape(1, H, W, 2).float()  # back to 
 # %%
 # Jacobian determinants
 # ---------------------
-# :func:`~torchfluidwarp.warp.layer.jacobian_determinant` by central differences. A backward map's determinant is the
+# :func:`~torchfluidwarp.warp.frames.jacobian_determinant` by central differences. A backward map's determinant is the
 # inverse of the area change: above 1 where the warp squeezes the source, below 1 where it spreads it, and
 # ``<= 0`` where it folds.
 dets = {"fluid warp": jacobian_determinant(fluid_map)[0], "thin-plate spline": jacobian_determinant(tps_map)[0]}

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torchfluidwarp.correspond import auto_points
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import Matching, NaturalSettings, morph
 
 S = 160
 a = resize_image(load_sample("astronaut"), (S, S))[0]
@@ -54,8 +54,9 @@ inner = ((pa > 8) & (pa < S - 9)).all(1)  # the matches, not the border points
 error = (known_map(pa[inner]) - pb[inner]).norm(dim=1)
 print(f"{int(inner.sum())} feature matches, median error against the known map {float(error.median()):.2f} px")
 
-result = morph(a, b, frames=3, match="features", grid=24, steps=6, max_iter=15, progress=False)
-print(f"the morph reaches B's points to {float(result.fit.error.mean()):.2f} px on average")
+fast = NaturalSettings(grid=24, steps=6, max_iter=15)
+result = morph(a, b, settings=fast, frames=3, match=Matching("features"), progress=False)
+print(f"the morph reaches B's points to {float(result.error.mean()):.2f} px on average")
 
 fig, axes = plt.subplots(1, 3, figsize=(9, 3.2))
 for ax, picture, points, title in ((axes[0], a, pa, "A"), (axes[2], b, pb, "B")):

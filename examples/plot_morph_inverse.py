@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 import torch.nn.functional as F
 
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, morph
 
 S = 256
 images = {name: F.interpolate(load_sample(name), size=(S, S), mode="area")[0] for name in ("astronaut", "cat")}
@@ -36,12 +36,8 @@ for method in ("flow", "paper"):
         images["cat"],
         points["astronaut"],
         points["cat"],
+        settings=NaturalSettings(grid=(32, 32), steps=10, max_iter=60, tolerance=0.25, inverse=method),
         frames=5,
-        grid=(32, 32),
-        steps=10,
-        max_iter=60,
-        tolerance=0.25,
-        inverse=method,
         progress=False,
     )
 
@@ -56,7 +52,7 @@ for method in ("flow", "paper"):
 def misalignment(result) -> float:
     mid = result.frames.shape[0] // 2
     step = int(round(float(result.times[mid])))
-    where = result.fit.trajectories[0, step].detach()  # (23, 2) frame pixels
+    where = result.trajectories[step]  # (23, 2) frame pixels
     grid = ((where + 0.5) / S * 2 - 1).to(result.maps_b.dtype)  # align_corners=False
     read = F.grid_sample(
         result.maps_b[mid].permute(2, 0, 1)[None], grid[None, None], align_corners=False, padding_mode="border"
@@ -67,7 +63,7 @@ def misalignment(result) -> float:
 for method, result in results.items():
     print(
         f"{method:>5}: {result.seconds['total']:.2f} s in all, of which the inverse warp "
-        f"{result.seconds['inverse']:.2f} s; mean end error {float(result.fit.error.mean()):.2f} px; "
+        f"{result.seconds['inverse']:.2f} s; mean end error {float(result.error.mean()):.2f} px; "
         f"middle-frame misalignment {misalignment(result):.2f} px; folded {100 * result.folded:.3f}%"
     )
 

@@ -2,10 +2,10 @@
 Morphing a region: backgrounds and pasting back into the photo
 ==============================================================
 
-``morph(..., region="points")`` limits the morph to the points' convex hull grown by ``region_margin``
-(:func:`~torchfluidwarp.morph.regions.hull_mask`); outside it the frame shows ``background``: A's (``"a"``),
-B's (``"b"``) or their cross-dissolve (``"blend"``), mixed over a soft ramp so that no seam shows. A region can
-also be a pair of masks ``(mask_a, mask_b)``, one per image.
+``morph(..., blending=Blending(region="points"))`` limits the morph to the points' convex hull grown by
+``region_margin`` (:func:`~torchfluidwarp.morph.regions.hull_mask`); outside it the frame shows ``background``:
+A's (``"a"``), B's (``"b"``) or their cross-dissolve (``"blend"``), mixed over a soft ramp so that no seam shows.
+A region can also be a pair of masks ``(mask_a, mask_b)``, one per image.
 
 :func:`~torchfluidwarp.morph.regions.paste_back` puts a morphed frame back into the full-size photograph it was
 cut from: morph a small crop around the face, and paste the result into the large picture.
@@ -19,17 +19,18 @@ import torch
 
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph import hull_mask, morph, paste_back
+from torchfluidwarp.morph import Blending, NaturalSettings, hull_mask, morph, paste_back
 
 S = 128
 a, b = (resize_image(load_sample(name), (S, S))[0] for name in ("astronaut", "cat"))
 # the 14 points of the eyes, nose and mouth (the others reach the cat's picture edges)
 pa, pb = ((load_sample_points(name)[:14] + 0.5) * (S / 512) - 0.5 for name in ("astronaut", "cat"))
-fast = dict(grid=24, steps=6, max_iter=15, progress=False)
+fast = dict(settings=NaturalSettings(grid=24, steps=6, max_iter=15), progress=False)
 
 middles = {}
 for background in ("a", "b", "blend"):
-    result = morph(a, b, pa, pb, frames=3, region="points", region_margin=0.1, background=background, **fast)
+    blending = Blending(region="points", region_margin=0.1, background=background)
+    result = morph(a, b, pa, pb, frames=3, blending=blending, **fast)
     middles[background] = result.frame(0.5)
 mask = hull_mask(pa, (S, S), margin=0.1)
 

@@ -26,7 +26,7 @@ import matplotlib.pyplot as plt
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.metrics import morph_report
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, Timing, morph
 
 S = 128
 a, b = (resize_image(load_sample(name), (S, S))[0] for name in ("astronaut", "cat"))
@@ -35,7 +35,10 @@ given, held = slice(0, 18), slice(18, None)
 
 reports = {}
 for motion in ("linear", "smooth"):
-    result = morph(a, b, pa[given], pb[given], frames=9, motion=motion, grid=24, steps=6, max_iter=15, progress=False)
+    result = morph(
+        a, b, pa[given], pb[given], settings=NaturalSettings(grid=24, steps=6, max_iter=15), frames=9,
+        timing=Timing(motion=motion), progress=False,
+    )  # fmt: skip
     reports[motion] = morph_report(result, a, b, pa[given], pb[given], held_out=(pa[held], pb[held]))
 
 report = reports["linear"]

@@ -19,7 +19,7 @@ import torch
 
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph import average, morph_sequence
+from torchfluidwarp.morph import NaturalSettings, average, morph_sequence
 
 S = 128
 
@@ -41,7 +41,8 @@ astronaut, cat = scaled("astronaut"), scaled("cat")
 closer = zoomed(*astronaut, (6, 4, 118, 116))
 images, points = [astronaut[0], cat[0], closer[0]], [astronaut[1], cat[1], closer[1]]
 
-sequence = morph_sequence(images, points, frames=9, grid=24, steps=6, max_iter=15, progress=False)
+fast = NaturalSettings(grid=24, steps=6, max_iter=15)
+sequence = morph_sequence(images, points, settings=fast, frames=9, progress=False)
 frames = sequence.frames
 print(f"{len(sequence)} frames, per segment {sequence.counts} (the joints shared)")
 
@@ -63,7 +64,7 @@ fig.tight_layout()
 # -------------------------------
 # Each is warped to the mean shape (dots) by its own flow, and the three warps are averaged. ``folded`` is the
 # fraction of map pixels that fold: 0 for a fold-free average.
-mean = average(images, points, grid=24, steps=6, max_iter=15, progress=False)
+mean = average(images, points, settings=fast)
 print(f"mean point error {float(mean.errors.mean()):.2f} px, folded fraction {mean.folded:.1e}")
 fig, axes = plt.subplots(1, 4, figsize=(8, 2.3))
 for ax, picture, title in zip(axes, [*mean.warped, mean.image], ["astronaut", "cat", "zoomed", "average"]):

@@ -29,7 +29,7 @@ from PIL import Image, ImageSequence
 
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import resize_image, write_animation
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, morph
 
 S = 128
 ys, xs = torch.meshgrid(torch.arange(S, dtype=torch.float32), torch.arange(S, dtype=torch.float32), indexing="ij")
@@ -44,7 +44,7 @@ def cut_out(name: str, centre: tuple[float, float], radius: float) -> torch.Tens
 
 a, b = cut_out("astronaut", (56, 34), 30), cut_out("cat", (64, 72), 56)
 pa, pb = ((load_sample_points(name)[:14] + 0.5) * (S / 512) - 0.5 for name in ("astronaut", "cat"))
-result = morph(a, b, pa, pb, frames=5, grid=24, steps=6, max_iter=15, progress=False)
+result = morph(a, b, pa, pb, settings=NaturalSettings(grid=24, steps=6, max_iter=15), frames=5, progress=False)
 frames = result.frames  # (5, 4, S, S)
 print(f"frames {tuple(frames.shape)}; alpha from {float(frames[:, 3].min()):.2f} to {float(frames[:, 3].max()):.2f}")
 

@@ -1,12 +1,10 @@
-"""The public surface: a small top level, one ``RandomFluidWarp``, deprecation shims for the names that moved,
-and torchvision imported by ``augment.transforms`` only; imports that point one way through the layers."""
+"""The public surface: a small top level, one ``RandomFluidWarp``, one home per name (no deprecation shims), and
+torchvision imported by ``augment.transforms`` only; imports that point one way through the layers."""
 
 from __future__ import annotations
 
 import ast
-import importlib
 import pathlib
-import re
 import subprocess
 import sys
 import warnings
@@ -15,15 +13,14 @@ import pytest
 import torch
 
 import torchfluidwarp as tfw
-from torchfluidwarp import augment
-from torchfluidwarp._compat import MOVED_MODULES
+from torchfluidwarp import augment, errors
 from torchfluidwarp.augment.tensor import FluidWarpAugment, random_fluid_warp
 
 PACKAGE = pathlib.Path(tfw.__file__).parent
 
 
 def test_the_top_level_is_small_and_every_name_resolves():
-    assert len(tfw.__all__) <= 16
+    assert len([n for n in tfw.__all__ if not n.startswith("__")]) <= 16  # __version__ aside
     for name in ["FluidWarp", "FluidSimulator", "fit_keyframes", "fit_images", "morph", "RandomFluidWarp"]:
         assert name in tfw.__all__
     with warnings.catch_warnings():
@@ -40,13 +37,22 @@ def test_the_top_level_random_fluid_warp_is_the_v2_transform():
     assert tfw.RandomFluidWarp.__module__ == "torchfluidwarp.augment.transforms"
 
 
-@pytest.mark.parametrize("name", sorted(tfw._MOVED))
-def test_a_moved_top_level_name_warns_and_names_its_module(name):
-    module = tfw._MOVED[name]
-    with pytest.warns(DeprecationWarning, match=rf"from {module} import {name}"):
-        value = getattr(tfw, name)
-    assert value is getattr(importlib.import_module(module), name)
+# names the top level used to export (``_MOVED``, deleted in #30): they have one home now
+FORMER_TOP_LEVEL = ["advect", "project", "divergence", "Brushes", "ControlGrid", "identity_map", "keyframe_loss"]
+
+
+@pytest.mark.parametrize("name", FORMER_TOP_LEVEL)
+def test_a_former_top_level_name_is_not_there(name):
     assert name not in tfw.__all__
+    with pytest.raises(AttributeError, match=name):
+        getattr(tfw, name)
+
+
+def test_the_top_level_exports_the_errors_from_their_home():
+    assert tfw.InputError is errors.InputError and tfw.FlowBlewUp is errors.FlowBlewUp
+    assert {"InputError", "FlowBlewUp"} <= set(tfw.__all__)
+    assert issubclass(tfw.InputError, ValueError)
+    assert issubclass(tfw.FlowBlewUp, ArithmeticError) and not issubclass(tfw.FlowBlewUp, ValueError)
 
 
 def test_an_unknown_top_level_name_is_an_attribute_error():
@@ -54,17 +60,11 @@ def test_an_unknown_top_level_name_is_an_attribute_error():
         tfw.no_such_name  # noqa: B018
 
 
-def test_the_old_tensor_level_name_warns_and_is_the_renamed_module():
-    with pytest.warns(DeprecationWarning, match=r"torchfluidwarp\.augment\.FluidWarpAugment"):
-        from torchfluidwarp.augment import RandomFluidWarp
-    assert RandomFluidWarp is FluidWarpAugment
-    assert "RandomFluidWarp" not in augment.__all__
-
-
-def test_the_old_lazy_v2_alias_warns_and_is_the_transform():
-    with pytest.warns(DeprecationWarning, match=r"torchfluidwarp\.RandomFluidWarp"):
-        value = augment.RandomFluidWarpV2
-    assert value is tfw.RandomFluidWarp
+@pytest.mark.parametrize("name", ["RandomFluidWarp", "RandomFluidWarpV2"])
+def test_the_old_augment_aliases_are_gone(name):
+    assert name not in augment.__all__
+    with pytest.raises(AttributeError, match=name):
+        getattr(augment, name)
 
 
 def _imports(path: pathlib.Path) -> set[str]:
@@ -101,9 +101,10 @@ def test_random_fluid_warp_is_the_module_in_one_call():
 
 
 # The layers, bottom up. A module may import its own subpackage and any lower layer, never a higher one.
-# ``_checks`` (the one validation layer), ``io`` (files) and ``data`` (samples) sit below the pipeline.
-LAYERS = {"_checks": 0, "_version": 0, "_compat": 0, "io": 1, "data": 2, "core": 3, "warp": 4, "control": 5}
-LAYERS |= {"correspond": 6, "morph": 7, "augment": 7, "metrics": 7, "apps": 8}
+# ``errors`` (the exceptions), ``_checks`` (the one validation layer, which raises them), ``io`` (files) and
+# ``data`` (samples) sit below the pipeline.
+LAYERS = {"errors": 0, "_version": 0, "_checks": 1, "io": 2, "data": 3, "core": 4, "warp": 5, "control": 6}
+LAYERS |= {"correspond": 7, "morph": 8, "augment": 8, "metrics": 8, "apps": 9}
 
 
 def _layer_of(module: str) -> str:
@@ -136,16 +137,3 @@ def test_importing_the_package_imports_neither_torchvision_nor_the_studio():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
-
-
-@pytest.mark.parametrize("old", sorted(MOVED_MODULES))
-def test_a_moved_module_path_warns_and_resolves_to_its_new_module(old: str):
-    new = importlib.import_module(MOVED_MODULES[old])
-    public = getattr(new, "__all__", None) or [n for n in vars(new) if not n.startswith("_")]
-    name = public[0]
-    stand_in = importlib.import_module(old)
-    with pytest.warns(DeprecationWarning, match=rf"{re.escape(old)} moved to {re.escape(new.__name__)}"):
-        value = getattr(stand_in, name)
-    assert value is getattr(new, name)
-    with pytest.raises(AttributeError):
-        stand_in.no_such_name  # noqa: B018

@@ -18,9 +18,11 @@ import torchfluidwarp as tfw
 from torchfluidwarp.augment.tensor import FluidWarpAugment
 from torchfluidwarp.control.images import fit_images
 from torchfluidwarp.core.simulator import FluidSimulator
+from torchfluidwarp.morph import NaturalSettings
 from torchfluidwarp.warp.forces import Brushes, ViscosityBrushes
+from torchfluidwarp.warp.frames import jacobian_determinant
 from torchfluidwarp.warp.layer import FluidWarp
-from torchfluidwarp.warp.maps import backward_maps, jacobian_determinant, maps_to_end
+from torchfluidwarp.warp.maps import backward_maps, maps_to_end
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 DTYPES = [torch.float32, torch.float64]
@@ -118,7 +120,8 @@ def test_morph(device: str, dtype: torch.dtype):
     image_a, image_b = _image((32, 32), device, dtype, seed=2), _image((32, 32), device, dtype, seed=3)
     points_a = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0], [10.0, 20.0]], dtype=dtype, device=device)
     points_b = points_a + torch.tensor([1.0, 1.5], dtype=dtype, device=device)
-    result = tfw.morph(image_a, image_b, points_a, points_b, frames=3, steps=2, max_iter=2, progress=False)
+    settings = NaturalSettings(steps=2, max_iter=2)
+    result = tfw.morph(image_a, image_b, points_a, points_b, frames=3, settings=settings, progress=False)
     assert result.frames.shape[0] == 3
     for x in (result.frames, result.forward_frames, result.backward_frames, result.maps, result.maps_b):
         _on(x, device, dtype)

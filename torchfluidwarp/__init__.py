@@ -5,7 +5,7 @@ The top level holds what most users need:
 * simulate and warp: :class:`FluidSimulator` (its :class:`FluidRollout`), :class:`FluidWarp`, ``warp_image``,
   ``jacobian_determinant``, the grid :class:`FluidGrid` and the solve settings :class:`CGConfig`;
 * fit and morph: ``fit_keyframes`` (:class:`KeyframeFit`), ``fit_images`` (:class:`ImageFit`), ``morph``
-  (:class:`MorphResult`);
+  (:class:`MorphResult`; its typed settings are in :mod:`torchfluidwarp.morph`);
 * augment: :class:`RandomFluidWarp`, the torchvision v2 transform (imported on first access: torchvision is
   needed only then); the tensor-level ``nn.Module`` is :class:`torchfluidwarp.augment.FluidWarpAugment`.
 
@@ -19,9 +19,8 @@ Everything else lives in the subpackage of its stage of the pipeline, and import
 * :mod:`torchfluidwarp.io` (files) and :mod:`torchfluidwarp.data` (bundled samples), used by all;
 * :mod:`torchfluidwarp.apps`: the command line and the studio.
 
-Names that used to be re-exported here (``advect``, ``project``, ``Brushes``, ...) and the flat layout's module
-paths (``torchfluidwarp.grid``, ``torchfluidwarp.fluid``, ...) resolve for one more release, with a
-``DeprecationWarning`` that names their new place.
+Errors say whose fault they are (:mod:`torchfluidwarp.errors`): :class:`~torchfluidwarp.errors.InputError` for a
+value the caller passed, :class:`~torchfluidwarp.errors.FlowBlewUp` for forces that make the flow blow up.
 
 Conventions: images ``(B, C, H, W)`` in ``[0, 1]``; points ``(x, y)`` in pixels with pixel centres at
 integers (``align_corners=False``); fluid quantities in fluid cells and time steps (:mod:`~torchfluidwarp.core.grid`).
@@ -30,17 +29,14 @@ integers (``align_corners=False``); fluid quantities in fluid cells and time ste
 from __future__ import annotations
 
 import importlib
-import warnings
 from typing import TYPE_CHECKING, Any
 
-from torchfluidwarp import _compat
 from torchfluidwarp._version import __version__
 from torchfluidwarp.control import ImageFit, KeyframeFit, fit_images, fit_keyframes
 from torchfluidwarp.core import CGConfig, FluidGrid, FluidRollout, FluidSimulator
+from torchfluidwarp.errors import FlowBlewUp, InputError
 from torchfluidwarp.morph import MorphResult, morph
 from torchfluidwarp.warp import FluidWarp, jacobian_determinant, warp_image
-
-_compat.install()  # the flat layout's module paths (torchfluidwarp.grid, ...) resolve for one more release
 
 if TYPE_CHECKING:
     from torchfluidwarp.augment.transforms import RandomFluidWarp
@@ -61,39 +57,12 @@ __all__ = [
     "morph",
     "MorphResult",
     "RandomFluidWarp",
+    "InputError",
+    "FlowBlewUp",
 ]
 
 # imported on first access, without a warning: importing torchfluidwarp never imports torchvision
 _LAZY = {"RandomFluidWarp": "torchfluidwarp.augment.transforms"}
-
-# names the top level used to export, and the module each lives in; they resolve for one
-# more release with a DeprecationWarning
-_MOVED = {
-    **dict.fromkeys(["pixel_to_cell", "cell_to_pixel"], "torchfluidwarp.core"),
-    **dict.fromkeys(["ConvergenceWarning", "ConvergenceError", "implicit_solve"], "torchfluidwarp.core"),
-    **dict.fromkeys(
-        [
-            "advect",
-            "advect_velocity",
-            "advect_points",
-            "sample_velocity",
-            "diffuse",
-            "project",
-            "divergence",
-            "faces_from_cells",
-            "cells_from_faces",
-        ],
-        "torchfluidwarp.core.fluid",
-    ),
-    "StableFluidsStep": "torchfluidwarp.core",
-    **dict.fromkeys(["identity_map", "backward_maps", "forward_maps", "maps_to_end"], "torchfluidwarp.warp"),
-    **dict.fromkeys(
-        ["Brushes", "SumForces", "ControlGrid", "CellForces", "ViscosityBrushes", "viscosity_from_mask"],
-        "torchfluidwarp.warp",
-    ),
-    **dict.fromkeys(["keyframe_loss", "velocity_gradient_energy"], "torchfluidwarp.control"),
-    "estimate_alignment": "torchfluidwarp.control",
-}
 
 
 def __getattr__(name: str) -> Any:
@@ -101,15 +70,6 @@ def __getattr__(name: str) -> Any:
         value = getattr(importlib.import_module(_LAZY[name]), name)
         globals()[name] = value  # later lookups skip this hook
         return value
-    if name in _MOVED:
-        module = _MOVED[name]
-        warnings.warn(
-            f"torchfluidwarp.{name} is no longer exported from the top level; use `from {module} import {name}`. "
-            "The top-level alias goes in the next release.",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(module), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -1,7 +1,10 @@
 """One small set of validators for user input.
 
-Every public function calls these at its boundary, so errors name the argument and what was received,
-and nothing non-finite can travel on to ``grid_sample`` (whose CPU backward crashes the process on NaN).
+Every public function calls these at its boundary, so errors name the argument and what was received, and
+nothing non-finite can travel on to ``grid_sample`` (whose CPU backward crashes the process on NaN). A bad value
+raises :class:`~torchfluidwarp.errors.InputError` (a ``ValueError``), a bad type
+:class:`~torchfluidwarp.errors.InputTypeError` (a ``TypeError``), each with the argument's name as its
+``argument``.
 The dtype policy (:func:`compute_dtype`) and the memory limit (:data:`MAX_BYTES`, :func:`check_memory`)
 live here too.
 """
@@ -9,10 +12,20 @@ live here too.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 import torch
 from torch import Tensor
+
+from torchfluidwarp.errors import Hint, InputError, InputTypeError
+
+
+def argument_of(name: str) -> str | None:
+    """The argument a checked name refers to (the errors' ``argument``): ``"points"`` for ``"points[0]"`` or
+    ``"points.x"``; ``None`` for a name that is no identifier (``"the value"``, ``"MapConfig(max_memory=...)"``)."""
+    match = re.fullmatch(r"([A-Za-z_]\w*)(?:[\[.].*)?", name, flags=re.DOTALL)
+    return match.group(1) if match else None
 
 
 def describe(x: object) -> str:
@@ -57,35 +70,39 @@ def check_tensor(
         floating: require a floating-point dtype.
 
     Raises:
-        TypeError: ``x`` is not a tensor, or not floating point when required.
-        ValueError: wrong rank, shape, or non-finite values.
+        InputTypeError: ``x`` is not a tensor, or not floating point when required (a ``TypeError``).
+        InputError: wrong rank, shape, or non-finite values (a ``ValueError``).
     """
     if not isinstance(x, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {describe(x)}")
+        raise InputTypeError(f"{name} must be a torch.Tensor, got {describe(x)}", argument=argument_of(name))
     if floating and not x.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}")
+        raise InputTypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}", argument=argument_of(name))
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if x.ndim not in allowed:
             ranks = " or ".join(map(str, allowed))
-            raise ValueError(f"{name} must have {ranks} dimensions, got shape {tuple(x.shape)}")
+            raise InputError(
+                f"{name} must have {ranks} dimensions, got shape {tuple(x.shape)}", argument=argument_of(name)
+            )
     if shape is not None:
         if x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
             want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
-            raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
+            raise InputError(f"{name} must have shape {want}, got {tuple(x.shape)}", argument=argument_of(name))
     if finite and x.numel() and not all_finite(x):
-        raise ValueError(f"{name} contains non-finite values (NaN or inf); shape {tuple(x.shape)}")
+        raise InputError(
+            f"{name} contains non-finite values (NaN or inf); shape {tuple(x.shape)}", argument=argument_of(name)
+        )
     return x
 
 
 def check_positive(name: str, value: float, *, allow_zero: bool = False) -> float:
     """Validate a positive (or non-negative) finite number."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number, got {describe(value)}")
+        raise InputTypeError(f"{name} must be a number, got {describe(value)}", argument=argument_of(name))
     ok = value >= 0 if allow_zero else value > 0
     if not ok or value != value or value in (float("inf"), float("-inf")) or value > _FLOAT_MAX:
         bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
+        raise InputError(f"{name} must be finite and {bound}, got {value!r}", argument=argument_of(name))
     return float(value)
 
 
@@ -95,22 +112,22 @@ _FLOAT_MAX = 1.7976931348623157e308  # an int beyond it cannot become a float
 def check_real(name: str, value: object) -> float:
     """Validate a finite real number (of either sign), e.g. a time step that may run backwards."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a number, got {describe(value)}")
+        raise InputTypeError(f"{name} must be a number, got {describe(value)}", argument=argument_of(name))
     try:
         number = float(value)
     except OverflowError:  # an int too large for a float
         number = math.inf
     if not math.isfinite(number):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise InputError(f"{name} must be finite, got {value!r}", argument=argument_of(name))
     return number
 
 
 def check_int(name: str, value: object, *, minimum: int = 1) -> int:
     """Validate an integer at least ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise TypeError(f"{name} must be an int, got {describe(value)}")
+        raise InputTypeError(f"{name} must be an int, got {describe(value)}", argument=argument_of(name))
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise InputError(f"{name} must be >= {minimum}, got {value}", argument=argument_of(name))
     return value
 
 
@@ -119,11 +136,15 @@ def check_size(name: str, value: object, *, minimum: int = 1) -> tuple[int, int]
     if isinstance(value, int) and not isinstance(value, bool):
         value = (value, value)
     if not isinstance(value, (tuple, list)) or len(value) != 2:
-        raise TypeError(f"{name} must be an int or a pair (h, w) of ints, got {describe(value)}")
+        raise InputTypeError(
+            f"{name} must be an int or a pair (h, w) of ints, got {describe(value)}", argument=argument_of(name)
+        )
     h, w = value
     for v in (h, w):
         if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-            raise ValueError(f"{name} must be a pair of ints >= {minimum}, got {tuple(value)!r}")
+            raise InputError(
+                f"{name} must be a pair of ints >= {minimum}, got {tuple(value)!r}", argument=argument_of(name)
+            )
     return int(h), int(w)
 
 
@@ -132,9 +153,11 @@ def check_fraction(name: str, value: object) -> float:
     if isinstance(value, bool):
         return float(value)
     if not isinstance(value, (int, float)):
-        raise TypeError(f"{name} must be a bool or a number in [0, 1], got {describe(value)}")
+        raise InputTypeError(
+            f"{name} must be a bool or a number in [0, 1], got {describe(value)}", argument=argument_of(name)
+        )
     if not 0 <= value <= 1:  # also refuses NaN
-        raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+        raise InputError(f"{name} must be in [0, 1], got {value!r}", argument=argument_of(name))
     return float(value)
 
 
@@ -144,15 +167,50 @@ def check_instance(name: str, value: object, kind: type | tuple[type, ...], *, o
         return value
     kinds = kind if isinstance(kind, tuple) else (kind,)
     names = " or ".join(k.__name__ for k in kinds) + (" or None" if optional else "")
-    raise TypeError(f"{name} must be a {names}, got {describe(value)}")
+    raise InputTypeError(f"{name} must be a {names}, got {describe(value)}", argument=argument_of(name))
 
 
 def check_float_dtype(name: str, value: object) -> torch.dtype:
     """Validate a floating-point ``torch.dtype`` argument (``dtype="float32"`` and complex dtypes are refused)."""
     if not isinstance(value, torch.dtype):
-        raise TypeError(f"{name} must be a torch.dtype such as torch.float32, got {describe(value)}")
+        raise InputTypeError(
+            f"{name} must be a torch.dtype such as torch.float32, got {describe(value)}", argument=argument_of(name)
+        )
     if not value.is_floating_point:
-        raise TypeError(f"{name} must be a floating-point dtype (float16, bfloat16, float32 or float64), got {value}")
+        raise InputTypeError(
+            f"{name} must be a floating-point dtype (float16, bfloat16, float32 or float64), got {value}",
+            argument=argument_of(name),
+        )
+    return value
+
+
+def check_returned_loss(name: str, value: object, *, graph: bool = True) -> Tensor:
+    """Validate what a caller's function ``name`` (a loss, an objective) returned, and return it.
+
+    Args:
+        name: the function's argument name, quoted in the error (``"loss"``).
+        value: what it returned.
+        graph: require an autograd graph (``requires_grad``), as when its inputs require grad: a value that was
+            detached or computed under ``torch.no_grad()`` cannot be differentiated, and autograd's own
+            ``RuntimeError`` would not say whose value it was.
+
+    Raises:
+        InputTypeError: ``value`` is not a tensor.
+        InputError: it has more than one element, or no graph when ``graph``.
+    """
+    if not isinstance(value, Tensor):
+        raise InputTypeError(f"{name} must return a tensor, got {describe(value)}", argument=argument_of(name))
+    if value.numel() != 1:
+        raise InputError(
+            f"{name} must return a scalar (a tensor of one element), got shape {tuple(value.shape)}",
+            argument=argument_of(name),
+        )
+    if graph and not value.requires_grad:
+        raise InputError(
+            f"{name} returned a tensor without an autograd graph (requires_grad=False: detached, or computed under "
+            "torch.no_grad()), so it cannot be differentiated; compute it from its inputs with autograd on",
+            argument=argument_of(name),
+        )
     return value
 
 
@@ -181,14 +239,25 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} TiB"  # unreachable
 
 
-def check_memory(what: str, nbytes: float, limit: float | None, setting: str) -> None:
+def check_memory(what: str, nbytes: float, limit: float | None, setting: str, *, name: str = "max_memory") -> None:
     """Refuse a request whose estimated memory ``nbytes`` exceeds ``limit`` (default :data:`MAX_BYTES`).
 
-    The message gives the estimate, the limit and the ``setting`` that raises it.
+    Args:
+        what: the request, as the message names it (``"morph(frames=30, steps=10, grid=(80, 80))"``).
+        nbytes: its estimated memory, in bytes.
+        limit: the caller's limit in bytes, or ``None`` for :data:`MAX_BYTES`.
+        setting: how a Python caller raises the limit (``"MapConfig(max_memory=...)"``).
+        name: the limit's argument name (``"max_memory"``), the :class:`~torchfluidwarp.errors.Hint`'s setting.
+
+    Raises:
+        InputError: the estimate is above the limit. The message gives the estimate and the limit; its hint,
+            ``setting``.
     """
     limit = MAX_BYTES if limit is None else check_positive(setting, limit)
     if nbytes > limit:
-        raise ValueError(
-            f"{what} would need about {format_bytes(nbytes)}, above the limit of {format_bytes(limit)}; "
-            f"ask for less, or raise the limit with {setting}"
+        raise InputError(
+            f"{what} would need about {format_bytes(nbytes)}, above the limit of {format_bytes(limit)}",
+            hint=Hint(
+                "ask for less, or raise the limit with {setting}", name, spelling=setting, otherwise="ask for less"
+            ),
         )

@@ -18,10 +18,12 @@ from torchfluidwarp.apps import batch
 from torchfluidwarp.apps.batch import morph_pairs, read_pairs
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.io import write_image, write_points
+from torchfluidwarp.morph import NaturalSettings
 from torchfluidwarp.morph.result import MorphResult
 
 FAST = ["--grid", "12", "--steps", "2", "--max-iter", "5", "--frames", "4", "--quiet"]
-OPTIONS = dict(grid=12, steps=2, max_iter=5, frames=4)
+SETTINGS = dict(grid=12, steps=2, max_iter=5)  # NaturalSettings' fields
+OPTIONS = dict(settings=NaturalSettings(**SETTINGS), frames=4)
 POINTS_A = torch.tensor([[8.0, 8.0], [24.0, 9.0], [15.0, 22.0]])
 
 
@@ -135,7 +137,9 @@ def test_two_processes_under_torch_distributed_give_the_outputs_of_one(tmp_path,
     pairs = make_pairs(tmp_path, gen, n=3)
     code = (
         "import sys; from torchfluidwarp.apps.batch import morph_pairs; "
-        f"r = morph_pairs(sys.argv[1], sys.argv[2], progress=False, **{OPTIONS!r}); "
+        "from torchfluidwarp.morph import NaturalSettings; "
+        f"r = morph_pairs(sys.argv[1], sys.argv[2], progress=False, settings=NaturalSettings(**{SETTINGS!r}), "
+        "frames=4); "
         "print(sorted(r.morphed), len(r.failed))"
     )
     env = {**os.environ, "WORLD_SIZE": "2", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(29500 + os.getpid() % 1000)}

@@ -232,6 +232,6 @@ def test_a_flow_too_strong_is_refused_in_the_command_lines_terms(tmp_path, image
         ["animate", str(image), "-o", str(tmp_path / "o.gif"), "--brush", "32,32,1,0,10,0,100000", "--steps", "3"]
     )
     err = capsys.readouterr().err
-    assert rc == 2 and "sub-steps" in err and "reduce the forces" in err
+    assert rc == 3 and "sub-steps" in err and "reduce the forces" in err  # exit 3: the flow blew up
     assert "MapConfig" not in err and "max_substeps" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o.gif").exists()

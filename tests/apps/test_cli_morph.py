@@ -5,7 +5,7 @@ import torch
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.io import write_image, write_points
 
-FAST = ["--grid", "16", "--steps", "3", "--control", "3", "--max-iter", "10", "--quiet"]
+FAST = ["--grid", "16", "--steps", "3", "--max-iter", "10", "--quiet"]  # --control is --method paper's
 
 
 @pytest.fixture
@@ -79,3 +79,36 @@ def test_demo_writes_a_gif_and_refuses_to_overwrite(tmp_path, monkeypatch):
     frames = iio.imread(tmp_path / "morph.gif", index=None)
     assert frames.shape[0] == 4 and frames.shape[1:3] == (512, 512)
     assert main(["demo", "--frames", "4", *FAST]) == 2
+
+
+def test_the_options_build_the_methods_typed_settings():
+    from torchfluidwarp.apps.cli import build_parser
+    from torchfluidwarp.apps.cli_morph_output import morph_settings, result_options
+    from torchfluidwarp.morph import Blending, NaturalSettings, PaperSettings, Timing
+
+    parser = build_parser()
+    args = parser.parse_args(["morph", "a.png", "b.png", "--straightness", "2", "--align", "none"])
+    assert morph_settings(args) == NaturalSettings(straightness=2.0, align=None)
+    args = parser.parse_args(["morph", "a.png", "b.png", "--method", "paper", "--smoothness", "1", "--control", "3"])
+    assert morph_settings(args) == PaperSettings(smoothness=1.0, control=(3, 3))
+    args = parser.parse_args(["morph", "a.png", "b.png", "--motion", "ease-out", "--region", "points"])
+    timing, blending = result_options(args)
+    assert timing == Timing(motion="ease-out") and isinstance(blending, Blending) and blending.region == "points"
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--smoothness", "2"], "--smoothness applies to --method paper, not --method natural"),
+        (["--control", "4"], "--control applies to --method paper, not --method natural"),
+        (
+            ["--method", "paper", "--straightness", "2"],
+            "--straightness applies to --method natural, not --method paper",
+        ),
+    ],
+)
+def test_an_option_of_the_other_method_exits_2_naming_it(pair, tmp_path, capsys, options, message):
+    a, b, pa, pb = pair
+    argv = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "-o", str(tmp_path / "m.gif")]
+    assert main([*argv, *options, "--quiet"]) == 2
+    assert message in capsys.readouterr().err

@@ -16,7 +16,7 @@ import torch
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.apps.cli_args import output_bytes
 from torchfluidwarp.io import read_image, read_points, write_animation, write_image, write_points
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, morph
 
 FAST = ["--grid", "12", "--steps", "2", "--max-iter", "5", "--quiet"]
 POINTS_A = torch.tensor([[8.0, 8.0], [24.0, 9.0], [15.0, 22.0]])
@@ -54,10 +54,8 @@ def test_streamed_morph_writes_the_materialised_frames(tmp_path, pair, name):
         read_image(data / "b.png"),
         read_points(data / "a.pts"),
         read_points(data / "b.pts"),
+        settings=NaturalSettings(grid=12, steps=2, max_iter=5),
         frames=7,
-        grid=12,
-        steps=2,
-        max_iter=5,
     )
     whole = write_animation(tmp_path / "whole" / name, result.frames)
     if name.endswith("/"):

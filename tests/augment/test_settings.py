@@ -9,7 +9,7 @@ from torchfluidwarp.augment.settings import make_settings
 from torchfluidwarp.augment.tensor import FluidWarpAugment
 from torchfluidwarp.augment.transforms import RandomFluidWarp
 from torchfluidwarp.core.grid import FluidGrid
-from torchfluidwarp.warp.layer import identity_map
+from torchfluidwarp.warp.frames import identity_map
 
 FIELDS = [f.name for f in dataclasses.fields(FluidWarpSettings)]
 SETTINGS = {"count": (1, 2), "strength": 0.2, "radius": (10.0, 14.0), "steps": (2, 3), "grid": 12, "dt": 1.0}

@@ -6,6 +6,7 @@ import pytest
 import torch
 from torch import nn
 
+from torchfluidwarp import augment
 from torchfluidwarp.augment import (
     MAX_SHEAR,
     MIN_DET,
@@ -18,7 +19,8 @@ from torchfluidwarp.augment import (
     raster_map,
 )
 from torchfluidwarp.augment import tensor as augment_tensor
-from torchfluidwarp.warp.layer import FluidWarp, identity_map, jacobian_determinant, warp_image
+from torchfluidwarp.warp.frames import identity_map, jacobian_determinant, warp_image
+from torchfluidwarp.warp.layer import FluidWarp
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -220,11 +222,23 @@ def test_mismatched_inputs_are_refused():
         aug(torch.rand(1, 1, 16, 16), boxes=torch.zeros(1, 2, 3))
 
 
-@pytest.mark.parametrize("name", sorted(augment_tensor._MOVED))
-def test_a_name_moved_out_of_tensor_warns_and_is_the_same_object(name):
-    module = f"torchfluidwarp.augment.{augment_tensor._MOVED[name]}"
-    with pytest.warns(DeprecationWarning, match=rf"moved to {module}"):
-        value = getattr(augment_tensor, name)
-    assert value is getattr(importlib.import_module(module), name)
+@pytest.mark.parametrize(
+    "name,home",
+    [
+        *[(n, "settings") for n in ["MAX_SHEAR", "RangeArg"]],
+        *[(n, "draw") for n in ["MIN_DET", "brush_forces", "min_quad_determinant", "raster_map"]],
+        *[(n, "carry") for n in ["fluid_warp_map", "carry_points", "carry_boxes", "box_outline", "polygon_outline"]],
+    ],
+)
+def test_a_name_moved_out_of_tensor_has_one_home(name, home):
+    module = importlib.import_module(f"torchfluidwarp.augment.{home}")
+    assert not hasattr(augment_tensor, name)
+    assert getattr(augment, name, getattr(module, name)) is getattr(module, name)
     with pytest.raises(AttributeError, match="no_such_name"):
         augment_tensor.no_such_name  # noqa: B018
+
+
+@pytest.mark.parametrize("name", ["RandomFluidWarp", "RandomFluidWarpV2"])
+def test_the_old_aliases_of_the_augmentations_are_gone(name):
+    with pytest.raises(AttributeError, match=name):
+        getattr(augment, name)

@@ -9,7 +9,10 @@ from torch.utils.data import DataLoader, Dataset, get_worker_info
 from torchvision import tv_tensors
 
 from torchfluidwarp.augment import FluidWarpAugment, FluidWarpSettings, brush_forces, draw_fluid_warp, raster_map
+from torchfluidwarp.augment.draw import make_simulator
 from torchfluidwarp.augment.transforms import RandomFluidWarp
+from torchfluidwarp.core import graphs
+from torchfluidwarp.core.simulator import FluidSimulator
 from torchfluidwarp.warp.layer import FluidWarp
 
 N, S = 8, 24  # 8 identical images of 24 x 24: only the warp differs between samples
@@ -84,13 +87,13 @@ def test_seeded_runs_reproduce_and_another_seed_differs(name):
 
 def test_a_batch_is_drawn_and_rolled_out_in_one_call(monkeypatch):
     calls = []
-    rollout = FluidWarp.rollout
+    rollout = FluidSimulator.forward
 
     def counted(self, forces, *args, **kwargs):
         calls.append(forces.shape[0])
         return rollout(self, forces, *args, **kwargs)
 
-    monkeypatch.setattr(FluidWarp, "rollout", counted)
+    monkeypatch.setattr(FluidSimulator, "forward", counted)
     images = _image().expand(16, -1, -1, -1)
     out = FluidWarpAugment(settings=SETTINGS, generator=torch.Generator().manual_seed(0))(images)
     assert calls == [16]  # one roll-out for the whole batch (these settings never need a fold retry)
@@ -132,3 +135,46 @@ def test_a_batch_draw_is_not_a_sequence_of_single_draws():
     assert not torch.allclose(batch, singles)
     aug.generator.manual_seed(4)
     torch.testing.assert_close(aug.make_params(4, (S, S)).centers, batch, rtol=0, atol=0)
+
+
+def test_draws_set_up_no_fluid_of_their_own(monkeypatch):
+    # the augmentation holds one simulator (and so its grid's constants) for all its draws
+    made = []
+    init = FluidSimulator.__init__
+
+    def counted(self, *args, **kwargs):
+        made.append(self)
+        init(self, *args, **kwargs)
+
+    monkeypatch.setattr(FluidSimulator, "__init__", counted)
+    aug = FluidWarpAugment(settings=SETTINGS, generator=torch.Generator().manual_seed(0))
+    assert len(made) == 1 and made[0] is aug.simulator
+    for batch in (1, 3, 1):
+        aug(_image().expand(batch, -1, -1, -1))
+    assert len(made) == 1
+
+
+def test_draws_with_cuda_graphs_capture_once_per_batch_shape_not_per_draw(monkeypatch):
+    # on the CPU: stand-ins for the CUDA calls and for the capture, which runs the step it was given; what is
+    # counted is how often the augmentation captures, not the GPU's work
+    class Captured:
+        def __init__(self, step, *args):
+            self.step = step
+
+        def __call__(self, *args, **kwargs):
+            return self.step(*args, **kwargs)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(graphs, "graphable", lambda *args: True)
+    monkeypatch.setattr(graphs, "_GraphedStep", Captured)
+    monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: None)
+    monkeypatch.setattr(torch.cuda, "Stream", lambda device=None: None)
+    aug = FluidWarpAugment(settings=SETTINGS, generator=torch.Generator().manual_seed(0))
+    aug.simulator = make_simulator(aug.settings, cuda_graphs=True)
+    for _ in range(4):  # each draw draws its own steps (2 to 4): the capture does not depend on them
+        aug(_image().expand(2, -1, -1, -1))
+    assert aug.simulator.graphs.captures == 1
+    aug(_image().expand(3, -1, -1, -1))  # another batch shape: one more
+    assert aug.simulator.graphs.captures == 2

@@ -7,8 +7,10 @@ import torch.nn.functional as F
 from torchfluidwarp.control.images import _level_grids, fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.data import load_sample
+from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.warp.forces import Brushes
-from torchfluidwarp.warp.layer import FluidWarp, jacobian_determinant
+from torchfluidwarp.warp.frames import jacobian_determinant
+from torchfluidwarp.warp.layer import FluidWarp
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -184,3 +186,51 @@ def test_bad_inputs_name_the_argument(kwargs, name):
     }
     with pytest.raises(ValueError, match=name):
         fit_images(args.pop("source"), args.pop("target"), **args)
+
+
+def _detached_mse(warped, target):
+    return ((warped - target) ** 2).mean().detach()
+
+
+def _no_grad_mse(warped, target):
+    with torch.no_grad():
+        return ((warped - target) ** 2).mean()
+
+
+@pytest.mark.parametrize("loss", [_detached_mse, _no_grad_mse])
+@pytest.mark.parametrize("regularization", [0.0, 1e-3])  # with it, the objective has a graph without the loss's
+def test_a_loss_without_a_graph_is_an_input_error_naming_loss(loss, regularization):
+    with pytest.raises(InputError, match="loss returned a tensor without an autograd graph") as info:
+        fit_images(
+            _blob(14.0, 16.0),
+            _blob(16.0, 16.0),
+            loss=loss,
+            regularization=regularization,
+            grid=16,
+            levels=None,
+            steps=2,
+            control=3,
+            max_iter=2,
+            progress=False,
+        )
+    assert info.value.argument == "loss"
+
+
+def test_a_loss_that_returns_no_scalar_tensor_is_the_callers_error():
+    args = {"grid": 16, "levels": None, "steps": 2, "control": 3, "max_iter": 2, "progress": False}
+    with pytest.raises(InputTypeError, match="loss must return a tensor, got float") as info:
+        fit_images(_blob(14.0, 16.0), _blob(16.0, 16.0), loss=lambda w, t: float(((w - t) ** 2).mean()), **args)
+    assert info.value.argument == "loss"
+    with pytest.raises(InputError, match="loss must return a scalar") as info:
+        fit_images(_blob(14.0, 16.0), _blob(16.0, 16.0), loss=lambda w, t: (w - t) ** 2, **args)
+    assert info.value.argument == "loss"
+
+
+@pytest.mark.parametrize("empty", ["source", "target", "both"])
+def test_an_empty_batch_is_an_input_error_naming_it(empty):
+    blob = _blob(14.0, 16.0)
+    source = blob[:0] if empty in ("source", "both") else blob
+    target = blob[:0] if empty in ("target", "both") else blob
+    with pytest.raises(InputError, match="must hold at least one image, got an empty batch") as info:
+        fit_images(source, target, grid=16, levels=None, steps=2, control=3, max_iter=2, progress=False)
+    assert info.value.argument == ("target" if empty == "target" else "source")

@@ -3,7 +3,7 @@ import torch
 
 from torchfluidwarp.control.keyframes import fit_keyframes, keyframe_loss
 from torchfluidwarp.control.newton import model_jacobian, newton_start, rest_response
-from torchfluidwarp.core.advection import FlowBlewUp
+from torchfluidwarp.errors import FlowBlewUp
 from torchfluidwarp.warp.forces import Brushes, ControlGrid
 from torchfluidwarp.warp.layer import FluidWarp
 

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from torchfluidwarp.control.optim import MAX_RESTARTS, OptimResult, minimize
+from torchfluidwarp.errors import InputError, InputTypeError
 
 
 def _quadratic(gen, n=6):
@@ -258,3 +259,19 @@ def test_a_fit_does_not_import_torch_dynamo():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize(
+    ("objective", "error", "match"),
+    [
+        (lambda x: (x**2).sum().detach(), InputError, "objective returned a tensor without an autograd graph"),
+        (lambda x: float((x**2).sum()), InputTypeError, "objective must return a tensor"),
+        (lambda x: x**2, InputError, r"objective must return a scalar .* shape \(2,\)"),
+    ],
+)
+def test_an_objective_that_cannot_be_differentiated_is_the_callers_error(objective, error, match):
+    x = torch.ones(2, requires_grad=True)
+    with pytest.raises(error, match=match) as info:  # not autograd's RuntimeError, which names no one
+        minimize(lambda: objective(x), [x], max_iter=5)
+    assert info.value.argument == "objective"
+    torch.testing.assert_close(x.detach(), torch.ones(2))  # nothing was stepped

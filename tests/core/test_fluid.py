@@ -4,7 +4,7 @@ import pytest
 import torch
 from conftest import gradcheck64
 
-from torchfluidwarp.core import fluid
+from torchfluidwarp.core import advection, fluid
 from torchfluidwarp.core.grid import FluidGrid, interior_mask
 from torchfluidwarp.core.linalg import CGConfig
 
@@ -21,8 +21,8 @@ def test_gradcheck_advect(grid, gen):
     h, w = grid
     q = torch.randn(2, 3, h, w, generator=gen)
     v = _velocity(h, w, gen)
-    assert gradcheck64(lambda q, v: fluid.advect(q, v, 0.7), q, v)
-    assert gradcheck64(lambda v: fluid.advect_velocity(v, 0.7), v)
+    assert gradcheck64(lambda q, v: advection.advect(q, v, 0.7), q, v)
+    assert gradcheck64(lambda v: advection.advect_velocity(v, 0.7), v)
 
 
 @pytest.mark.parametrize("grid", GRIDS)
@@ -108,19 +108,21 @@ def test_points_follow_a_uniform_flow(gen):
     v = torch.zeros(1, 2, h + 1, w + 1, dtype=torch.float64)
     v[0, 0, :h, 1:w] = 0.5
     pts = torch.tensor([[[5.0, 4.0], [8.3, 10.7]]], dtype=torch.float64)
-    torch.testing.assert_close(fluid.advect_points(pts, v, 2.0), pts + torch.tensor([1.0, 0.0], dtype=torch.float64))
     torch.testing.assert_close(
-        fluid.sample_velocity(v, pts), torch.tensor([[[0.5, 0.0], [0.5, 0.0]]], dtype=torch.float64)
+        advection.advect_points(pts, v, 2.0), pts + torch.tensor([1.0, 0.0], dtype=torch.float64)
+    )
+    torch.testing.assert_close(
+        advection.sample_velocity(v, pts), torch.tensor([[[0.5, 0.0], [0.5, 0.0]]], dtype=torch.float64)
     )
 
 
 @pytest.mark.parametrize(
     "fn",
     [
-        lambda v: fluid.advect_velocity(v, 1.0),
-        lambda v: fluid.advect(torch.zeros(1, 1, 8, 8), v, 1.0),
-        lambda v: fluid.advect_points(torch.zeros(1, 3, 2), v, 1.0),
-        lambda v: fluid.sample_velocity(v, torch.zeros(1, 3, 2)),
+        lambda v: advection.advect_velocity(v, 1.0),
+        lambda v: advection.advect(torch.zeros(1, 1, 8, 8), v, 1.0),
+        lambda v: advection.advect_points(torch.zeros(1, 3, 2), v, 1.0),
+        lambda v: advection.sample_velocity(v, torch.zeros(1, 3, 2)),
     ],
 )
 def test_nan_velocity_is_a_python_error_not_a_crash(fn):
@@ -132,7 +134,7 @@ def test_nan_velocity_is_a_python_error_not_a_crash(fn):
 
 def test_nan_points_are_refused():
     with pytest.raises(ValueError, match="points contains non-finite"):
-        fluid.advect_points(torch.tensor([[[float("nan"), 1.0]]]), torch.zeros(1, 2, 9, 9), 1.0)
+        advection.advect_points(torch.tensor([[[float("nan"), 1.0]]]), torch.zeros(1, 2, 9, 9), 1.0)
 
 
 @pytest.mark.parametrize(
@@ -153,7 +155,7 @@ def test_bad_viscosity(bad, match):
 @pytest.mark.parametrize("shape", [(1, 3, 9, 9), (1, 2, 9), (1, 2, 2, 9)])
 def test_bad_velocity_shapes(shape):
     with pytest.raises(ValueError, match="velocity"):
-        fluid.advect_velocity(torch.zeros(shape), 1.0)
+        advection.advect_velocity(torch.zeros(shape), 1.0)
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])

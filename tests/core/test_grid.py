@@ -21,7 +21,7 @@ from torchfluidwarp.core.grid import (
     rescale_points,
     scale_factor,
 )
-from torchfluidwarp.warp.layer import identity_map
+from torchfluidwarp.warp.frames import identity_map
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 TOL = {torch.float32: 1e-5, torch.float64: 1e-12}

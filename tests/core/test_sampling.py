@@ -20,8 +20,12 @@ import torchfluidwarp as tfw
 from torchfluidwarp.augment.tensor import FluidWarpAugment as RandomFluidWarp
 from torchfluidwarp.augment.transforms import RandomFluidWarp as RandomFluidWarpV2
 from torchfluidwarp.control.images import fit_images
-from torchfluidwarp.core import fluid, sampling
-from torchfluidwarp.warp import layer as warp
+from torchfluidwarp.core import advection, sampling
+from torchfluidwarp.core.staggered import StaggeredGrid
+from torchfluidwarp.errors import FlowBlewUp
+from torchfluidwarp.morph import NaturalSettings
+from torchfluidwarp.warp import maps
+from torchfluidwarp.warp.frames import identity_map
 
 BAD = {"nan": float("nan"), "inf": float("inf"), "-inf": float("-inf")}
 PACKAGE = pathlib.Path(tfw.__file__).parent
@@ -78,7 +82,7 @@ def _inputs() -> dict[str, torch.Tensor]:
         "velocity": tfw.FluidSimulator(G)(forces).velocities[:, -1],
         "velocities": tfw.FluidSimulator(G)(forces).velocities,
         "quantity": torch.rand(1, 2, G, G, generator=g),
-        "coords": warp.identity_map((H, W)) + 0.3,
+        "coords": identity_map((H, W)) + 0.3,
         "viscosity": torch.full((1, 1, G, G), 0.1),
         "source": torch.tensor([[3.0, 4.0], [8.0, 7.0]]),
         "target": torch.tensor([[4.0, 4.5], [8.5, 6.0]]),
@@ -128,17 +132,20 @@ ENTRY_POINTS: dict[str, tuple[list[str | tuple[str, str]], Call]] = {
     "FluidWarp.forward_maps": (["forces"], lambda a: _warp().forward_maps(a["forces"])),
     "FluidWarp.carry_points": (["points", "forces"], lambda a: _warp().carry_points(a["points"], a["forces"])),
     "warp_image": (["image", "coords"], lambda a: tfw.warp_image(a["image"], a["coords"])),
-    "advect": (["quantity", "velocity", "dt"], lambda a: fluid.advect(a["quantity"], a["velocity"], a["dt"])),
-    "advect_velocity": (["velocity", "dt"], lambda a: fluid.advect_velocity(a["velocity"], a["dt"])),
-    "advect_points": (["points", "velocity", "dt"], lambda a: fluid.advect_points(a["points"], a["velocity"], a["dt"])),
-    "sample_velocity": (["velocity", "points"], lambda a: fluid.sample_velocity(a["velocity"], a["points"])),
-    "backward_maps": (["velocities", "dt"], lambda a: warp.backward_maps(a["velocities"], (H, W), a["dt"])),
+    "advect": (["quantity", "velocity", "dt"], lambda a: advection.advect(a["quantity"], a["velocity"], a["dt"])),
+    "advect_velocity": (["velocity", "dt"], lambda a: advection.advect_velocity(a["velocity"], a["dt"])),
+    "advect_points": (
+        ["points", "velocity", "dt"],
+        lambda a: advection.advect_points(a["points"], a["velocity"], a["dt"]),
+    ),
+    "sample_velocity": (["velocity", "points"], lambda a: advection.sample_velocity(a["velocity"], a["points"])),
+    "backward_maps": (["velocities", "dt"], lambda a: maps.backward_maps(a["velocities"], (H, W), a["dt"])),
     "iter_backward_maps": (
         ["velocities", "dt"],
-        lambda a: list(warp.iter_backward_maps(a["velocities"], (H, W), a["dt"])),
+        lambda a: list(maps.iter_backward_maps(a["velocities"], (H, W), a["dt"])),
     ),
-    "maps_to_end": (["velocities", "dt"], lambda a: warp.maps_to_end(a["velocities"], (H, W), a["dt"])),
-    "forward_maps": (["velocities", "dt"], lambda a: warp.forward_maps(a["velocities"], (H, W), a["dt"])),
+    "maps_to_end": (["velocities", "dt"], lambda a: maps.maps_to_end(a["velocities"], (H, W), a["dt"])),
+    "forward_maps": (["velocities", "dt"], lambda a: maps.forward_maps(a["velocities"], (H, W), a["dt"])),
     "jacobian_determinant": (["coords"], lambda a: tfw.jacobian_determinant(a["coords"])),
     "fit_keyframes": (
         ["source", "target"],
@@ -155,7 +162,13 @@ ENTRY_POINTS: dict[str, tuple[list[str | tuple[str, str]], Call]] = {
     "morph": (
         ["image_a", "image_b", "points_a", "points_b"],
         lambda a: tfw.morph(
-            a["image_a"], a["image_b"], a["points_a"], a["points_b"], frames=3, steps=2, max_iter=2, progress=False
+            a["image_a"],
+            a["image_b"],
+            a["points_a"],
+            a["points_b"],
+            frames=3,
+            settings=NaturalSettings(steps=2, max_iter=2),
+            progress=False,
         ),
     ),
     "fit_images": (
@@ -200,11 +213,11 @@ def test_entry_point_refuses_non_finite_input_naming_the_argument(entry: str, ke
 @pytest.mark.parametrize("bad", BAD)
 def test_a_flow_that_blows_up_inside_is_refused_before_sampling(bad: str):
     # the per-sub-step sampling is unchecked; the sub-step count reads the velocity's strain on the host anyway,
-    # so a non-finite velocity that got past the boundary (here: straight into the private helper) is refused
+    # so a non-finite velocity that got past the boundary (here: straight into the unchecked kernel) is refused
     velocity = torch.zeros(1, 2, G + 1, G + 1)
     velocity[0, 0, 3, 3] = BAD[bad]
-    with pytest.raises(ValueError, match="non-finite velocity"):
-        fluid._advect_points(torch.full((1, 2, 3), 4.0), velocity, 1.0)
+    with pytest.raises(FlowBlewUp, match="non-finite velocity"):
+        StaggeredGrid.of(velocity).carry(velocity, torch.full((1, 3, 2), 4.0), 1.0)
 
 
 @pytest.mark.parametrize("entry", ["forward", "iter_frames", "carry_points"])

@@ -147,7 +147,7 @@ def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_o
     if "points" in settings:
         given["points"] = torch.tensor([[[4.0, 5.0], [9.5, 7.0]]], dtype=dtype).expand(B, 2, 2).cuda()
     keep = settings.get("compressible", False)
-    sim = FluidSimulator((12, 14), viscosity=settings.get("viscosity", 0.0), compressible=keep).cuda()
+    sim = FluidSimulator((12, 14), viscosity=settings.get("viscosity", 0.0), compressible=keep, cuda_graphs=True).cuda()
     captured = []
     real = graphs._GraphedStep
 
@@ -159,11 +159,11 @@ def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_o
     monkeypatch.setattr(graphs, "_GraphedStep", Spy)
     with torch.no_grad():
         out = sim(forces, **given)
-        again = sim(forces, **given)  # a second roll-out captures afresh
-        assert len(captured) == 2  # both roll-outs took the graph
+        again = sim(forces, **given)  # a second roll-out replays the simulator's capture
+        assert len(captured) == 1 and sim.graphs.captures == 1  # one capture, held by the simulator
         monkeypatch.setattr(graphs, "GRAPH_MIN_STEPS", 10**9)
         want = sim(forces, **given)  # step by step
-    assert len(captured) == 2
+    assert len(captured) == 1
     torch.testing.assert_close(out.velocities, want.velocities, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(again.velocities, out.velocities, rtol=0, atol=0)
     assert out.iterations == want.iterations
@@ -173,8 +173,8 @@ def test_a_long_rollout_on_cuda_replays_its_step_from_a_graph_as_the_steps_run_o
     monkeypatch.setattr(graphs, "GRAPH_MIN_STEPS", T)
     with torch.enable_grad():  # a roll-out to differentiate runs step by step
         sim(forces.clone().requires_grad_())
-    assert len(captured) == 2
-    assert not graphs._ONE_AT_A_TIME.locked()
+    assert len(captured) == 1
+    assert not sim.graphs._lock.locked()
 
 
 def _stand_in(cuda: bool = True, requires_grad: bool = False, index: int = 0):
@@ -216,13 +216,14 @@ def test_which_rollouts_replay_a_captured_step(kwargs, want, monkeypatch):
 
 
 def _graphable_everywhere(monkeypatch):
-    """Make rollout_step believe every roll-out can be captured, and stand in for the CUDA stream calls."""
+    """Make StepGraphs believe every roll-out can be captured, and stand in for the CUDA stream calls."""
     from torchfluidwarp.core import graphs
 
     streams = []
     monkeypatch.setattr(graphs, "graphable", lambda *args: True)
     monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: "the caller's stream")
     monkeypatch.setattr(torch.cuda, "set_stream", streams.append)
+    monkeypatch.setattr(torch.cuda, "Stream", lambda device=None: "the side stream")
     return graphs, streams
 
 
@@ -234,14 +235,15 @@ def test_a_step_that_cannot_be_captured_runs_step_by_step_with_a_warning(monkeyp
 
     monkeypatch.setattr(graphs, "_GraphedStep", refuse)
     step, v = StableFluidsStep(), torch.zeros(1, 2, 9, 9)
+    held = graphs.StepGraphs(step)
     with pytest.warns(graphs.GraphCaptureWarning, match="could not be captured in a CUDA graph.*step by step"):
-        with graphs.rollout_step(step, v.unsqueeze(1).expand(1, 8, 2, 9, 9), v, 0.0, 8) as got:
+        with held.rollout_step(v.unsqueeze(1).expand(1, 8, 2, 9, 9), v, 0.0, 8) as got:
             assert got is step
     assert streams == ["the caller's stream"]  # the caller's stream is current again
-    assert not graphs._ONE_AT_A_TIME.locked()
+    assert not held._lock.locked() and held.captures == 0
 
 
-def test_one_graphed_rollout_at_a_time_the_others_run_step_by_step(monkeypatch):
+def test_one_replaying_rollout_per_simulator_the_others_run_step_by_step_and_the_capture_is_kept(monkeypatch):
     graphs, _ = _graphable_everywhere(monkeypatch)
     made = []
 
@@ -256,10 +258,24 @@ def test_one_graphed_rollout_at_a_time_the_others_run_step_by_step(monkeypatch):
     monkeypatch.setattr(graphs, "_GraphedStep", Captured)
     step, v = StableFluidsStep(), torch.zeros(1, 2, 9, 9)
     forces = v.unsqueeze(1).expand(1, 8, 2, 9, 9)
-    with graphs.rollout_step(step, forces, v, 0.0, 8) as first:
+    held = graphs.StepGraphs(step)
+    with held.rollout_step(forces, v, 0.0, 8) as first:
         assert first is made[0]
-        with graphs.rollout_step(step, forces, v, 0.0, 8) as second:  # another thread's, say
+        with held.rollout_step(forces, v, 0.0, 8) as second:  # another thread's, say
             assert second is step and len(made) == 1
         assert not made[0].closed
-    assert made[0].closed  # freed on leaving the roll-out
-    assert not graphs._ONE_AT_A_TIME.locked()
+    assert not made[0].closed and not held._lock.locked()  # kept for the next roll-out
+    with held.rollout_step(forces, v, 0.0, 8) as again:
+        assert again is made[0] and held.captures == 1  # replayed, not captured anew
+    with held.rollout_step(forces.double(), v.double(), 0.0, 8) as other:
+        assert other is made[1] and held.captures == 2  # another dtype: its own capture
+    with graphs.StepGraphs(step).rollout_step(forces, v, 0.0, 8) as elsewhere:
+        assert elsewhere is made[2]  # another simulator's graphs are its own
+    held.clear()
+    assert made[0].closed and made[1].closed and not made[2].closed  # freed with the graphs that hold them
+
+
+def test_a_simulator_holds_no_graphs_unless_asked():
+    assert FluidSimulator(8).graphs is None
+    sim = FluidSimulator(8, cuda_graphs=True)
+    assert sim.graphs is not None and sim.graphs.captures == 0 and sim.graphs.step is sim.step

@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from torchfluidwarp.correspond import FACE_MESH_INDICES, auto_points, border_points, detect_face_points
 from torchfluidwarp.correspond.auto import usable_pairs
 from torchfluidwarp.data import load_sample
-from torchfluidwarp.warp.maps import identity_map, warp_image
+from torchfluidwarp.warp.frames import identity_map, warp_image
 
 
 def shifted_and_scaled(y: torch.Tensor) -> torch.Tensor:

@@ -11,7 +11,7 @@ import torch
 from torchfluidwarp.correspond import match_features
 from torchfluidwarp.correspond.features import consistent_matches, thin_matches
 from torchfluidwarp.data import load_sample
-from torchfluidwarp.warp.maps import identity_map, warp_image
+from torchfluidwarp.warp.frames import identity_map, warp_image
 
 SIZE = 512
 

@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from torchfluidwarp.correspond import refine_points
 from torchfluidwarp.correspond.refine import extra_points
 from torchfluidwarp.data import load_sample
-from torchfluidwarp.warp.maps import identity_map, warp_image
+from torchfluidwarp.warp.frames import identity_map, warp_image
 
 S = 96
 

@@ -8,9 +8,10 @@ files). The parent process draws specs with Hypothesis (:func:`specs`); the work
 and runs them (:func:`run_case`) and judges the outcome:
 
 * a result: every float tensor in it is finite, and the inputs are unchanged;
-* an error: a ``ValueError``, ``TypeError`` or ``FileNotFoundError``-style ``OSError`` whose message names a
-  perturbed argument (a case with only valid variants must succeed);
-* for the CLI: exit 0 with the output written, or exit 2 with one line on stderr, no traceback and no output;
+* an error: a ``ValueError``, ``TypeError``, ``FlowBlewUp`` or ``FileNotFoundError``-style ``OSError`` whose message
+  names a perturbed argument (a case with only valid variants must succeed);
+* for the CLI: exit 0 with the output written, or exit 2 (3 for a blown-up flow) with one line on stderr, no
+  traceback and no output;
 * either way no file left behind: nothing new in the case's folder after a refusal, nothing in the temporary
   folder after any case.
 """

@@ -1,7 +1,7 @@
 """Worker side: the CLI cases, run in-process through ``torchfluidwarp.apps.cli.main`` (see ``fuzz_cases.py``).
 
-The outcome must be exit 0 with the output written, or exit 2 with one line on stderr that names the bad
-option or file, no traceback, and nothing left behind.
+The outcome must be exit 0 with the output written, or exit 2 (bad input) or 3 (the flow blew up) with one line on
+stderr that names the bad option or file, no traceback, and nothing left behind.
 """
 
 from __future__ import annotations
@@ -120,9 +120,9 @@ def run_cli(spec: dict[str, Any], case: Path, tmp: Path) -> dict[str, str]:
         if not helped and not (out.is_file() or (out.is_dir() and any(out.iterdir()))):
             verdict["verdict"] = "fail"
             verdict["detail"] += "; exit 0 but no output"
-    elif rc != 2 or len(lines) != 1:
+    elif rc not in (2, 3) or len(lines) != 1:  # 2: bad input; 3: the flow blew up (torchfluidwarp.errors)
         verdict["verdict"] = "fail"
-        verdict["detail"] += "; want exit 2 with one line on stderr"
+        verdict["detail"] += "; want exit 2 or 3 with one line on stderr"
     elif fb_listing(case) != files:
         verdict["verdict"] = "fail"
         verdict["detail"] += "; files changed in the case folder"

@@ -108,7 +108,9 @@ def judge_error(exc: BaseException, names: list[str], valid: bool) -> dict[str, 
     tb = "".join(traceback.format_exception(exc)[-6:])
     if valid:
         return {"verdict": "fail", "detail": f"valid input refused: {text}\n{tb}"}
-    if not isinstance(exc, ALLOWED):
+    from torchfluidwarp.errors import FlowBlewUp  # imported by now: the worker imports the package first
+
+    if not isinstance(exc, (*ALLOWED, FlowBlewUp)):  # a blown-up flow is the caller's forces, not a bug
         return {"verdict": "fail", "detail": f"unexpected {text}\n{tb}"}
     if names and not any(n in str(exc).lower() for n in names):
         return {"verdict": "fail", "detail": f"message does not name {names[0]!r}: {text}\n{tb}"}

@@ -6,9 +6,9 @@ values; broken, huge and malformed files). A long-lived worker process (``fuzz_w
 guarded by a timeout (the worker is killed and restarted past it), and judges each outcome:
 
 * a result has finite values and leaves its inputs unchanged;
-* an error is a ``ValueError``, ``TypeError`` or ``FileNotFoundError``-style ``OSError`` naming the argument
-  (inputs the dtype policy accepts, float16/bfloat16/float64, must succeed);
-* the CLI exits 0 with its output, or 2 with one line on stderr, no traceback;
+* an error is a ``ValueError``, ``TypeError``, ``FlowBlewUp`` or ``FileNotFoundError``-style ``OSError`` naming the
+  argument (inputs the dtype policy accepts, float16/bfloat16/float64, must succeed);
+* the CLI exits 0 with its output, or 2 (3 for a blown-up flow) with one line on stderr, no traceback;
 * nothing is left behind: no output after a refusal, no temporary file after any case.
 
 Every case runs; the test then fails listing each failing case with the spec that reproduces it:

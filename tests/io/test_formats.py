@@ -8,9 +8,9 @@ from PIL import Image, ImageSequence
 
 from torchfluidwarp.io import encode_animation, read_image, write_animation
 from torchfluidwarp.io.animation import MAX_WEBP_BYTES
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, morph
 
-FAST = dict(grid=12, steps=3, max_iter=5, progress=False)
+FAST = dict(settings=NaturalSettings(grid=12, steps=3, max_iter=5), progress=False)
 
 
 def read_webp(path):

@@ -6,14 +6,14 @@ import torch.nn.functional as F
 
 from torchfluidwarp import metrics
 from torchfluidwarp.core.grid import rescale_points, scale_factor
-from torchfluidwarp.morph import morph
+from torchfluidwarp.morph import NaturalSettings, morph
 from torchfluidwarp.warp import identity_map
 
 SIZE = 48
 POINTS = torch.tensor([[12.0, 14.0], [34.0, 12.0], [24.0, 30.0], [14.0, 36.0], [36.0, 36.0]])
 HELD = torch.tensor([[20.0, 20.0], [30.0, 25.0], [18.0, 30.0]])
 SHIFT = torch.tensor([5.0, 3.0])
-KW = dict(grid=16, steps=4, progress=False, max_iter=30)
+KW = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=False)
 
 
 @pytest.fixture

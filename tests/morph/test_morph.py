@@ -1,3 +1,4 @@
+import dataclasses
 import importlib
 import math
 import sys
@@ -8,8 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.core.spline import tps_interpolate
+from torchfluidwarp.morph import Blending, NaturalSettings, PaperSettings, Timing
 from torchfluidwarp.morph.morphing import morph
-from torchfluidwarp.warp.layer import identity_map, jacobian_determinant, warp_image
+from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 
 
 def _blobs(size, centers, gen):
@@ -23,7 +25,13 @@ def _blobs(size, centers, gen):
 
 POINTS_A = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0]])
 POINTS_B = POINTS_A + torch.tensor([[2.0, 1.0], [-1.0, 2.0], [1.5, -1.5], [-2.0, 0.0], [0.0, 2.0]])
-KW = dict(grid=24, steps=6, control=(5, 5), progress=False, max_iter=60)
+SETTINGS = NaturalSettings(grid=24, steps=6, max_iter=60)
+KW = dict(settings=SETTINGS, progress=False)
+
+
+def _with(**changes):
+    """KW with some of the method's settings changed."""
+    return {**KW, "settings": dataclasses.replace(SETTINGS, **changes)}
 
 
 @pytest.fixture
@@ -34,12 +42,12 @@ def pair(gen):
 @pytest.mark.parametrize("inverse", ["flow", "paper"])
 def test_first_and_last_frames_are_the_inputs(pair, inverse):
     a, b = pair
-    r = morph(a, b, POINTS_A, POINTS_B, frames=7, inverse=inverse, **KW)
+    r = morph(a, b, POINTS_A, POINTS_B, frames=7, **_with(inverse=inverse))
     assert r.frames.shape == (7, 3, 64, 64)
     torch.testing.assert_close(r.frames[0], a, atol=1e-5, rtol=0)
     torch.testing.assert_close(r.frames[-1], b, atol=1e-5, rtol=0)
     # the fitted points reach B's points, and the warp never folds
-    assert r.fit.error.mean() < 0.3
+    assert r.error.mean() < 0.3
     assert jacobian_determinant(r.maps).min() > 0 and r.folded == 0
 
 
@@ -52,10 +60,10 @@ def test_identical_images_and_points_give_a_constant_morph(pair):
 
 def test_flow_inverse_agrees_with_the_forward_warp(pair):
     a, b = pair
-    r = morph(a, b, POINTS_A, POINTS_B, frames=5, align=None, margin=None, **KW)
+    r = morph(a, b, POINTS_A, POINTS_B, frames=5, **_with(align=None))
     # a pixel x of B's frame read at frame k: maps_b[k](y) = K(y); composing A's backward map g_k and K
     # sends A's points to where the fit carried them
-    traj = r.fit.trajectories[0]  # (T + 1, M, 2), frame coordinates
+    traj = r.trajectories  # (T + 1, M, 2), frame coordinates
     last = r.maps_b[0]  # frame 0: where B is read for each pixel of A's frame
     at = warp_image(last.permute(2, 0, 1)[None].double(), POINTS_A[None, None].double())[0, :, 0].T  # (M, 2)
     inner = ((POINTS_A > 8) & (POINTS_A < 56)).all(-1)
@@ -70,7 +78,7 @@ def test_different_sizes_and_alignment(gen):
     )[0]
     r = morph(a, b, POINTS_A, b_points, frames=4, **KW)
     assert r.frames.shape == (4, 3, 64, 64)
-    assert r.fit.error.mean() < 0.3
+    assert r.error.mean() < 0.3
 
 
 def test_bad_inputs(pair):
@@ -80,7 +88,7 @@ def test_bad_inputs(pair):
     with pytest.raises(ValueError, match="frames must be >= 2"):
         morph(a, b, POINTS_A, POINTS_B, frames=1, **KW)
     with pytest.raises(ValueError, match="inverse must be"):
-        morph(a, b, POINTS_A, POINTS_B, inverse="magic", **KW)
+        morph(a, b, POINTS_A, POINTS_B, **_with(inverse="magic"))
     with pytest.raises(ValueError, match="points_b has a point outside"):
         morph(a, b, POINTS_A, POINTS_B + 100, **KW)
 
@@ -95,7 +103,7 @@ def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(ge
     inside = ((points_b > 0) & (points_b < 63)).all()
     assert inside, "the test's points must stay in the image"
     b = _blobs((64, 64), points_b.tolist(), gen)
-    r = morph(a, b, POINTS_A, points_b, frames=5, compressible=0.5, feather=feather, **KW)
+    r = morph(a, b, POINTS_A, points_b, frames=5, blending=Blending(feather=feather), **_with(compressible=0.5))
     k = 2
     x, y = r.maps_b[k, ..., 0], r.maps_b[k, ..., 1]
     f = feather + 0.5  # B read more than the feather beyond its edge
@@ -199,14 +207,14 @@ def test_paper_method_is_one_option_away(pair):
     a, b = pair
     centre = POINTS_A.mean(0)
     pb = (POINTS_A - centre) * 1.2 + centre
-    kw = dict(frames=3, align=None, progress=False)
-    natural = morph(a, b, POINTS_A, pb, **kw)
-    paper = morph(a, b, POINTS_A, pb, method="paper", grid=24, steps=6, max_iter=60, **kw)
+    kw = dict(frames=3, progress=False)
+    natural = morph(a, b, POINTS_A, pb, settings=NaturalSettings(align=None), **kw)
+    paper = morph(a, b, POINTS_A, pb, settings=PaperSettings(grid=24, steps=6, max_iter=60, align=None), **kw)
     middle = (slice(24, 40), slice(24, 40))
     assert float(jacobian_determinant(natural.maps_b[:1])[0][middle].mean()) > 1.3  # B read 1.2 x 1.2 wider
     det = jacobian_determinant(paper.maps[-1:])[0][middle]
     assert float((det - 1).abs().max()) < 0.1
-    assert float(natural.fit.error.mean()) < 0.3
+    assert float(natural.error.mean()) < 0.3
 
 
 def test_natural_morph_of_identical_inputs_is_constant(pair):
@@ -234,7 +242,7 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
     crossing = [w for w in caught if "marks cross" in str(w.message)]
     assert len(crossing) == 1 and "0 and 4" in str(crossing[0].message)
     # the swapped points are the ones not reached
-    err = r.fit.error[0]
+    err = r.error
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())
 
 
@@ -246,9 +254,9 @@ def test_marks_that_swap_places_meet_halfway_and_are_morphed_without_a_pre_align
     pb[[0, 4]] = pb[[4, 0]]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the marks cross, and the maps fold: both expected
-        r = morph(a, b, POINTS_A, pb, frames=3, progress=False, align=None)
+        r = morph(a, b, POINTS_A, pb, frames=3, progress=False, settings=NaturalSettings(align=None))
     assert torch.isfinite(r.frames).all()
-    err = r.fit.error[0]
+    err = r.error
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())  # the swapped marks are the ones missed
 
 
@@ -259,11 +267,11 @@ def test_marks_in_a_shuffled_order_are_morphed_without_the_pre_alignment_and_say
     a = _blobs((64, 64), pa.tolist(), gen)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        r = morph(a, a.flip(-1), pa, pb, frames=3, progress=False, max_iter=10)
+        r = morph(a, a.flip(-1), pa, pb, frames=3, progress=False, settings=NaturalSettings(max_iter=10))
     pose_warnings = [w for w in caught if "do not agree on a pose" in str(w.message)]
     assert len(pose_warnings) == 1 and "similarity pre-alignment" in str(pose_warnings[0].message)
     assert torch.isfinite(r.frames).all()
-    assert float(r.fit.trajectories.abs().max()) < 200  # every path stays near the 64 x 64 picture
+    assert float(r.trajectories.abs().max()) < 200  # every path stays near the 64 x 64 picture
 
 
 def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
@@ -293,9 +301,9 @@ def test_the_fold_warning_counts_pixels_once(pair, monkeypatch):
 def test_feather_is_an_argument_checked_by_name(pair):
     a, b = pair
     with pytest.raises(ValueError, match="feather"):
-        morph(a, b, POINTS_A, POINTS_B, feather=-1.0, **KW)
+        morph(a, b, POINTS_A, POINTS_B, blending=Blending(feather=-1.0), **KW)
     # no band at all: where both images are read inside their edges the dissolve is the plain lerp
-    r0 = morph(a, b, POINTS_A, POINTS_B, frames=3, feather=0.0, **KW)
+    r0 = morph(a, b, POINTS_A, POINTS_B, frames=3, blending=Blending(feather=0.0), **KW)
     assert torch.isfinite(r0.frames).all()
 
 
@@ -319,10 +327,13 @@ def test_frames_render_on_demand_and_agree_every_way(pair):
 
 def test_the_shape_can_lead_the_colour(pair):
     a, b = pair
-    led = morph(a, b, POINTS_A, POINTS_B, frames=5, motion="ease-out", blend="ease-in", feather=0.0, **KW)
+    led = morph(
+        a, b, POINTS_A, POINTS_B, frames=5, timing=Timing(motion="ease-out", blend="ease-in"),
+        blending=Blending(feather=0.0), **KW,
+    )  # fmt: skip
     plain = morph(a, b, POINTS_A, POINTS_B, frames=5, **KW)
     # at t = 1/4 the shape is 1 - (3/4)^2 = 7/16 of the way, the colour (1/4)^2 = 1/16
-    steps = KW["steps"]
+    steps = SETTINGS.steps
     torch.testing.assert_close(led.times, torch.tensor([0, 7 / 16, 3 / 4, 15 / 16, 1], dtype=torch.float64) * steps)
     k = 1
     weight = 1 / 16  # where both images are read inside (no feather band), the frame is the lerp with this weight
@@ -332,12 +343,12 @@ def test_the_shape_can_lead_the_colour(pair):
     # the same t with the linear schedules: the shape is less far along, the colour further
     assert float(led.times[k]) > float(plain.times[k])
     # control points work as schedules too, and bad ones are refused by name
-    points = morph(a, b, POINTS_A, POINTS_B, frames=3, motion=[(0, 0), (0.5, 0.9), (1, 1)], **KW)
+    points = morph(a, b, POINTS_A, POINTS_B, frames=3, timing=Timing(motion=[(0, 0), (0.5, 0.9), (1, 1)]), **KW)
     torch.testing.assert_close(points.times, torch.tensor([0, 0.9, 1], dtype=torch.float64) * steps)
     with pytest.raises(ValueError, match="motion's control points must run from"):
-        morph(a, b, POINTS_A, POINTS_B, frames=3, motion=[(0, 0), (0.5, 0.9)], **KW)
+        morph(a, b, POINTS_A, POINTS_B, frames=3, timing=Timing(motion=[(0, 0), (0.5, 0.9)]), **KW)
     with pytest.raises(ValueError, match="blend must be one of"):
-        morph(a, b, POINTS_A, POINTS_B, frames=3, blend="bouncy", **KW)
+        morph(a, b, POINTS_A, POINTS_B, frames=3, timing=Timing(blend="bouncy"), **KW)
 
 
 @pytest.mark.parametrize("inverse", ["flow", "paper"])
@@ -349,12 +360,12 @@ def test_a_box_over_map_pixels_reads_the_map_rasters_and_stays_close(pair, inver
     turn = torch.tensor([[math.cos(0.3), -math.sin(0.3)], [math.sin(0.3), math.cos(0.3)]])
     points_b = (POINTS_B - 32.0) @ turn.T * 1.2 + 32.0  # B turned and magnified: the frames read between pixels
     b = _blobs((64, 64), points_b.tolist(), torch.Generator().manual_seed(1))
-    kw = {**KW, "grid": 8, "frames": 3, "inverse": inverse}
+    kw = {**_with(grid=8, inverse=inverse), "frames": 3}
     box = morph(a, b, POINTS_A, points_b, **kw)
     box_maps, box_folded = box.maps, box.folded  # rendered now: the result renders on demand
     monkeypatch.setattr(render_module, "MAP_PIXELS", 0)
     raster = morph(a, b, POINTS_A, points_b, **kw)
-    torch.testing.assert_close(raster.fit.error, box.fit.error, rtol=0, atol=0)  # the same fit
+    torch.testing.assert_close(raster.error, box.error, rtol=0, atol=0)  # the same fit
     diff = (raster.maps - box_maps).abs()
     assert 0 < float(diff.max()) < 0.1  # pixels (0.03 here): another interpolation of the same maps
     assert float(diff.mean()) < 0.005

@@ -9,16 +9,21 @@ import pytest
 import torch
 
 from torchfluidwarp import morph
+from torchfluidwarp.morph import Matching, NaturalSettings, PaperSettings
 
 A = torch.rand(3, 16, 16, generator=torch.Generator().manual_seed(0))
 PA = torch.tensor([[4.0, 4.0], [11.0, 9.0], [5.0, 12.0]])
-KW = dict(progress=False, max_iter=3, grid=12, steps=2)
+KW = dict(max_iter=3, grid=12, steps=2)  # the method's settings of every morph here
+METHODS = {"natural": NaturalSettings, "paper": PaperSettings}
 
 
-def _morph(*args, **kwargs):
+def _morph(*args, method="natural", **kwargs):
+    """morph() with KW's settings; keyword arguments that are fields of the method's settings go there."""
+    cls = METHODS[method]
+    fields = {k: kwargs.pop(k) for k in list(kwargs) if k in cls.__dataclass_fields__}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return morph(*args, **{**KW, **kwargs})
+        return morph(*args, settings=cls(**{**KW, **fields}), progress=False, **kwargs)
 
 
 @pytest.mark.parametrize("method", ["natural", "paper"])
@@ -115,9 +120,9 @@ def test_without_points_the_morph_finds_them_from_the_pictures():
     b = torch.roll(a, shifts=(3, -4), dims=(1, 2))  # B: A moved 4 px left and 3 px down
     with pytest.raises(ValueError, match="give both points_a and points_b, or neither"):
         _morph(a, b, PA, None, frames=3)
-    r = _morph(a, b, frames=3, match="features", grid=24, steps=4, max_iter=20)
-    pa = r.fit.trajectories[0, 0]
-    pb = r.fit.points[0]  # where A's points ended
+    r = _morph(a, b, frames=3, match=Matching("features"), grid=24, steps=4, max_iter=20)
+    pa = r.trajectories[0]
+    pb = r.points  # where A's points ended
     shift = (pb - pa).median(0).values.float()  # the matched points moved with the picture
     torch.testing.assert_close(shift, torch.tensor([-4.0, 3.0]), atol=1.0, rtol=0)
     assert r.folded == 0

@@ -6,14 +6,14 @@ import pytest
 import torch
 
 from torchfluidwarp import morph
-from torchfluidwarp.morph import hull_mask, paste_back
+from torchfluidwarp.morph import Blending, NaturalSettings, hull_mask, paste_back
 
 G = torch.Generator().manual_seed(3)
 A = torch.rand(3, 64, 64, generator=G)
 B = torch.rand(3, 64, 64, generator=G)
 PA = torch.tensor([[24.0, 24.0], [40.0, 24.0], [32.0, 40.0], [26.0, 36.0]])
 PB = PA + torch.tensor([[1.0, 1.5], [-1.0, 1.0], [0.5, -1.0], [1.0, 0.0]])
-KW = dict(grid=24, steps=4, progress=False, max_iter=10, frames=4)
+KW = dict(settings=NaturalSettings(grid=24, steps=4, max_iter=10), progress=False, frames=4)
 
 
 def test_hull_mask_is_one_inside_zero_outside_and_grows_with_the_margin():
@@ -32,7 +32,7 @@ def test_hull_mask_is_one_inside_zero_outside_and_grows_with_the_margin():
 
 @pytest.mark.parametrize("background", ["a", "b"])
 def test_outside_the_region_every_frame_shows_the_background(background):
-    r = morph(A, B, PA, PB, region="points", background=background, **KW)
+    r = morph(A, B, PA, PB, blending=Blending(region="points", background=background), **KW)
     want = A if background == "a" else B
     far = (slice(None), slice(0, 6), slice(0, 6))  # a corner far from both hulls
     for k in range(len(r)):
@@ -41,7 +41,7 @@ def test_outside_the_region_every_frame_shows_the_background(background):
 
 def test_inside_the_region_the_frame_is_the_whole_frame_morph():
     plain = morph(A, B, PA, PB, **KW)
-    region = morph(A, B, PA, PB, region="points", region_margin=0.5, background="a", **KW)
+    region = morph(A, B, PA, PB, blending=Blending(region="points", region_margin=0.5, background="a"), **KW)
     centre = (slice(None), slice(30, 34), slice(30, 34))
     for k in (1, 2):
         torch.testing.assert_close(region.frames[k][centre], plain.frames[k][centre], atol=1e-5, rtol=0)
@@ -53,14 +53,14 @@ def test_masks_given_per_image_and_bad_regions():
     small_b = torch.nn.functional.interpolate(B[None], size=(32, 32), mode="bilinear", antialias=True)[0]
     mb = torch.zeros(32, 32)  # B at another size: its mask has B's size, and is resized with B
     mb[8:24, 8:24] = 1
-    r = morph(A, small_b, PA, (PB + 0.5) / 2 - 0.5, region=(ma, mb), background="a", **KW)
+    r = morph(A, small_b, PA, (PB + 0.5) / 2 - 0.5, blending=Blending(region=(ma, mb), background="a"), **KW)
     torch.testing.assert_close(r.frames[2][:, :4, :4], A[:, :4, :4], atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match=r"region\[1\] \(mask_b\) must have shape \(64, 64\)"):
-        morph(A, B, PA, PB, region=(ma, torch.zeros(10, 10)), **KW)
+        morph(A, B, PA, PB, blending=Blending(region=(ma, torch.zeros(10, 10))), **KW)
     with pytest.raises(ValueError, match="region must be 'points'"):
-        morph(A, B, PA, PB, region="hull", **KW)
+        morph(A, B, PA, PB, blending=Blending(region="hull"), **KW)
     with pytest.raises(ValueError, match="background must be 'a', 'b' or 'blend'"):
-        morph(A, B, PA, PB, region="points", background="c", **KW)
+        morph(A, B, PA, PB, blending=Blending(region="points", background="c"), **KW)
 
 
 def test_paste_back_round_trip_and_only_the_box_changes():
@@ -100,7 +100,7 @@ def test_alpha_is_warped_like_colour():
 def test_frames_rendered_in_bands_of_rows_are_the_same_bitwise(region, monkeypatch):
     import sys
 
-    r = morph(A, B, PA, PB, region=region, background="a", **KW)
+    r = morph(A, B, PA, PB, blending=Blending(region=region, background="a"), **KW)
     ts = [0.0, 0.3, 0.7, 1.0]
     whole = r.render(ts)
     monkeypatch.setattr(sys.modules["torchfluidwarp.morph.render"], "BAND_PIXELS", 64 * 7)  # bands of 7 rows

@@ -9,13 +9,14 @@ from torchfluidwarp.warp.forces import (
     Brushes,
     CellForces,
     ControlGrid,
-    LandmarkForces,
     SumForces,
     ViscosityBrushes,
+    bicubic_axis,
     cell_centres,
     gaussian_bumps,
     viscosity_from_mask,
 )
+from torchfluidwarp.warp.landmarks import LandmarkForces
 
 
 def test_brush_peak_direction_and_oscillation():
@@ -57,6 +58,38 @@ def test_control_grid_is_linear_and_exact_at_its_nodes(gen):
     torch.testing.assert_close(f[..., 0, 0], init[..., 0, 0])
     torch.testing.assert_close(f[..., -1, -1], init[..., -1, -1])
     assert sum(p.numel() for p in ControlGrid(10, (5, 5)).parameters()) == 500
+
+
+@pytest.mark.parametrize("k,n", [(4, 13), (5, 17), (3, 3), (6, 4)])
+def test_bicubic_axis_is_the_bicubic_resize_along_one_axis(k, n, gen):
+    x = torch.randn(2, 3, k, 7, generator=gen, dtype=torch.float64)
+    r = bicubic_axis(k, n, dtype=torch.float64)
+    assert r.shape == (n, k) and r.dtype == torch.float64
+    want = torch.nn.functional.interpolate(x, size=(n, 7), mode="bicubic", align_corners=True)
+    torch.testing.assert_close(r @ x, want)
+    assert bicubic_axis(k, n, dtype=torch.float64) is not r  # no module-level cache: a ControlGrid holds its own
+
+
+def test_control_grid_is_the_separable_bicubic_resize_of_its_weights(gen):
+    init = torch.randn(1, 2, 2, 4, 5, generator=gen, dtype=torch.float64)
+    cg = ControlGrid(2, (4, 5), init=init, cumulative=False)
+    f = cg(FluidGrid(13, 17), 2, 1.0, (13, 17))
+    want = torch.nn.functional.interpolate(init.flatten(0, 1), size=(13, 17), mode="bicubic", align_corners=True)
+    torch.testing.assert_close(f, want.view_as(f))
+    torch.testing.assert_close(cg(FluidGrid(13, 17), 2, 1.0, (13, 17)), f, rtol=0, atol=0)  # built once, reused
+
+
+def test_a_control_grid_first_called_in_inference_mode_still_trains(gen):
+    # the grid builds its upsampling matrices on first use and keeps them: built under inference_mode they must
+    # still serve a later call that autograd records (as the module-level cache they replaced did)
+    init = torch.randn(1, 2, 2, 4, 4, generator=gen)
+    cg = ControlGrid(2, (4, 4), init=init)
+    with torch.inference_mode():
+        preview = cg(FluidGrid(8, 8), 2, 1.0, (16, 16))
+    forces = cg(FluidGrid(8, 8), 2, 1.0, (16, 16))
+    forces.square().sum().backward()
+    torch.testing.assert_close(forces.detach(), preview.clone())
+    assert cg.weight.grad is not None and float(cg.weight.grad.abs().sum()) > 0
 
 
 def test_control_grid_cumulative_weights_are_running_sums_of_the_forces(gen):

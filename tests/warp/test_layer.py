@@ -3,9 +3,9 @@ import torch
 from conftest import gradcheck64
 
 from torchfluidwarp.core.linalg import CGConfig
-from torchfluidwarp.warp import layer
 from torchfluidwarp.warp.forces import Brushes
-from torchfluidwarp.warp.layer import FluidWarp, identity_map, jacobian_determinant, warp_image
+from torchfluidwarp.warp.frames import identity_map, jacobian_determinant, warp_image
+from torchfluidwarp.warp.layer import FluidWarp
 
 TIGHT = CGConfig(rtol=1e-13)
 
@@ -149,42 +149,23 @@ def test_maps_beyond_the_raster_are_resized_and_frames_match(gen):
     assert abs(float(det.mean()) - 1) < 0.01
 
 
-def test_prefetched_frames_equal_the_plain_loop_and_stop_early(gen):
+def test_iter_frames_stops_early_and_its_frames_stay_differentiable(gen):
     size = (40, 30)
     warp = FluidWarp((10, 8), steps=5)
     brushes = _random_brushes(gen, 2, size, amplitude=1.0, frequency=0.1)
     image = torch.rand(1, 3, *size, generator=gen)
     with torch.no_grad():
-        plain = torch.stack(list(warp.iter_frames(image, brushes, prefetch=False)))
-        ahead = torch.stack(list(warp.iter_frames(image, brushes, prefetch=True)))
+        plain = torch.stack(list(warp.iter_frames(image, brushes)))
     assert plain.shape[0] == 6
-    torch.testing.assert_close(ahead, plain, atol=0, rtol=0)
     frames = warp.iter_frames(image, brushes)
     first_two = [next(frames), next(frames)]
-    frames.close()  # a consumer that stops early leaves no worker behind
+    frames.close()  # a consumer that stops early
     torch.testing.assert_close(first_two[1], plain[1], atol=0, rtol=0)
-    # the worker builds the grids with the caller's grad mode: frames stay differentiable in the image
+    # the grids are built with the caller's grad mode: frames stay differentiable in the image
     image.requires_grad_(True)
     last = list(warp.iter_frames(image, brushes))[-1]
     last.sum().backward()
     assert image.grad is not None and float(image.grad.abs().sum()) > 0
-
-
-@pytest.mark.parametrize(
-    "size,device,asked,want",
-    [
-        ((600, 600), "cpu", None, True),  # large frames on the CPU: the worker pays
-        ((200, 200), "cpu", None, False),  # small ones: the hand-over costs more than it overlaps
-        ((600, 600), "cuda", None, False),  # a GPU runs asynchronously anyway: the worker only adds the hand-over
-        ((1080, 1920), "cuda", None, False),
-        ((200, 200), "cpu", True, True),  # asked for, or refused, by name
-        ((600, 600), "cuda", True, True),
-        ((600, 600), "cpu", False, False),
-    ],
-)
-def test_the_default_prefetch_follows_the_frame_size_on_the_cpu_and_is_off_on_a_gpu(size, device, asked, want):
-    # the policy alone (torch.device("cuda") needs no GPU); that both ways give the same frames is tested above
-    assert layer._prefetch(size, asked, torch.device(device)) is want
 
 
 @pytest.mark.parametrize("grad", [False, True])

@@ -1,5 +1,5 @@
 """Texture-coordinate maps (:mod:`torchfluidwarp.warp.maps`): their settings (:class:`MapConfig`), the one
-raster upsample, and the names that still resolve from :mod:`torchfluidwarp.warp.layer`."""
+raster upsample, and their one home."""
 
 import warnings
 
@@ -8,11 +8,12 @@ import torch
 
 from torchfluidwarp.core.advection import substeps
 from torchfluidwarp.core.simulator import FluidSimulator
+from torchfluidwarp.core.staggered import MAX_STRAIN_PER_SUBSTEP, StaggeredGrid
 from torchfluidwarp.warp import layer, maps
 from torchfluidwarp.warp.forces import Brushes
-from torchfluidwarp.warp.frames import warp_image
+from torchfluidwarp.warp.frames import identity_map, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
-from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps, identity_map, maps_to_end, upsample_raster
+from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps, maps_to_end, upsample_raster
 
 
 def _velocities(gen, grid=(10, 12), steps=3, strength=0.4, dtype=torch.float64):
@@ -20,9 +21,9 @@ def _velocities(gen, grid=(10, 12), steps=3, strength=0.4, dtype=torch.float64):
     return FluidSimulator(grid)(forces).velocities
 
 
-@pytest.mark.parametrize("name", maps.__all__)
-def test_the_maps_resolve_from_the_layer_module_as_the_same_objects(name):
-    assert getattr(layer, name) is getattr(maps, name)
+def test_the_maps_have_one_home_and_the_layer_module_exports_only_the_layer():
+    assert layer.__all__ == ["FluidWarp"]
+    assert not {"warp_image", "identity_map", "jacobian_determinant"} & set(maps.__all__)  # their home: frames
 
 
 def test_the_default_config_is_the_module_constants(gen):
@@ -85,16 +86,14 @@ def test_upsample_raster_is_exact_on_linear_fields_and_the_identity_at_the_same_
     assert upsample_raster(field, (Hr, Wr)) is field
 
 
-def test_carry_points_is_the_renamed_advect_points(gen):
+def test_carry_points_gives_the_paths_from_the_given_points(gen):
     warp = FluidWarp(12, steps=3, image_size=(40, 48))
     brushes = Brushes([[20.0, 20.0]], [[1.0, 0.5]], radius=8.0, amplitude=0.6)
     pts = torch.tensor([[[10.0, 12.0], [30.0, 25.0]]])
     paths = warp.carry_points(pts, brushes)
     assert paths.shape == (1, 4, 2, 2)
     torch.testing.assert_close(paths[:, 0], pts)
-    with pytest.warns(DeprecationWarning, match="FluidWarp.carry_points"):
-        old = warp.advect_points(pts, brushes)
-    torch.testing.assert_close(old, paths, rtol=0, atol=0)
+    assert not hasattr(warp, "advect_points")  # the deprecated alias is gone
 
 
 def test_the_layer_passes_its_map_config_on(gen):
@@ -163,9 +162,10 @@ def test_a_step_of_several_substeps_is_its_substeps_composed_one_by_one(gen, dur
     # here each sub-step is traced and composed on its own, as the definition reads: g <- g(x - d_sub(x))
     v = _velocities(gen, strength=3.0)
     size = (50, 60)
-    n = [substeps(v[:, t], duration, maps.MAX_STRAIN_PER_SUBSTEP) for t in range(v.shape[1])]
+    n = [substeps(v[:, t], duration, MAX_STRAIN_PER_SUBSTEP) for t in range(v.shape[1])]
     assert max(n) >= 3
     compose, _, raster = maps._map_composer(v, size, 1.0)
+    grid = StaggeredGrid.of(v)
     pix = identity_map(raster, dtype=v.dtype).permute(0, 3, 1, 2)  # (1, 2, Hr, Wr) raster pixels
     lo = torch.tensor([-0.5, -0.5], dtype=v.dtype).view(1, 2, 1, 1)
     hi = torch.tensor([raster[1] - 0.5, raster[0] - 0.5], dtype=v.dtype).view(1, 2, 1, 1)
@@ -173,6 +173,6 @@ def test_a_step_of_several_substeps_is_its_substeps_composed_one_by_one(gen, dur
     for t in range(v.shape[1]):
         disp = compose(disp, t, duration)
         for _ in range(n[t]):
-            at = torch.clamp(pix - maps._displacement(v[:, t], raster, duration / n[t]), lo, hi)
+            at = torch.clamp(pix - maps._displacement(grid, v[:, t], raster, duration / n[t]), lo, hi)
             want = at - pix + warp_image(want, at.permute(0, 2, 3, 1))
         torch.testing.assert_close(disp, want, rtol=0, atol=1e-12)

@@ -6,7 +6,9 @@ import pytest
 import torch
 
 from torchfluidwarp import FluidWarp, jacobian_determinant, warp_image
-from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps, identity_map
+from torchfluidwarp.errors import FlowBlewUp
+from torchfluidwarp.warp.frames import identity_map
+from torchfluidwarp.warp.maps import MapConfig, backward_maps, forward_maps
 
 
 def forces(*shape: int) -> torch.Tensor:
@@ -15,18 +17,18 @@ def forces(*shape: int) -> torch.Tensor:
 
 def test_huge_forces_are_refused_at_the_first_step_instead_of_running_for_minutes():
     warp = FluidWarp(8, 2)
-    with pytest.raises(ValueError, match="max_substeps"):
+    with pytest.raises(FlowBlewUp, match="max_substeps"):
         warp(torch.rand(1, 3, 12, 12), forces(1, 2, 2, 8, 8) * 1e6)
-    with pytest.raises(ValueError, match="max_substeps"):
+    with pytest.raises(FlowBlewUp, match="max_substeps"):
         warp.carry_points(torch.full((1, 1, 2), 5.0), forces(1, 2, 2, 8, 8) * 1e6, (12, 12))
 
 
 def test_map_config_max_substeps_reaches_maps_and_points():
     f = forces(1, 2, 2, 8, 8) * 10
     tight = FluidWarp(8, 2, map_config=MapConfig(max_substeps=1))
-    with pytest.raises(ValueError, match="limit of 1"):
+    with pytest.raises(FlowBlewUp, match="limit of 1"):
         tight.maps(f, (12, 12))
-    with pytest.raises(ValueError, match="limit of 1"):
+    with pytest.raises(FlowBlewUp, match="limit of 1"):
         tight.carry_points(torch.full((1, 1, 2), 5.0), f, (12, 12))
     assert FluidWarp(8, 2).maps(f, (12, 12)).isfinite().all()
     with pytest.raises(TypeError, match="max_substeps"):

@@ -12,7 +12,7 @@ folder ``DIR/<name>/`` of PNGs).
   killed run left for the pair it was writing is removed when that pair's turn comes again).
 * A bad row (a missing file, mismatched points, a morph that fails) goes to ``DIR/failures.csv`` (this run's
   failures: ``row,name,reason``) and the others go on.
-* ``DIR/summary.csv`` has one row a pair: the landmark error (``result.fit.error``, pixels), the fraction of
+* ``DIR/summary.csv`` has one row a pair: the landmark error (``result.error``, pixels), the fraction of
   folded map pixels (``result.folded``), the seconds it took and the warnings it raised; rows of earlier runs
   are kept.
 
@@ -32,7 +32,7 @@ import os
 import shutil
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -41,9 +41,11 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from torchfluidwarp._checks import check_instance
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, write_animation
-from torchfluidwarp.morph import MorphSequence, morph
+from torchfluidwarp.morph import Blending, MorphSequence, MorphSettings, NaturalSettings, Timing, morph
 from torchfluidwarp.morph.result import MorphResult
 
 __all__ = ["PairRow", "BatchReport", "read_pairs", "morph_pairs", "stream_frames", "STREAM_BYTES"]
@@ -136,7 +138,11 @@ def morph_pairs(
     progress: bool = True,
     rank: int | None = None,
     world_size: int | None = None,
-    **options: Any,
+    settings: MorphSettings = NaturalSettings(),
+    frames: int = 30,
+    timing: Timing = Timing(),
+    blending: Blending = Blending(),
+    max_memory: float | None = None,
 ) -> BatchReport:
     """Morph every pair of the CSV ``pairs`` into the folder ``out``, one after another.
 
@@ -150,8 +156,8 @@ def morph_pairs(
         progress: a progress bar counting pairs.
         rank, world_size: this process's share, pairs ``rank, rank + world_size, ...``; by default from the
             ``RANK`` and ``WORLD_SIZE`` variables that ``torchrun`` sets (0 and 1 without them).
-        **options: passed to :func:`~torchfluidwarp.morph.morph` (``frames``, ``method``, ``grid``,
-            ``steps``, ...).
+        settings, frames, timing, blending, max_memory: :func:`~torchfluidwarp.morph.morph`'s, for every pair
+            (``blending.region`` may be ``"points"`` or ``None``: one pair of masks cannot serve every pair).
 
     Returns:
         This process's :class:`BatchReport` (with several ranks, its ``failed`` lists every rank's failures).
@@ -161,13 +167,19 @@ def morph_pairs(
         ValueError: a bad ``fmt``, ``rank`` or ``world_size``; ``"mp4"`` without imageio-ffmpeg.
     """
     if fmt not in ("gif", "mp4", "png"):
-        raise ValueError(f"fmt must be 'gif', 'mp4' or 'png', got {fmt!r}")
+        raise InputError(f"fmt must be 'gif', 'mp4' or 'png', got {fmt!r}")
+    check_instance("blending", blending, Blending)
+    if blending.region not in (None, "points"):
+        raise InputError(
+            "blending.region must be 'points' or None for a batch: one pair of masks cannot serve every pair"
+        )
+    options = _MorphOptions(settings, frames, timing, blending, max_memory)
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
-        raise ValueError(FFMPEG_HINT)
+        raise InputError(FFMPEG_HINT)
     rank = int(os.environ.get("RANK", 0)) if rank is None else rank
     world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else world_size
     if not 0 <= rank < world_size:
-        raise ValueError(f"rank must be in [0, world_size), got rank={rank}, world_size={world_size}")
+        raise InputError(f"rank must be in [0, world_size), got rank={rank}, world_size={world_size}")
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     rows, bad = read_pairs(pairs)
@@ -210,8 +222,19 @@ def morph_pairs(
     return report
 
 
+@dataclass(frozen=True)
+class _MorphOptions:
+    """:func:`~torchfluidwarp.morph.morph`'s settings for every pair of a batch."""
+
+    settings: MorphSettings
+    frames: int
+    timing: Timing
+    blending: Blending
+    max_memory: float | None
+
+
 def _morph_pair(
-    pair: PairRow, target: str, fps: float, overwrite: bool, device: torch.device, options: Mapping[str, Any]
+    pair: PairRow, target: str, fps: float, overwrite: bool, device: torch.device, options: _MorphOptions
 ) -> dict[str, Any]:
     """Morph one pair into ``target`` (atomically) and return its summary row."""
     t0 = time.perf_counter()
@@ -219,12 +242,23 @@ def _morph_pair(
     b = read_image(pair.image_b).to(device)
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
-    check_disk_space(target, options.get("frames", 30), a.shape[-2], a.shape[-1], a.shape[1])
+    check_disk_space(target, options.frames, a.shape[-2], a.shape[-1], a.shape[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = morph(a, b, pa.to(device), pb.to(device), **{"progress": False, **options})
+        result = morph(
+            a,
+            b,
+            pa.to(device),
+            pb.to(device),
+            settings=options.settings,
+            frames=options.frames,
+            timing=options.timing,
+            blending=options.blending,
+            progress=False,
+            max_memory=options.max_memory,
+        )
         write_animation(target, stream_frames(result), fps=fps, overwrite=overwrite)
-    err = result.fit.error
+    err = result.error
     return {
         "name": pair.name,
         "output": target,

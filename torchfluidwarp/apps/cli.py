@@ -12,9 +12,17 @@ Subcommands:
 * ``demo``: the morph of the bundled samples (astronaut into cat), written to ``morph.gif``.
 * ``studio``: the local web page (:mod:`torchfluidwarp.apps.studio`, the ``[studio]`` extra).
 
-Exit status: 0 on success, 2 for bad input (a missing or unreadable image, a bad option or config, an existing
-output without ``--overwrite``, MP4 without imageio-ffmpeg), with a one-line message on stderr; 130 when
-interrupted. Outputs are written atomically, so a failed or interrupted run leaves nothing half-written.
+Exit status (:mod:`torchfluidwarp.errors` says whose fault each error is):
+
+* 0 on success;
+* 2 for bad input, with a one-line message on stderr: a missing or unreadable file, a bad option or config, an
+  existing output without ``--overwrite``, MP4 without imageio-ffmpeg, any
+  :class:`~torchfluidwarp.errors.InputError` of the library (naming the option that set the argument at fault);
+* 3 when the flow blows up (:class:`~torchfluidwarp.errors.FlowBlewUp`), with its one line saying what to change;
+* 1 for anything else, a bug in torchfluidwarp: the traceback, then a line saying so;
+* 130 when interrupted.
+
+Outputs are written atomically, so a failed or interrupted run leaves nothing half-written.
 
 Example:
     >>> build_parser().parse_args(["animate", "cat.png", "-o", "cat.gif", "--grid", "32"]).grid
@@ -27,6 +35,7 @@ import argparse
 import dataclasses
 import itertools
 import sys
+from collections.abc import Mapping
 from typing import NoReturn
 
 from torchfluidwarp._version import __version__
@@ -49,11 +58,14 @@ from torchfluidwarp.apps.cli_args import (
     check_output,
     count,
     fail,
+    flags,
     numbers,
     progress_bar,
+    report,
 )
 from torchfluidwarp.apps.cli_morph import add_demo, add_morph
 from torchfluidwarp.apps.cli_sequence import add_average
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, write_animation
 
 __all__ = ["build_parser", "main"]
@@ -115,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
         argv: the arguments after the program name (default ``sys.argv[1:]``).
 
     Returns:
-        The exit status: 0 on success, 2 for bad input (a one-line message on stderr), 130 when interrupted.
+        The exit status: 0 on success, 2 for bad input and 3 for a flow that blew up (a one-line message on
+        stderr), 1 for a bug (with its traceback), 130 when interrupted.
     """
     parser = build_parser()
     try:
@@ -127,6 +140,16 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Exception as exc:  # the one place that says whose fault an error is (cli_args.report)
+        return report(args.command, exc, _options(parser, args.command))
+
+
+def _options(parser: argparse.ArgumentParser, command: str) -> Mapping[str, argparse.Action]:
+    """The options of ``command``'s subparser, by the library argument each sets (:func:`cli_args.flags`)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return flags(action.choices[command])
+    return {}
 
 
 # ----------------------------------------------------------------------------------------------- animate
@@ -204,7 +227,7 @@ def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig
     grid = config.grid
     if args.grid is not None:
         if len(args.grid) > 2:
-            raise ValueError(f"--grid takes 1 or 2 integers (N, or H W), got {len(args.grid)}: {args.grid}")
+            raise InputError(f"--grid takes 1 or 2 integers (N, or H W), got {len(args.grid)}: {args.grid}")
         grid = (args.grid[0], args.grid[-1])
     return dataclasses.replace(
         config,
@@ -218,18 +241,16 @@ def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig
 
 
 def _cmd_animate(args: argparse.Namespace) -> int:
-    try:
-        config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
-        if not config.brushes:
-            raise ValueError('nothing to animate: give at least one --brush (or "brushes" in --config)')
-        check_output(args.output, args.overwrite)
-        frames = animate_frames(config, read_image(args.image), max_size=args.max_size)
-        first = next(frames)  # the (resized) photo: its size is known before the fluid runs
-        check_disk_space(args.output, config.steps + 1, first.shape[-2], first.shape[-1], first.shape[0])
-        stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
-        path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
-    except (ValueError, TypeError, OSError) as exc:  # FileExistsError and unwritable outputs are OSErrors
-        return fail("animate", exc)
+    """``animate``; its errors are reported by :func:`main` (one line for the user's, the traceback for a bug)."""
+    config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
+    if not config.brushes:
+        raise InputError('nothing to animate: give at least one --brush (or "brushes" in --config)')
+    check_output(args.output, args.overwrite)
+    frames = animate_frames(config, read_image(args.image), max_size=args.max_size)
+    first = next(frames)  # the (resized) photo: its size is known before the fluid runs
+    check_disk_space(args.output, config.steps + 1, first.shape[-2], first.shape[-1], first.shape[0])
+    stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
+    path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
     print(path)  # even with --quiet: it is the command's result, for scripts
     return EXIT_OK
 

@@ -3,6 +3,12 @@
 Argument types parse the text, then validate the value with :mod:`torchfluidwarp._checks` (the library's one
 validation layer), so a bad option reads ``argument --steps: the value must be >= 1, got 0``.
 
+Exit codes follow the library's errors (:mod:`torchfluidwarp.errors`): :data:`EXIT_BAD_INPUT` (2) with one line
+for the user's input (an :class:`~torchfluidwarp.errors.InputError` or
+:class:`~torchfluidwarp.errors.InputTypeError`, a bad option, an ``OSError`` on the user's files),
+:data:`EXIT_FLOW_BLEW_UP` (3) with one line for a :class:`~torchfluidwarp.errors.FlowBlewUp`, and
+:data:`EXIT_BUG` (1) with the traceback for anything else (:func:`report`).
+
 Example:
     >>> count(2)("16"), POSITIVE("0.5")
     (16, 0.5)
@@ -14,7 +20,8 @@ import argparse
 import importlib.util
 import shutil
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -22,15 +29,21 @@ from PIL import Image
 from tqdm import tqdm
 
 from torchfluidwarp._checks import check_fraction, check_int, check_positive, format_bytes
+from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.io import FFMPEG_HINT, check_fps
 from torchfluidwarp.morph.timing import schedule
 
 __all__ = [
     "PROG",
     "EXIT_OK",
+    "EXIT_BUG",
     "EXIT_BAD_INPUT",
+    "EXIT_FLOW_BLEW_UP",
     "EXIT_INTERRUPTED",
+    "USER_ERRORS",
     "fail",
+    "report",
+    "flags",
     "first_line",
     "checked",
     "count",
@@ -48,7 +61,12 @@ __all__ = [
 ]
 
 PROG = "torchfluidwarp"
-EXIT_OK, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 2, 130
+EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_FLOW_BLEW_UP, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
+USER_ERRORS = (InputError, InputTypeError, OSError)
+"""The errors that are the user's to fix (exit 2, one line): the library's input errors and ``OSError`` on the
+user's files (missing, unreadable, an existing output, a full disk). Not a plain ``ValueError`` or ``TypeError``:
+from inside the library, those are bugs."""
 
 T = TypeVar("T")
 
@@ -59,23 +77,64 @@ def first_line(message: object) -> str:
     return text[0] if text else type(message).__name__
 
 
-LIBRARY_HINTS = (
-    ("morph(max_memory=...)", "--max-memory GIB"),
-    (", or raise the limit with max_substeps (MapConfig(max_substeps=...) for FluidWarp and the maps)", ""),
-)
-"""Phrases of the library's errors that name a Python argument, and what the command line says instead: its
-flag, or nothing where the command line has no setting for it."""
+def flags(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+    """A command's options by the name of the library argument they set (their ``dest``: ``"max_memory"`` for
+    ``--max-memory``), to put the library's errors in the command line's terms. Positional arguments are left
+    out: a library argument called ``image`` is not necessarily the user's ``IMAGE``."""
+    return {action.dest: action for action in parser._actions if action.option_strings}
 
 
-def fail(command: str, message: object) -> int:
-    """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr; returns exit status 2.
+def _flag(action: argparse.Action) -> str:
+    """``--max-memory``: the option's first long spelling."""
+    return next((s for s in action.option_strings if s.startswith("--")), action.option_strings[0])
 
-    The library's hints at its own arguments are put in the command line's terms (:data:`LIBRARY_HINTS`)."""
-    text = first_line(message)
-    for library, cli in LIBRARY_HINTS:
-        text = text.replace(library, cli)
+
+def _usage(action: argparse.Action) -> str:
+    """``--max-memory GIB``: the option as it is typed, with its metavar when it has one."""
+    return f"{_flag(action)} {action.metavar}" if isinstance(action.metavar, str) else _flag(action)
+
+
+def fail(command: str, message: object, options: Mapping[str, argparse.Action] | None = None) -> int:
+    """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr and return the exit status.
+
+    Args:
+        command: the subcommand, for the message.
+        message: the error's text, or the exception.
+        options: the command's :func:`flags`. An exception's ``argument`` that one of them sets is named by its
+            flag (``argument --max-iter: max_iter must be >= 1, got 0``), and its hint
+            (:class:`~torchfluidwarp.errors.Hint`) names the flag that changes the setting, or gives the advice
+            for a setting the command line does not have.
+
+    Returns:
+        :data:`EXIT_FLOW_BLEW_UP` for a :class:`~torchfluidwarp.errors.FlowBlewUp`, else :data:`EXIT_BAD_INPUT`.
+    """
+    options = options or {}
+    if isinstance(message, (InputError, InputTypeError, FlowBlewUp)):
+        text = first_line(message.explain({name: _usage(action) for name, action in options.items()}))
+        if message.argument is not None and message.argument in options:
+            text = f"argument {_flag(options[message.argument])}: {text}"
+    else:
+        text = first_line(message)
     print(f"{PROG} {command}: error: {text}", file=sys.stderr)
-    return EXIT_BAD_INPUT
+    return EXIT_FLOW_BLEW_UP if isinstance(message, FlowBlewUp) else EXIT_BAD_INPUT
+
+
+def report(command: str, error: Exception, options: Mapping[str, argparse.Action] | None = None) -> int:
+    """Report an error that ended ``command`` and return its exit status.
+
+    The user's errors (:data:`USER_ERRORS`) and a :class:`~torchfluidwarp.errors.FlowBlewUp` are one line
+    (:func:`fail`). Anything else is a bug in torchfluidwarp: its traceback on stderr, then a line saying so, and
+    :data:`EXIT_BUG`.
+    """
+    if isinstance(error, (*USER_ERRORS, FlowBlewUp)):
+        return fail(command, error, options)
+    traceback.print_exception(type(error), error, error.__traceback__, file=sys.stderr)
+    print(
+        f"{PROG} {command}: internal error ({type(error).__name__}): a bug in torchfluidwarp, not in your input; "
+        "please report it with the traceback above",
+        file=sys.stderr,
+    )
+    return EXIT_BUG
 
 
 def checked(kind: Callable[[str], Any], check: Callable[..., T], **bounds: Any) -> Callable[[str], T]:
@@ -89,7 +148,7 @@ def checked(kind: Callable[[str], Any], check: Callable[..., T], **bounds: Any) 
             raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
         try:
             return check("the value", value, **bounds)
-        except (TypeError, ValueError) as exc:
+        except (InputError, InputTypeError) as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
     parse.__name__ = getattr(kind, "__name__", "value")  # argparse names the type in some messages
@@ -127,7 +186,7 @@ def timing(text: str) -> str | list[tuple[float, float]]:
             raise argparse.ArgumentTypeError(f"expected an easing name or t:progress,... pairs, got {text!r}") from None
     try:
         schedule("the schedule", value)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError) as exc:  # argparse makes these a usage error anyway: keep their message
         raise argparse.ArgumentTypeError(str(exc)) from None
     return value
 
@@ -142,7 +201,7 @@ def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[
             raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
         try:
             return build(values, where)
-        except ValueError as exc:
+        except ValueError as exc:  # argparse makes it a usage error anyway: keep its message
             raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
 
     parse.__name__ = where
@@ -153,33 +212,33 @@ def check_output(path: str, overwrite: bool) -> None:
     """Fail before rendering on what :func:`~torchfluidwarp.io.write_animation` would refuse after it.
 
     Raises:
-        ValueError: an unknown suffix, MP4 without imageio-ffmpeg, or an existing output without ``overwrite``.
+        InputError: an unknown suffix, MP4 without imageio-ffmpeg, or an existing output without ``overwrite``.
     """
     target = Path(path)
     folder = _is_folder(path)
     if not folder and target.suffix.lower() not in (".gif", ".mp4", ".webp"):
-        raise ValueError(
+        raise InputError(
             f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4, .webp or a folder ending in '/'"
         )
     if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
-        raise ValueError(FFMPEG_HINT)
+        raise InputError(FFMPEG_HINT)
     exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
     if exists and not overwrite:
-        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
+        raise InputError(f"output {path!r} already exists; pass --overwrite to replace it")
 
 
 def check_image_output(path: str, overwrite: bool) -> None:
     """Fail before any work on an image output (``--frame``, ``average``) that could not be written.
 
     Raises:
-        ValueError: a suffix no image format has, or an existing output without ``overwrite``.
+        InputError: a suffix no image format has, or an existing output without ``overwrite``.
     """
     target = Path(path)
     Image.init()
     if target.suffix.lower() not in Image.registered_extensions():
-        raise ValueError(f"-o {path!r}: an image needs a suffix such as .png or .jpg, got {target.suffix!r}")
+        raise InputError(f"-o {path!r}: an image needs a suffix such as .png or .jpg, got {target.suffix!r}")
     if (target.exists() or target.is_symlink()) and not overwrite:
-        raise ValueError(f"output {path!r} already exists; pass --overwrite to replace it")
+        raise InputError(f"output {path!r} already exists; pass --overwrite to replace it")
 
 
 def _is_folder(path: str) -> bool:
@@ -203,7 +262,7 @@ def check_disk_space(path: str, frames: int, height: int, width: int, channels: 
     """Refuse, before any work, an animation that would not fit in the free space of ``path``'s folder.
 
     Raises:
-        ValueError: the estimate (:func:`output_bytes`) is above the free space, with both in the message.
+        InputError: the estimate (:func:`output_bytes`) is above the free space, with both in the message.
     """
     need = output_bytes(path, frames, height, width, channels)
     folder = Path(path).absolute()
@@ -213,7 +272,7 @@ def check_disk_space(path: str, frames: int, height: int, width: int, channels: 
         folder = folder.parent
     free = shutil.disk_usage(folder).free
     if need > free:
-        raise ValueError(
+        raise InputError(
             f"output {path!r} would need about {format_bytes(need)} ({frames} frames of {width}x{height}), "
             f"above the {format_bytes(free)} free in {str(folder)!r}; ask for fewer or smaller frames, "
             "or write elsewhere"

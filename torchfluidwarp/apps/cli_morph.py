@@ -1,9 +1,10 @@
 """The ``morph`` and ``demo`` subcommands: :func:`torchfluidwarp.morph.morph` from the command line.
 
 ``torchfluidwarp morph A B --points-a FA --points-b FB -o OUT`` reads the images and the point files, calls
-:func:`~torchfluidwarp.morph.morph` with the options, and streams the frames to the output (written atomically;
-memory does not grow with ``--frames``); ``demo`` does the same with the bundled samples (astronaut into cat).
-Without point files the points are found from the pictures (``--match``: face landmarks, matched features or
+:func:`~torchfluidwarp.morph.morph` with the typed settings built from the options
+(:func:`~torchfluidwarp.apps.cli_morph_output.morph_settings`), and streams the frames to the output (written
+atomically; memory does not grow with ``--frames``); ``demo`` does the same with the bundled samples (astronaut
+into cat). Without point files the points are found from the pictures (``--match``: face landmarks, matched features or
 the pixels; :func:`torchfluidwarp.correspond.auto_points`), and ``--save-points`` writes them.
 ``torchfluidwarp morph A B C ... --points FA FB FC ...`` morphs through several images
 (:mod:`torchfluidwarp.apps.cli_sequence`), and ``torchfluidwarp morph --pairs pairs.csv --out DIR/`` morphs a
@@ -27,7 +28,8 @@ from torchfluidwarp.apps.cli_args import EXIT_OK, FPS, NON_NEGATIVE, POSITIVE, P
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
     check_result_output,
-    morph_options,
+    max_memory,
+    morph_settings,
     result_options,
     write_report,
     write_result,
@@ -35,6 +37,7 @@ from torchfluidwarp.apps.cli_morph_output import (
 from torchfluidwarp.apps.cli_sequence import run_sequence
 from torchfluidwarp.correspond import auto_points
 from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
 from torchfluidwarp.metrics import morph_report
 from torchfluidwarp.morph import morph
@@ -44,7 +47,8 @@ __all__ = ["add_morph", "add_demo", "EXIT_SOME_FAILED"]
 EXIT_SOME_FAILED = 1
 """Exit status of ``morph --pairs`` when some pairs failed (the others were written)."""
 
-# (flag, metavar, type, help) of the morph's numeric options whose default is the method's: morph() picks it
+# (flag, metavar, type, help) of the fields of the method's settings (NaturalSettings, PaperSettings) whose
+# default is the method's: not given (None), the settings class's default stands
 _MORPH_TUNING = (
     ("--grid", "N", count(4), "fluid grid N x N cells (default 80 for natural, 64 for paper)"),
     (
@@ -55,12 +59,21 @@ _MORPH_TUNING = (
         "0 for paper)",
     ),
     (
+        "--straightness",
+        "S",
+        NON_NEGATIVE,
+        "--method natural: weight on the fit's corrections to the points' straight-line velocities, pixels^2 of "
+        "point error per (pixel per step)^2 (default 3)",
+    ),
+    (
         "--smoothness",
         "S",
         NON_NEGATIVE,
-        "how strongly the fit keeps the flow calm (default 3 for natural, 5 for paper; see morph())",
+        "--method paper: weight on the flow's velocity-gradient energy, fluid cells^2 per pixel^2 of point error "
+        "(default 5)",
     ),
     ("--max-iter", "N", count(1), "L-BFGS iterations (default 30 for natural, 100 for paper)"),
+    ("--control", "K", count(2), "--method paper: control points per axis and step of the fitted forces (default 8)"),
 )
 # (flag, choices (the first is the default), help)
 _MORPH_CHOICES = (
@@ -100,13 +113,6 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         help="memory the morph may set out to hold, in GiB (default 8); larger requests are refused before work",
     )
     p.add_argument("--steps", type=count(1), default=10, help="fluid steps (default 10)")
-    p.add_argument(
-        "--control",
-        metavar="K",
-        type=count(2),
-        default=8,
-        help="--method paper: control points per axis and step of the fitted forces (default 8)",
-    )
     for flag, choices, text in _MORPH_CHOICES:
         p.add_argument(flag, choices=choices, default=choices[0], help=text)
     for flag, metavar, kind, text in _MORPH_TUNING:
@@ -202,14 +208,25 @@ def _run_morph(
     """Morph, write the animation (or ``--frame``) and the report; the output was checked by the caller."""
     held = _held_out(args)
     progress = not args.quiet and sys.stderr.isatty()
-    options = {**morph_options(args), **result_options(args)}
-    result = morph(image_a, image_b, points_a, points_b, progress=progress, **options)  # errors: see fail()
+    timing, blending = result_options(args)
+    result = morph(
+        image_a,
+        image_b,
+        points_a,
+        points_b,
+        settings=morph_settings(args),
+        frames=args.frames,
+        timing=timing,
+        blending=blending,
+        progress=progress,
+        max_memory=max_memory(args),
+    )  # errors: see fail()
     path = write_result(result, args)
     if args.report:
         report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
         print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
-        err = result.fit.error
+        err = result.error
         print(
             f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
             f"{result.seconds['total']:.1f} s",
@@ -223,9 +240,9 @@ def _held_out(args: argparse.Namespace) -> tuple[Tensor, Tensor] | None:
     """``--held-out-a/-b``'s points (both or neither, with ``--report``)."""
     a, b = getattr(args, "held_out_a", None), getattr(args, "held_out_b", None)  # demo has none
     if bool(a) != bool(b):
-        raise ValueError("give both --held-out-a and --held-out-b, or neither")
+        raise InputError("give both --held-out-a and --held-out-b, or neither")
     if a and not args.report:
-        raise ValueError("--held-out-a/-b are measured by the report: add --report JSON")
+        raise InputError("--held-out-a/-b are measured by the report: add --report JSON")
     if not a or not b:
         return None
     pa, pb = read_points(a), read_points(b)
@@ -235,13 +252,14 @@ def _held_out(args: argparse.Namespace) -> tuple[Tensor, Tensor] | None:
 
 def _run_pairs(args: argparse.Namespace) -> int:
     if args.images or args.points_a or args.points_b or args.points:
-        raise ValueError("--pairs takes the pairs from its CSV: give no images, --points-a/-b or --points")
+        raise InputError("--pairs takes the pairs from its CSV: give no images, --points-a/-b or --points")
     if args.frame is not None or args.report or args.save_points:
-        raise ValueError("--pairs writes each pair's animation: --frame, --report and --save-points do not apply")
+        raise InputError("--pairs writes each pair's animation: --frame, --report and --save-points do not apply")
     if args.region not in (None, "points"):
-        raise ValueError("--pairs takes --region points only (one pair of masks cannot serve every pair)")
+        raise InputError("--pairs takes --region points only (one pair of masks cannot serve every pair)")
     if not args.output:
-        raise ValueError("--pairs needs --out DIR/, the folder for the outputs")
+        raise InputError("--pairs needs --out DIR/, the folder for the outputs")
+    timing, blending = result_options(args)
     report = morph_pairs(
         args.pairs,
         args.output,
@@ -249,8 +267,11 @@ def _run_pairs(args: argparse.Namespace) -> int:
         fps=args.fps,
         overwrite=args.overwrite,
         progress=not args.quiet,
-        **morph_options(args),
-        **result_options(args),
+        settings=morph_settings(args),
+        frames=args.frames,
+        timing=timing,
+        blending=blending,
+        max_memory=max_memory(args),
     )
     print(  # even with --quiet, as the failures below: the command's result
         f"{PROG} morph: {len(report.morphed)} morphed, {len(report.skipped)} skipped (done before), "
@@ -283,7 +304,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
         if files:
             if args.save_points:
-                raise ValueError("--save-points writes the points found: give no point files with it")
+                raise InputError("--save-points writes the points found: give no point files with it")
             pa, pb = read_points(files[0]), read_points(files[1])
             check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
         else:
@@ -293,8 +314,8 @@ def _cmd_morph(args: argparse.Namespace) -> int:
                 for path, points in zip(args.save_points, (pa, pb)):
                     print(f"points: {write_points(path, points)}", file=sys.stderr)
         return _run_morph("morph", args, a, b, pa, pb)
-    except (ValueError, TypeError, OSError, ImportError) as exc:  # ImportError: the faces extra is missing
-        return fail("morph", exc)
+    except (OSError, ImportError) as exc:  # a file of the user's, or the faces extra missing: one line
+        return fail("morph", exc)  # every other error goes to cli.main, which says whose fault it is
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -310,5 +331,5 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             load_sample_points("astronaut"),
             load_sample_points("cat"),
         )
-    except (ValueError, TypeError, OSError) as exc:
-        return fail("demo", exc)
+    except OSError as exc:  # an output of the user's: one line
+        return fail("demo", exc)  # every other error goes to cli.main, which says whose fault it is

@@ -1,6 +1,9 @@
-"""What the ``morph`` and ``demo`` subcommands share after the points are known: the timing, region and output
-options (``--motion``, ``--blend``, ``--region``, ``--background``, ``--frame``, ``--report``), the checks made
-before any work, and the writing of the animation, the single frame and the quality report.
+"""What the ``morph`` and ``demo`` subcommands share after the points are known: the typed settings built from
+the options (:func:`morph_settings`: the method's :class:`~torchfluidwarp.morph.NaturalSettings` or
+:class:`~torchfluidwarp.morph.PaperSettings`; :func:`result_options`: :class:`~torchfluidwarp.morph.Timing` and
+:class:`~torchfluidwarp.morph.Blending` from ``--motion``, ``--blend``, ``--region``, ``--background``), the
+``--frame`` and ``--report`` options, the checks made before any work, and the writing of the animation, the
+single frame and the quality report.
 
 A morph of two images is a :class:`~torchfluidwarp.morph.MorphResult`, a sequence a
 :class:`~torchfluidwarp.morph.MorphSequence`; both render ``frame(t)`` and stream ``iter_frames()``, so one writer
@@ -10,6 +13,7 @@ serves both.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -27,12 +31,15 @@ from torchfluidwarp.apps.cli_args import (
     progress_bar,
     timing,
 )
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, write_animation, write_image
-from torchfluidwarp.morph import MorphResult, MorphSequence
+from torchfluidwarp.morph import Blending, MorphResult, MorphSequence, MorphSettings, Timing
+from torchfluidwarp.morph.settings import METHODS
 
 __all__ = [
     "add_result_options",
-    "morph_options",
+    "morph_settings",
+    "max_memory",
     "result_options",
     "check_result_output",
     "write_result",
@@ -94,30 +101,58 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def morph_options(args: argparse.Namespace) -> dict[str, Any]:
-    """:func:`~torchfluidwarp.morph.morph`'s keyword arguments from whichever of its options a command has."""
-    names = ("frames", "method", "grid", "steps", "control", "inverse", "compressible", "smoothness", "max_iter")
-    options = {name: getattr(args, name) for name in names if hasattr(args, name)}
+SETTING_OPTIONS = ("grid", "steps", "control", "compressible", "straightness", "smoothness", "max_iter")
+"""The options that set a field of the method's settings of the same name (``--max-iter``: ``max_iter``); ``None``
+(not given) leaves the method's default. ``--align`` and ``--inverse`` set theirs too."""
+
+
+def morph_settings(args: argparse.Namespace) -> MorphSettings:
+    """The method's settings (:class:`~torchfluidwarp.morph.NaturalSettings` or
+    :class:`~torchfluidwarp.morph.PaperSettings`, by ``--method``) from whichever of its options a command has.
+
+    Raises:
+        ValueError: an option given that the method has no field for (``--control`` or ``--smoothness`` with
+            ``--method natural``, ``--straightness`` with ``--method paper``), naming the method it belongs to.
+    """
+    method = getattr(args, "method", "natural")
+    cls = METHODS[method]
+    fields = {f.name for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    for name in SETTING_OPTIONS:
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        if name not in fields:
+            owner = next(m for m, other in METHODS.items() if name in {f.name for f in dataclasses.fields(other)})
+            raise InputError(f"--{name.replace('_', '-')} applies to --method {owner}, not --method {method}")
+        values[name] = value
     if hasattr(args, "align"):
-        options["align"] = None if args.align == "none" else args.align
-    if hasattr(args, "max_memory"):
-        options["max_memory"] = None if args.max_memory is None else args.max_memory * 2**30
-    return options
+        values["align"] = None if args.align == "none" else args.align
+    if hasattr(args, "inverse"):
+        values["inverse"] = args.inverse
+    return cls(**values)
 
 
-def result_options(args: argparse.Namespace) -> dict[str, Any]:
-    """:func:`~torchfluidwarp.morph.morph`'s timing and region settings from the options (masks read here)."""
-    options: dict[str, Any] = dict(motion=args.motion, blend=args.blend)
+def max_memory(args: argparse.Namespace) -> float | None:
+    """``--max-memory`` (GiB) in bytes, or ``None`` (the library's default) when not given."""
+    gib = getattr(args, "max_memory", None)
+    return None if gib is None else gib * 2**30
+
+
+def result_options(args: argparse.Namespace) -> tuple[Timing, Blending]:
+    """The morph's :class:`~torchfluidwarp.morph.Timing` and :class:`~torchfluidwarp.morph.Blending` from the
+    options (region masks are read here)."""
+    timing = Timing(motion=args.motion, blend=args.blend)
     if args.region is None:
-        return options
+        return timing, Blending()
     if args.region == "points":
         region: Any = "points"
     else:
         files = args.region.split(",")
         if len(files) != 2 or not all(files):
-            raise ValueError(f"--region takes 'points' or MASK_A,MASK_B (two image files), got {args.region!r}")
+            raise InputError(f"--region takes 'points' or MASK_A,MASK_B (two image files), got {args.region!r}")
         region = tuple(read_image(f, channels=1)[0, 0] for f in files)
-    return {**options, "region": region, "background": args.background, "region_margin": args.region_margin}
+    return timing, Blending(region=region, region_margin=args.region_margin, background=args.background)
 
 
 def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) -> None:
@@ -128,7 +163,7 @@ def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) ->
         check_output(args.output, args.overwrite)
         check_disk_space(args.output, frames, image.shape[-2], image.shape[-1], image.shape[1])
     if args.report and Path(args.report).exists() and not args.overwrite:
-        raise ValueError(f"--report {args.report!r} already exists; pass --overwrite to replace it")
+        raise InputError(f"--report {args.report!r} already exists; pass --overwrite to replace it")
 
 
 def write_result(result: MorphResult | MorphSequence, args: argparse.Namespace) -> Path:

@@ -14,18 +14,19 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
 from torch import Tensor
 
 from torchfluidwarp.apps.cli_args import EXIT_OK, NON_NEGATIVE, POSITIVE, PROG, check_image_output, count, fail
 from torchfluidwarp.apps.cli_morph_output import (
     check_result_output,
-    morph_options,
+    max_memory,
+    morph_settings,
     result_options,
     write_report,
     write_result,
 )
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
 from torchfluidwarp.metrics import morph_report
 from torchfluidwarp.morph import average, morph_sequence
@@ -36,7 +37,7 @@ __all__ = ["run_sequence", "add_average"]
 def _read_all(images: list[str], point_files: list[str]) -> tuple[list[Tensor], list[Tensor]]:
     """Every image and its points; every point file must have as many points as the first."""
     if len(point_files) != len(images):
-        raise ValueError(f"--points needs one file per image: {len(images)} images, {len(point_files)} files")
+        raise InputError(f"--points needs one file per image: {len(images)} images, {len(point_files)} files")
     pictures = [read_image(path) for path in images]
     points = [read_points(path) for path in point_files]
     for path, p in zip(point_files[1:], points[1:]):
@@ -50,20 +51,29 @@ def run_sequence(args: argparse.Namespace) -> int:
     ``args`` are the ``morph`` subcommand's (:mod:`torchfluidwarp.apps.cli_morph`), with ``args.output`` set.
     """
     if not args.points:
-        raise ValueError(
+        raise InputError(
             f"a sequence of {len(args.images)} images needs --points FILE... (one per image): "
             "--match finds the points of two images only"
         )
     if args.save_points or args.held_out_a or args.held_out_b:
-        raise ValueError("--save-points and --held-out-a/-b apply to two images only")
+        raise InputError("--save-points and --held-out-a/-b apply to two images only")
     pictures, points = _read_all(args.images, args.points)
-    options = {**morph_options(args), **result_options(args)}
-    if isinstance(options.get("region"), tuple):
-        raise ValueError("a sequence takes --region points only (a pair of masks is for two images)")
-    frames = options.pop("frames")
-    check_result_output(args, frames, pictures[0])
+    if args.region not in (None, "points"):
+        raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
+    settings = morph_settings(args)
+    timing, blending = result_options(args)
+    check_result_output(args, args.frames, pictures[0])
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = morph_sequence(pictures, points, frames=frames, progress=progress, **options)
+    sequence = morph_sequence(
+        pictures,
+        points,
+        settings=settings,
+        frames=args.frames,
+        timing=timing,
+        blending=blending,
+        progress=progress,
+        max_memory=max_memory(args),
+    )
     path = write_result(sequence, args)
     if args.report:
         reports = [
@@ -72,7 +82,7 @@ def run_sequence(args: argparse.Namespace) -> int:
         ]
         print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
     if not args.quiet:
-        errors = [float(segment.fit.error.mean()) for segment in sequence.segments]
+        errors = [float(segment.error.mean()) for segment in sequence.segments]
         print(
             f"{PROG} morph: {len(errors)} segments, mean point error per segment "
             + ", ".join(f"{e:.2f}" for e in errors)
@@ -102,16 +112,13 @@ def add_average(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--grid", metavar="N", type=count(4), default=None, help="fluid grid N x N cells, as morph")
     p.add_argument("--steps", type=count(1), default=10, help="fluid steps (default 10)")
     p.add_argument("--compressible", metavar="W", type=NON_NEGATIVE, default=None, help="as morph")
-    p.add_argument("--smoothness", metavar="S", type=NON_NEGATIVE, default=None, help="as morph")
+    p.add_argument("--straightness", metavar="S", type=NON_NEGATIVE, default=None, help="--method natural: as morph")
+    p.add_argument("--smoothness", metavar="S", type=NON_NEGATIVE, default=None, help="--method paper: as morph")
     p.add_argument("--max-iter", metavar="N", type=count(1), default=None, help="L-BFGS iterations, as morph")
     p.add_argument("--max-memory", metavar="GIB", type=POSITIVE, default=None, help="as morph (default 8)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary line")
     p.set_defaults(handler=_cmd_average)
-
-
-def _average_options(args: argparse.Namespace) -> dict[str, Any]:
-    return {**morph_options(args), "progress": False}
 
 
 def _cmd_average(args: argparse.Namespace) -> int:
@@ -120,7 +127,7 @@ def _cmd_average(args: argparse.Namespace) -> int:
             return fail("average", f"give two or more images, got {len(args.images)}")
         check_image_output(args.output, args.overwrite)
         pictures, points = _read_all(args.images, args.points)
-        result = average(pictures, points, **_average_options(args))
+        result = average(pictures, points, settings=morph_settings(args), max_memory=max_memory(args))
         path = write_image(args.output, result.image)
         if args.save_points:
             print(f"points: {write_points(args.save_points, result.points)}", file=sys.stderr)
@@ -130,7 +137,7 @@ def _cmd_average(args: argparse.Namespace) -> int:
                 f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}",
                 file=sys.stderr,
             )
-    except (ValueError, TypeError, OSError) as exc:
-        return fail("average", exc)
+    except OSError as exc:  # a file of the user's: one line
+        return fail("average", exc)  # every other error goes to cli.main, which says whose fault it is
     print(path)
     return EXIT_OK

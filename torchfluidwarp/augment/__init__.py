@@ -15,9 +15,6 @@
 
 from __future__ import annotations
 
-import warnings
-from typing import Any
-
 from torchfluidwarp.augment.carry import (
     apply_fluid_warp,
     box_outline,
@@ -55,29 +52,3 @@ __all__ = [
     "random_fluid_warp",
     "raster_map",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    # Deprecated names, kept for one release. Nothing here imports torchvision: the old lazy alias of the v2
-    # transform resolves through the package's lazy top level.
-    if name == "RandomFluidWarp":
-        warnings.warn(
-            "torchfluidwarp.augment.RandomFluidWarp (the tensor-level nn.Module) is renamed "
-            "torchfluidwarp.augment.FluidWarpAugment (function: torchfluidwarp.augment.random_fluid_warp); "
-            "torchfluidwarp.RandomFluidWarp is now the torchvision v2 transform. The old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return FluidWarpAugment
-    if name == "RandomFluidWarpV2":
-        warnings.warn(
-            "torchfluidwarp.augment.RandomFluidWarpV2 is deprecated: import the torchvision v2 transform as "
-            "torchfluidwarp.RandomFluidWarp (or from torchfluidwarp.augment.transforms); the old name goes in the "
-            "next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        import torchfluidwarp
-
-        return torchfluidwarp.RandomFluidWarp
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

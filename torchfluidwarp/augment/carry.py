@@ -2,7 +2,7 @@
 
 * images are resampled bilinearly through the **backward map** (where each output pixel reads from,
   :func:`fluid_warp_map`), through the library's one guarded sampler
-  (:func:`~torchfluidwarp.warp.maps.warp_image`, over :func:`~torchfluidwarp.core.sampling.sample`);
+  (:func:`~torchfluidwarp.warp.frames.warp_image`, over :func:`~torchfluidwarp.core.sampling.sample`);
 * masks are resampled by nearest sampling, so label values survive unchanged;
 * keypoints are carried by the **forward map**: RK2 particles through the very same velocities
   (:meth:`~torchfluidwarp.warp.layer.FluidWarp.carry_points`), not an approximate inverse (:func:`carry_points`);
@@ -22,7 +22,9 @@ from torch import Tensor
 
 from torchfluidwarp.augment.draw import FluidWarpParams, raster_map
 from torchfluidwarp.core.grid import rescale_points, scale_factor
-from torchfluidwarp.warp.maps import _carry, identity_map, upsample_raster, warp_image
+from torchfluidwarp.core.staggered import StaggeredGrid
+from torchfluidwarp.warp.frames import identity_map, warp_image
+from torchfluidwarp.warp.maps import upsample_raster
 
 __all__ = [
     "fluid_warp_map",
@@ -92,7 +94,7 @@ def carry_points(params: FluidWarpParams, points: Tensor, size: tuple[int, int] 
     vel = params.velocities
     p = points.to(device=vel.device, dtype=vel.dtype)
     inside = _clamp_to_image(p, (H, W))
-    carried = _carry(vel, inside, (H, W), params.dt)[:, -1]
+    carried = StaggeredGrid.of(vel).trajectories(vel, inside, params.dt, (H, W))[:, -1]
     return (carried + (p - inside)).to(device=points.device, dtype=points.dtype)
 
 

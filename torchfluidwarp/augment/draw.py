@@ -25,11 +25,20 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_memory, check_size
 from torchfluidwarp.augment.settings import FluidWarpSettings
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale, rescale_points, scale_factor
+from torchfluidwarp.core.simulator import FluidSimulator
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.warp.forces import gaussian_bumps
-from torchfluidwarp.warp.layer import FluidWarp
-from torchfluidwarp.warp.maps import _raster, iter_backward_maps
+from torchfluidwarp.warp.maps import iter_backward_maps, working_raster
 
-__all__ = ["MIN_DET", "FluidWarpParams", "draw_fluid_warp", "brush_forces", "min_quad_determinant", "raster_map"]
+__all__ = [
+    "MIN_DET",
+    "FluidWarpParams",
+    "draw_fluid_warp",
+    "make_simulator",
+    "brush_forces",
+    "min_quad_determinant",
+    "raster_map",
+]
 
 MIN_DET: float = 0.1
 """A drawn map is accepted when its Jacobian determinant stays at least this everywhere (see
@@ -150,11 +159,16 @@ def raster_map(velocities: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     itself when smaller), and the map is composed on it step by step
     (:func:`~torchfluidwarp.warp.maps.iter_backward_maps`).
     """
-    raster = _raster(size, velocities.shape[-2] - 1, velocities.shape[-1] - 1)
+    raster = working_raster(size, (velocities.shape[-2] - 1, velocities.shape[-1] - 1))
     back = next(iter_backward_maps(velocities, raster, dt, times=[velocities.shape[1]]))  # raster pixels
     if raster == tuple(size):
         return back
     return rescale_points(back, scale_factor(raster, size, device=back.device, dtype=back.dtype))
+
+
+def make_simulator(settings: FluidWarpSettings, *, cuda_graphs: bool = False) -> FluidSimulator:
+    """The fluid of ``settings`` (grid, ``dt``, viscosity), for :func:`draw_fluid_warp`'s ``simulator``."""
+    return FluidSimulator(settings.grid, settings.dt, settings.viscosity, cuda_graphs=cuda_graphs)
 
 
 def draw_fluid_warp(
@@ -165,12 +179,13 @@ def draw_fluid_warp(
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
+    simulator: FluidSimulator | None = None,
 ) -> FluidWarpParams:
     """Draw the random brushes of one call and roll the fluid out for the whole batch, fold-free.
 
     Draws happen on the generator's device (CPU without one), so a seed gives the same warp on any device; the
-    roll-out then runs on ``device`` in ``dtype`` without autograd, for the whole batch in one
-    :class:`~torchfluidwarp.warp.layer.FluidWarp` call (a sample's map depends only on its own brushes). Each
+    roll-out then runs on ``device`` in ``dtype`` without autograd, for the whole batch in one call of a
+    :class:`~torchfluidwarp.core.simulator.FluidSimulator` (a sample's map depends only on its own brushes). Each
     random quantity is drawn for all ``B`` samples at once (counts, steps, centres, angles, strengths, radii),
     so a generator state fixes the draw of a given ``batch``, but sample ``b`` of a batch is not the warp that
     the ``b``-th of ``B`` batch-1 draws from the same state would give. A sample whose map would fold
@@ -183,6 +198,10 @@ def draw_fluid_warp(
         size: ``(H, W)`` of the images in pixels.
         generator: the random source; ``None`` uses torch's global RNG.
         device, dtype: where and in which floating dtype to roll out.
+        simulator: the fluid to roll out, made by :func:`make_simulator` from ``settings``; a caller that draws
+            many times (:class:`~torchfluidwarp.augment.tensor.FluidWarpAugment`) passes the one it holds, so a
+            draw sets nothing up (and, with ``cuda_graphs``, replays the step captured by an earlier draw). A new
+            one by default.
 
     Returns:
         a :class:`FluidWarpParams`.
@@ -195,7 +214,7 @@ def draw_fluid_warp(
     B = check_int("batch", batch)
     H, W = check_size("size", size, minimum=0)
     if min(H, W) < 2:  # a fluid warp needs a pixel's neighbours: refuse, naming the image, instead of an IndexError
-        raise ValueError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
+        raise InputError(f"the image must be at least 2 x 2 pixels to warp, got size {(H, W)}")
     (h, w), itemsize = settings.grid.shape, dtype.itemsize
     T, K = settings.steps[1], settings.count[1]
     # roll-out and maps, a few copies of each, and each brush's force field on the grid
@@ -227,13 +246,13 @@ def draw_fluid_warp(
     directions = torch.stack([angle.cos(), angle.sin()], -1).to(device=device, dtype=dtype)
     steps = steps.to(device)
     T = int(steps.max())
-    warp = FluidWarp(s.grid, T, s.dt, s.viscosity)
+    sim = make_simulator(s) if simulator is None else simulator
     running = (torch.arange(T, device=device)[None] < steps[:, None]).to(dtype)  # (B, T)
     scale = torch.ones(B, device=device, dtype=dtype)
 
     def roll(forces: Tensor, running: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         # a sample's warp stops after its own steps: zero velocity leaves maps and points in place
-        v = warp.rollout(forces, (H, W)).velocities * running[:, :, None, None, None]
+        v = sim(forces, image_size=(H, W)).velocities * running[:, :, None, None, None]
         m = raster_map(v, (H, W), s.dt)
         return v, m, min_quad_determinant(m, (H, W))
 

@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 
 from torchfluidwarp._checks import check_instance, check_int, check_positive, describe
 from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.errors import InputError, InputTypeError
 
 __all__ = ["MAX_SHEAR", "FluidWarpSettings", "make_settings", "settings_signature"]
 
@@ -38,15 +39,15 @@ def _range(name: str, value: RangeArg, *, integer: bool, minimum: float, strict:
     """``value`` or ``(lo, hi)`` as a validated closed range."""
     pair = (value, value) if isinstance(value, (int, float)) and not isinstance(value, bool) else value
     if not isinstance(pair, (tuple, list)) or len(pair) != 2:
-        raise TypeError(f"{name} must be a number or a pair (min, max), got {describe(value)}")
+        raise InputTypeError(f"{name} must be a number or a pair (min, max), got {describe(value)}")
     lo, hi = pair
     for v in (lo, hi):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
-            raise TypeError(f"{name} must hold {'ints' if integer else 'numbers'}, got {describe(value)}")
+            raise InputTypeError(f"{name} must hold {'ints' if integer else 'numbers'}, got {describe(value)}")
         if not math.isfinite(v) or v < minimum or (strict and v == minimum):
-            raise ValueError(f"{name} must be finite and {'>' if strict else '>='} {minimum}, got {tuple(pair)}")
+            raise InputError(f"{name} must be finite and {'>' if strict else '>='} {minimum}, got {tuple(pair)}")
     if hi < lo:
-        raise ValueError(f"{name} must be (min, max) with min <= max, got {tuple(pair)}")
+        raise InputError(f"{name} must be (min, max) with min <= max, got {tuple(pair)}")
     return (int(lo), int(hi)) if integer else (float(lo), float(hi))
 
 
@@ -121,7 +122,7 @@ class FluidWarpSettings:
         stretch = self.stretch
         if stretch > MAX_SHEAR:
             limit = self.strength[1] * MAX_SHEAR / stretch
-            raise ValueError(
+            raise InputError(
                 f"strength up to {self.strength[1]} px/time^2 could fold the warp: with count={self.count}, "
                 f"steps={self.steps}, radius={self.radius} px and dt={self.dt}, S * max(1, T / 4) = {stretch:.3g} "
                 f"> MAX_SHEAR = {MAX_SHEAR} (S = count_max * strength_max * steps_max * dt^2 / radius_min); "
@@ -149,7 +150,7 @@ MAX_EDGE_POINTS = 1024
 
 def _at_most(name: str, value: int, limit: int) -> int:
     if value > limit:
-        raise ValueError(f"{name} must be at most {limit}, got {value}")
+        raise InputError(f"{name} must be at most {limit}, got {value}")
     return value
 
 
@@ -171,12 +172,12 @@ def make_settings(settings: FluidWarpSettings | None, *args: Any, **kwargs: Any)
     """
     unknown = sorted(set(kwargs) - FIELDS)
     if unknown:
-        raise TypeError(f"unknown fluid warp setting(s) {unknown}; the settings are {sorted(FIELDS)}")
+        raise InputTypeError(f"unknown fluid warp setting(s) {unknown}; the settings are {sorted(FIELDS)}")
     if settings is None:
         return FluidWarpSettings(*args, **kwargs)
     check_instance("settings", settings, FluidWarpSettings, optional=True)
     if args:
-        raise TypeError(f"pass the ranges by name next to settings (to replace them), got positional {args!r}")
+        raise InputTypeError(f"pass the ranges by name next to settings (to replace them), got positional {args!r}")
     return dataclasses.replace(settings, **kwargs) if kwargs else settings
 
 

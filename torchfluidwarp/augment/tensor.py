@@ -26,17 +26,10 @@ Two names, one augmentation, one set of settings (:class:`~torchfluidwarp.augmen
 Every warp is fold-free: the settings refuse strengths past :data:`~torchfluidwarp.augment.settings.MAX_SHEAR`,
 and a drawn sample whose map would fold is rolled out again with half the force
 (:func:`~torchfluidwarp.augment.draw.draw_fluid_warp`).
-
-The settings, draw and carry names this module used to define (``MAX_SHEAR``, ``FluidWarpParams``,
-``brush_forces``, ``carry_points``, ...) moved to :mod:`~torchfluidwarp.augment.settings`,
-:mod:`~torchfluidwarp.augment.draw` and :mod:`~torchfluidwarp.augment.carry`; importing them from here still works
-for one release, with a ``DeprecationWarning``. Import them from :mod:`torchfluidwarp.augment`.
 """
 
 from __future__ import annotations
 
-import importlib
-import warnings
 from typing import Any
 
 import torch
@@ -44,33 +37,11 @@ from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_instance, check_tensor, describe
 from torchfluidwarp.augment.carry import apply_fluid_warp
-from torchfluidwarp.augment.draw import FluidWarpParams, draw_fluid_warp
+from torchfluidwarp.augment.draw import FluidWarpParams, draw_fluid_warp, make_simulator
 from torchfluidwarp.augment.settings import FIELDS, FluidWarpSettings, make_settings, settings_signature
+from torchfluidwarp.errors import InputError, InputTypeError
 
 __all__ = ["FluidWarpAugment", "random_fluid_warp"]
-
-_MOVED = {
-    **dict.fromkeys(["MAX_SHEAR", "RangeArg"], "settings"),
-    **dict.fromkeys(["MIN_DET", "brush_forces", "min_quad_determinant", "raster_map"], "draw"),
-    **dict.fromkeys(["fluid_warp_map", "carry_points", "carry_boxes", "box_outline", "polygon_outline"], "carry"),
-}
-"""The names this module defined before it was split, and the module under ``torchfluidwarp.augment`` that
-holds each now (all are also importable from ``torchfluidwarp.augment``). ``FluidWarpParams`` and
-``apply_fluid_warp`` moved too, but this module uses them, so they import from here without a warning."""
-
-
-def __getattr__(name: str) -> Any:
-    # Moved names, kept for one release with a warning that names the new place.
-    if name in _MOVED:
-        module = f"torchfluidwarp.augment.{_MOVED[name]}"
-        warnings.warn(
-            f"torchfluidwarp.augment.tensor.{name} moved to {module}: use `from torchfluidwarp.augment import {name}` "
-            f"(or `from {module} import {name}`). The old path goes in the next release.",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(module), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class FluidWarpAugment(nn.Module):
@@ -144,6 +115,7 @@ class FluidWarpAugment(nn.Module):
         check_instance("generator", generator, torch.Generator, optional=True)
         self.generator = generator
         self._worker: int | None = None
+        self.simulator = make_simulator(self.settings)  # one fluid for every draw: no set-up per call
 
     def __getattr__(self, name: str) -> Any:
         # the settings' fields read as the module's attributes (aug.strength), as when they were stored on it
@@ -189,7 +161,9 @@ class FluidWarpAugment(nn.Module):
         Returns:
             a :class:`FluidWarpParams`.
         """
-        return draw_fluid_warp(self.settings, batch, size, generator=self._rng(), device=device, dtype=dtype)
+        return draw_fluid_warp(
+            self.settings, batch, size, generator=self._rng(), device=device, dtype=dtype, simulator=self.simulator
+        )
 
     def forward(
         self,
@@ -219,22 +193,22 @@ class FluidWarpAugment(nn.Module):
         img = image.unsqueeze(0) if unbatched else image
         B, _, H, W = img.shape
         if image.is_complex() or min(H, W) < 2 or B < 1:
-            raise ValueError(f"image must be real, non-empty and at least 2 x 2 pixels to warp, got {describe(image)}")
+            raise InputError(f"image must be real, non-empty and at least 2 x 2 pixels to warp, got {describe(image)}")
 
         def batched(name: str, x: Tensor | None, tail: list[int | None], floating: bool) -> Tensor | None:
             if x is None:
                 return None
             check_tensor(name, x, floating=floating)
             if x.is_complex():
-                raise TypeError(f"{name} must be real, got dtype {x.dtype}")
+                raise InputTypeError(f"{name} must be real, got dtype {x.dtype}")
             if x.ndim != len(tail) + (0 if unbatched else 1):
-                raise ValueError(
+                raise InputError(
                     f"{name} must have {len(tail) + (0 if unbatched else 1)} dimensions to go with an image of shape "
                     f"{tuple(image.shape)}, got shape {tuple(x.shape)}"
                 )
             x = x.unsqueeze(0) if unbatched else x
             if x.shape[0] != B:
-                raise ValueError(
+                raise InputError(
                     f"{name} has a batch of {x.shape[0]} but image has {B}: {name} must have shape "
                     f"({B}, {', '.join('*' if t is None else str(t) for t in tail)}) to go with an image of shape "
                     f"{tuple(image.shape)}, got shape {tuple(x.shape)}"

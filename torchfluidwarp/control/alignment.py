@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_tensor
+from torchfluidwarp.errors import InputError
 
 __all__ = ["estimate_alignment", "interpolate_alignment", "apply_alignment"]
 
@@ -37,7 +38,7 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     a = check_tensor("points_a", points_a, shape=[None, 2]).double()
     b = check_tensor("points_b", points_b, shape=[None, 2]).double()
     if a.shape != b.shape:
-        raise ValueError(f"points_a has {a.shape[0]} points but points_b has {b.shape[0]}")
+        raise InputError(f"points_a has {a.shape[0]} points but points_b has {b.shape[0]}", argument="points_b")
     eye = torch.eye(3, dtype=torch.float64, device=a.device)
     if kind in (None, "none"):
         return eye.to(points_a.dtype)
@@ -45,9 +46,10 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     da, db = a - ca, b - cb
     if kind == "similarity":
         if a.shape[0] < 2 or float((da**2).sum()) == 0:
-            raise ValueError(
+            raise InputError(
                 f"a similarity alignment needs at least 2 distinct points in points_a, got {a.shape[0]} points "
-                f"spread over {float((da**2).sum()):.3g} px^2"
+                f"spread over {float((da**2).sum()):.3g} px^2",
+                argument="points_a",
             )
         u, s, vh = torch.linalg.svd(db.T @ da / a.shape[0])
         d = torch.ones(2, dtype=torch.float64, device=a.device)
@@ -57,13 +59,13 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
         lin = scale * rot
     elif kind == "affine":
         if a.shape[0] < 3:
-            raise ValueError(f"an affine alignment needs at least 3 points, got {a.shape[0]}")
+            raise InputError(f"an affine alignment needs at least 3 points, got {a.shape[0]}", argument="points_a")
         sol = torch.linalg.lstsq(da, db).solution  # (2, 2): db ~ da @ sol
         lin = sol.T
         if abs(float(torch.linalg.det(lin))) < 1e-9:
-            raise ValueError("an affine alignment needs 3 non-collinear points")
+            raise InputError("an affine alignment needs 3 non-collinear points", argument="points_a")
     else:
-        raise ValueError(f"kind must be 'similarity', 'affine' or 'none', got {kind!r}")
+        raise InputError(f"kind must be 'similarity', 'affine' or 'none', got {kind!r}", argument="kind")
     m = eye.clone()
     m[:2, :2] = lin
     m[:2, 2] = cb - lin @ ca

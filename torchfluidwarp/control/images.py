@@ -34,6 +34,7 @@ from torchfluidwarp._checks import (
     check_fraction,
     check_int,
     check_positive,
+    check_returned_loss,
     check_size,
     check_tensor,
     compute_dtype,
@@ -42,12 +43,14 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.keyframes import check_fit_memory, check_points
 from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.optim import HISTORY_SIZE, minimize
-from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, scale_factor
+from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.warp.forces import ControlGrid
-from torchfluidwarp.warp.layer import FluidWarp, iter_backward_maps, jacobian_determinant, warp_image
+from torchfluidwarp.warp.frames import jacobian_determinant, warp_image
+from torchfluidwarp.warp.layer import FluidWarp
+from torchfluidwarp.warp.maps import iter_backward_maps
 
 # the losses moved to torchfluidwarp.control.losses; they are re-exported here
 __all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss", "ssim_loss"]
@@ -128,16 +131,19 @@ def _level_grids(grid: FluidGrid, levels: Sequence[int] | Literal["auto"] | None
         return [grid]
     if isinstance(levels, str):
         if levels != "auto":
-            raise ValueError(f"levels must be 'auto', None or a sequence of ints, got {levels!r}")
+            raise InputError(f"levels must be 'auto', None or a sequence of ints, got {levels!r}", argument="levels")
         levels = [longest]
         while levels[0] // 2 >= COARSEST_LEVEL:
             levels.insert(0, levels[0] // 2)
     if not isinstance(levels, (tuple, list)) or not levels:
-        raise TypeError(f"levels must be 'auto', None or a non-empty sequence of ints, got {describe(levels)}")
+        raise InputTypeError(
+            f"levels must be 'auto', None or a non-empty sequence of ints, got {describe(levels)}", argument="levels"
+        )
     sizes = [check_int("levels", n, minimum=2) for n in levels]
     if any(b <= a for a, b in zip(sizes, sizes[1:])) or sizes[-1] > longest:
-        raise ValueError(
-            f"levels must increase and end at most at the finest grid's longer side ({longest}), got {tuple(sizes)}"
+        raise InputError(
+            f"levels must increase and end at most at the finest grid's longer side ({longest}), got {tuple(sizes)}",
+            argument="levels",
         )
     if sizes[-1] != longest:
         sizes.append(longest)
@@ -216,9 +222,12 @@ def fit_images(
         an :class:`ImageFit`.
 
     Raises:
-        ValueError: mismatched shapes, non-finite values, points outside the image, bad ``loss``, ``levels``,
-            ``max_iter``, ``steps`` or ``control``.
-        TypeError: arguments of the wrong type.
+        InputError: mismatched shapes, an empty batch, non-finite values, points outside the image, bad ``loss``,
+            ``levels``, ``max_iter``, ``steps`` or ``control``; a ``loss`` that returns more than one number, a
+            non-finite one, or one without an autograd graph (detached, or computed under ``no_grad``). A
+            ``ValueError``; ``error.argument`` names the argument.
+        InputTypeError: arguments of the wrong type (a ``TypeError``).
+        FlowBlewUp: the flow blows up at the starting forces (an ``ArithmeticError``).
 
     Example:
         >>> yy, xx = torch.meshgrid(torch.arange(32.0), torch.arange(32.0), indexing="ij")
@@ -230,13 +239,17 @@ def fit_images(
     src = check_tensor("source", source, ndim=4)
     tgt = check_tensor("target", target, ndim=4)
     if src.shape[1:] != tgt.shape[1:] or (src.shape[0] != tgt.shape[0] and 1 not in (src.shape[0], tgt.shape[0])):
-        raise ValueError(
+        raise InputError(
             f"source and target must have the same (C, H, W) and batch sizes 1 or B, got source "
-            f"{tuple(src.shape)} and target {tuple(tgt.shape)}"
+            f"{tuple(src.shape)} and target {tuple(tgt.shape)}",
+            argument="target",
         )
+    for name, x in (("source", src), ("target", tgt)):
+        if x.shape[0] == 0:
+            raise InputError(f"{name} must hold at least one image, got an empty batch {tuple(x.shape)}", argument=name)
     H, W = src.shape[-2:]
     if min(H, W) < 2:
-        raise ValueError(f"source must be at least 2 x 2 pixels, got {tuple(src.shape)}")
+        raise InputError(f"source must be at least 2 x 2 pixels, got {tuple(src.shape)}", argument="source")
     B = max(src.shape[0], tgt.shape[0])
     objective = image_loss(loss)
     fine = FluidGrid.of(grid)
@@ -250,7 +263,9 @@ def fit_images(
         check_int("max_iter", max_iter)
     iters = [max_iter] * len(grids) if isinstance(max_iter, int) else list(max_iter)
     if len(iters) != len(grids):
-        raise ValueError(f"max_iter must be an int or one int per level ({len(grids)}), got {max_iter!r}")
+        raise InputError(
+            f"max_iter must be an int or one int per level ({len(grids)}), got {max_iter!r}", argument="max_iter"
+        )
     iters = [check_int("max_iter", n) for n in iters]
     check_int("history_size", history_size)
     check_fraction("compressible", compressible)
@@ -259,18 +274,24 @@ def fit_images(
     pts = None
     if points is not None:
         if not (isinstance(points, (tuple, list)) and len(points) == 2):
-            raise TypeError(f"points must be a pair (src (M, 2), tgt (M, 2)), got {describe(points)}")
+            raise InputTypeError(
+                f"points must be a pair (src (M, 2), tgt (M, 2)), got {describe(points)}", argument="points"
+            )
         p, q = check_points("points[0]", points[0], (H, W), B), check_points("points[1]", points[1], (H, W), B)
         if p.shape[1] != q.shape[1]:
-            raise ValueError(f"points must pair up: {p.shape[1]} source points and {q.shape[1]} target points")
+            raise InputError(
+                f"points must pair up: {p.shape[1]} source points and {q.shape[1]} target points", argument="points"
+            )
         pts = (p.expand(B, -1, -1).to(src.device, dtype), q.expand(B, -1, -1).to(src.device, dtype))
 
     src = src.expand(B, -1, -1, -1).to(dtype)
     tgt = tgt.expand(B, -1, -1, -1).to(src.device, dtype)
     with torch.no_grad():
-        initial = float(objective(src, tgt))
+        initial = float(check_returned_loss("loss", objective(src, tgt), graph=False))
     if not math.isfinite(initial):
-        raise ValueError(f"loss must be finite, but it gave {initial} for source and target before any fitting")
+        raise InputError(
+            f"loss must be finite, but it gave {initial} for source and target before any fitting", argument="loss"
+        )
     start = time.perf_counter()
     history: list[float] = []
     records: list[LevelFit] = []
@@ -324,7 +345,9 @@ def fit_images(
             stacklevel=2,
         )
     if not math.isfinite(final):
-        raise ValueError(f"loss became non-finite ({final}) on the fitted warp of source; no result to return")
+        raise InputError(
+            f"loss became non-finite ({final}) on the fitted warp of source; no result to return", argument="loss"
+        )
     seconds = time.perf_counter() - start
     message = (
         f"loss {initial:.4g} -> {final:.4g} ({final / initial if initial else 0.0:.2%}) in "
@@ -366,7 +389,8 @@ def _fit_level(
     """L-BFGS on one level with :func:`~torchfluidwarp.control.optim.minimize`; appends its losses to ``history``."""
 
     def phi() -> Tensor:
-        value = objective(_warp_last(warp, module, source), target)
+        # a value without a graph (the caller's loss detached it) would leave only the other terms to fit
+        value = check_returned_loss("loss", objective(_warp_last(warp, module, source), target))
         if points is not None and point_weight > 0:
             p, q = points
             carried = warp.carry_points(p, module, full_size)[:, -1]

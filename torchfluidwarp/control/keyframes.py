@@ -33,11 +33,11 @@ from torchfluidwarp._checks import (
 )
 from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, startable_control
 from torchfluidwarp.control.optim import minimize
-from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.warp.forces import ControlGrid
-from torchfluidwarp.warp.layer import FluidWarp, _carry
+from torchfluidwarp.warp.layer import FluidWarp
 
 __all__ = ["KeyframeFit", "fit_keyframes", "keyframe_loss", "velocity_gradient_energy", "check_points"]
 
@@ -117,14 +117,14 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
     if p.ndim == 2:
         p = p.unsqueeze(0)
     if p.shape[-1] != 2 or p.shape[1] < 1:
-        raise ValueError(f"{name} must have shape (M, 2) or (B, M, 2) with M >= 1, got {tuple(p.shape)}")
+        raise InputError(f"{name} must have shape (M, 2) or (B, M, 2) with M >= 1, got {tuple(p.shape)}")
     if batch is not None and p.shape[0] not in (1, batch):
-        raise ValueError(f"{name} must have batch size {batch} (or 1), got {tuple(p.shape)}")
+        raise InputError(f"{name} must have batch size {batch} (or 1), got {tuple(p.shape)}")
     H, W = image_size
     outside = (p[..., 0] < -0.5) | (p[..., 0] > W - 0.5) | (p[..., 1] < -0.5) | (p[..., 1] > H - 0.5)
     if bool(outside.any()):
         i = int(outside.flatten().nonzero()[0])
-        raise ValueError(
+        raise InputError(
             f"{name} has a point outside the {H}x{W} image: {p.reshape(-1, 2)[i].tolist()} "
             f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])"
         )
@@ -135,21 +135,23 @@ def _keyframes(
     target: Keyframes, steps: int, image_size: tuple[int, int], m: int, batch: int
 ) -> list[tuple[int, Tensor]]:
     if not isinstance(target, (Tensor, list, tuple)):
-        raise TypeError(f"target must be a tensor of points or a list of (time_step, points), got {describe(target)}")
+        raise InputTypeError(
+            f"target must be a tensor of points or a list of (time_step, points), got {describe(target)}"
+        )
     frames = [(steps, target)] if isinstance(target, Tensor) else list(target)
     if not frames:
-        raise ValueError("target must be a tensor of points or a non-empty list of (time_step, points)")
+        raise InputError("target must be a tensor of points or a non-empty list of (time_step, points)")
     out = []
     for item in frames:
         if not (isinstance(item, (tuple, list)) and len(item) == 2):
-            raise TypeError(f"each keyframe must be a (time_step, points) pair, got {type(item).__name__}")
+            raise InputTypeError(f"each keyframe must be a (time_step, points) pair, got {type(item).__name__}")
         t, q = item
         t = check_int("keyframe time_step", t)
         if t > steps:
-            raise ValueError(f"keyframe time_step must be in 1..{steps} (steps), got {t}")
+            raise InputError(f"keyframe time_step must be in 1..{steps} (steps), got {t}")
         q = check_points("target", q, image_size, batch)
         if q.shape[1] != m:
-            raise ValueError(f"source has {m} points but target (time step {t}) has {q.shape[1]}")
+            raise InputError(f"source has {m} points but target (time step {t}) has {q.shape[1]}")
         out.append((t, q))
     return out
 
@@ -260,7 +262,7 @@ def fit_keyframes(
     Raises:
         ValueError: mismatched point counts, points outside the image, non-finite values, no points,
             ``steps < 1``, bad keyframe times.
-        FlowBlewUp: the starting forces (``forces``, a warm start) make the flow blow up (a ``ValueError``).
+        FlowBlewUp: the starting forces (``forces``, a warm start) make the flow blow up.
             A trial step of the fit that does is a step too long: the fit steps back (see
             :func:`~torchfluidwarp.control.optim.minimize`).
 
@@ -280,7 +282,7 @@ def fit_keyframes(
     check_fraction("compressible", compressible)
     check_instance("forces", forces, nn.Module, optional=True)
     if method not in ("auto", "lbfgs"):
-        raise ValueError(f"method must be 'auto' or 'lbfgs', got {method!r}")
+        raise InputError(f"method must be 'auto' or 'lbfgs', got {method!r}")
     dtype = compute_dtype(check_float_dtype("dtype", dtype))  # half precision is fitted in float32
     src = check_points("source", source, (H, W))
     keyframes = _keyframes(target, steps, (H, W), src.shape[1], src.shape[0])
@@ -297,21 +299,21 @@ def fit_keyframes(
     )
     w = w.expand(B, M) if w.shape[-1] == M else w
     if w.shape != (B, M) or bool((w < 0).any()):
-        raise ValueError(f"weights must be non-negative with shape ({M},) or ({B}, {M}), got {tuple(w.shape)}")
+        raise InputError(f"weights must be non-negative with shape ({M},) or ({B}, {M}), got {tuple(w.shape)}")
 
     warp = FluidWarp(grid, steps, dt, viscosity, image_size=(H, W), compressible=compressible).to(device, dtype)
     module = ControlGrid(steps, control, batch=B) if forces is None else forces
     module = module.to(device, dtype)
     params = [p for p in module.parameters() if p.requires_grad]
     if not params:
-        raise ValueError("the force module has no trainable parameters")
+        raise InputError("the force module has no trainable parameters")
 
     # the stop criterion reads the points that the evaluation it judges carried
     last: dict[str, Tensor] = {}
 
     def objective() -> Tensor:
         vel = warp.rollout(module, (H, W)).velocities
-        paths = _carry(vel.expand(B, *vel.shape[1:]), src, (H, W), dt)  # (B, T + 1, M, 2) pixels
+        paths = warp.simulator.layout.trajectories(vel.expand(B, *vel.shape[1:]), src, dt, (H, W))  # (B, T+1, M, 2) px
         last["paths"] = paths.detach()
         loss = keyframe_loss(paths, keyframes, w)
         if smoothness > 0:

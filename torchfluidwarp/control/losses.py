@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive, describe
+from torchfluidwarp.errors import InputError, InputTypeError
 
 __all__ = ["LossName", "ImageLoss", "image_loss", "mse_loss", "ncc_loss", "ssim_loss"]
 
@@ -85,6 +86,8 @@ def image_loss(loss: LossName | ImageLoss) -> ImageLoss:
         return ncc_loss
     if loss == "ssim":
         return ssim_loss
-    raise ValueError(
-        f"loss must be 'mse', 'ncc', 'ssim' or a callable (warped, target) -> scalar, got {describe(loss)}"
+    kind = InputError if isinstance(loss, str) else InputTypeError
+    raise kind(
+        f"loss must be 'mse', 'ncc', 'ssim' or a callable (warped, target) -> scalar, got {describe(loss)}",
+        argument="loss",
     )

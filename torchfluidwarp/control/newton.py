@@ -37,12 +37,12 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from torchfluidwarp.core.advection import FlowBlewUp, _extend, _geo, _velocity_at
 from torchfluidwarp.core.fluid import faces_from_cells
-from torchfluidwarp.core.grid import rescale_points
-from torchfluidwarp.warp.forces import ControlGrid, _bicubic_axis
+from torchfluidwarp.core.grid import rescale_points, scale_factor
+from torchfluidwarp.core.staggered import StaggeredGrid
+from torchfluidwarp.errors import FlowBlewUp
+from torchfluidwarp.warp.forces import ControlGrid, bicubic_axis
 from torchfluidwarp.warp.layer import FluidWarp
-from torchfluidwarp.warp.maps import _carry, _cell_scale
 
 __all__ = [
     "NewtonStart",
@@ -147,7 +147,10 @@ def rest_response(
     ky, kx = control
     h, w = warp.grid.shape
     basis = torch.eye(2 * ky * kx, device=device, dtype=dtype).view(-1, 2, ky, kx)
-    ry, rx = _bicubic_axis(ky, h, basis.device, dtype), _bicubic_axis(kx, w, basis.device, dtype)
+    ry, rx = (
+        bicubic_axis(ky, h, device=basis.device, dtype=dtype),
+        bicubic_axis(kx, w, device=basis.device, dtype=dtype),
+    )
     step = warp.simulator.step
     z = step.relax(warp.dt * faces_from_cells(ry @ basis @ rx.T), viscosity)[0]
     if response_lags(warp, viscosity) == 1:
@@ -165,20 +168,14 @@ def response_lags(warp: FluidWarp, viscosity: float) -> int:
     return 1 if viscosity == 0 and warp.simulator.step.keep_divergence in (0.0, 1.0) else warp.steps
 
 
-def _sample(extended: Tensor, points: Tensor) -> Tensor:
-    """Velocities ``(N, M, 2)`` at points ``(N, M, 2)`` in cells, of staggered fields given extended for sampling
-    (:func:`~torchfluidwarp.core.advection._extend` of ``(N, 2, h + 1, w + 1)``). Unchecked: internal, on the
-    roll-outs' finite velocities and points, and on an extension made once for all steps of the start."""
-    h, w = extended.shape[-2] - 1, extended.shape[-1] - 1
-    return _velocity_at(extended, points.transpose(1, 2), _geo(h, w, extended)).transpose(1, 2)
-
-
-def _velocity_and_gradient(velocity: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+def _velocity_and_gradient(grid: StaggeredGrid, velocity: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
     """Velocity ``(N, M, 2)`` and its gradient ``(N, M, 2, 2)`` (``[..., i, j] = d v_i / d x_j``, central
-    differences over half a cell) of ``velocity`` ``(N, 2, h + 1, w + 1)`` at points ``(N, M, 2)`` in cells."""
+    differences over half a cell) of ``velocity`` ``(N, 2, h + 1, w + 1)`` at points ``(N, M, 2)`` in cells.
+    Unchecked: internal, on the roll-outs' finite velocities and points."""
     M = points.shape[1]
     e = points.new_tensor([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
-    at = _sample(_extend(velocity), (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2)).unflatten(1, (5, M))
+    at = grid.velocity_at(grid.extend(velocity), (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2))
+    at = at.unflatten(1, (5, M))
     grad = torch.stack([at[:, 1] - at[:, 2], at[:, 3] - at[:, 4]], dim=-1)  # the offsets are one cell apart
     return at[:, 0], grad
 
@@ -200,7 +197,7 @@ def model_jacobian(
         paths: the points' current paths ``(B, T + 1, M, 2)``, pixels.
         times: the keyframe steps, each in ``1..T``.
         size: ``(H, W)`` of the pixel frame. dt: the time step.
-        extended: the response prepared for sampling once (``_extend(response.flatten(0, 1))``), when the
+        extended: the response prepared for sampling once (``StaggeredGrid.extend(response.flatten(0, 1))``), when the
             same response serves many calls; made here otherwise.
 
     Returns:
@@ -210,18 +207,18 @@ def model_jacobian(
     B, T = velocities.shape[:2]
     L, P1 = response.shape[:2]
     M = paths.shape[2]
-    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
-    c = _cell_scale(size, h, w, paths).view(2)
+    grid = StaggeredGrid.of(velocities)
+    c = scale_factor(size, grid.grid.shape, device=paths.device, dtype=paths.dtype)
     p = rescale_points(paths[:, :-1].flatten(0, 1), c)  # (B T, M, 2): where each step starts, cells
     flow = velocities.flatten(0, 1)
-    vp, gp = _velocity_and_gradient(flow, p)
+    vp, gp = _velocity_and_gradient(grid, flow, p)
     mid = p + 0.5 * dt * vp
-    _, gm = _velocity_and_gradient(flow, mid)
+    _, gm = _velocity_and_gradient(grid, flow, mid)
     eye = torch.eye(2, dtype=p.dtype, device=p.device)
     deform = (eye + dt * gm @ (eye + 0.5 * dt * gp)).view(B, T, M, 2, 2)
     # the responses at the starting points and the midpoints of every step: (L P1, B T 2M, 2)
-    extended = _extend(response.flatten(0, 1)) if extended is None else extended
-    z = _sample(extended, torch.cat([p, mid], dim=1).flatten(0, 1).expand(L * P1, -1, -1))
+    extended = grid.extend(response.flatten(0, 1)) if extended is None else extended
+    z = grid.velocity_at(extended, torch.cat([p, mid], dim=1).flatten(0, 1).expand(L * P1, -1, -1))
     z = z.view(L * P1, B * T, 2, M, 2).permute(1, 2, 3, 4, 0)  # (B T, start|mid, M, 2, L P1)
     source = (dt * (z[:, 1] + 0.5 * dt * gm @ z[:, 0])).view(B, T, M, 2, L, P1)
     # forward accumulation of d p_t / d u: D_t = deform_t D_{t-1}, plus step t's sources, lag k = t - s + 1 in
@@ -297,13 +294,14 @@ def newton_start(
     sqrt_w = weights.sqrt().view(B, 1, -1, 1)
     ky, kx = module.weight.shape[-2:]
     response = rest_response(warp, (ky, kx), viscosity, device=source.device, dtype=source.dtype)
-    extended = _extend(response.flatten(0, 1))
+    layout = warp.simulator.layout
+    extended = layout.extend(response.flatten(0, 1))
     lm = torch.float64  # the small linear algebra, whatever the fit's dtype
 
     def roll() -> tuple[Tensor, Tensor]:
         with torch.no_grad():
             vel = warp.rollout(module, size).velocities
-            return vel, _carry(vel.expand(B, *vel.shape[1:]), source, size, dt)
+            return vel, layout.trajectories(vel.expand(B, *vel.shape[1:]), source, dt, size)
 
     def residual(paths: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         diff = paths[:, times] - targets  # (B, K, M, 2)

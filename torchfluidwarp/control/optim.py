@@ -23,7 +23,8 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from torchfluidwarp._checks import all_finite, check_int, check_positive, describe
+from torchfluidwarp._checks import all_finite, check_int, check_positive, check_returned_loss, describe
+from torchfluidwarp.errors import InputError, InputTypeError
 
 __all__ = ["OptimResult", "minimize", "HISTORY_SIZE", "MAX_RESTARTS"]
 
@@ -121,7 +122,7 @@ def minimize(
         tolerance_grad: L-BFGS stops when the largest gradient entry is at most this.
         tolerance_change: L-BFGS stops when a step or the loss changes by at most this.
         undefined: exception types by which ``objective`` says that it is undefined at the current values (the
-            fits pass :class:`~torchfluidwarp.core.advection.FlowBlewUp`). At a trial point, L-BFGS restarts from
+            fits pass :class:`~torchfluidwarp.errors.FlowBlewUp`). At a trial point, L-BFGS restarts from
             the best iterate (see :data:`MAX_RESTARTS`); at the starting point the exception propagates.
         stall_restarts: how many times L-BFGS starts afresh from the best iterate when it stops on its own
             criterion before ``stop`` is met and budget remains (default 0). A fresh start forgets the curvature
@@ -132,10 +133,11 @@ def minimize(
         an :class:`OptimResult`.
 
     Raises:
-        ValueError: ``params`` empty or holding a tensor that does not require grad; non-positive
-            ``max_iter``, ``history_size`` or tolerances.
+        InputError: ``params`` empty or holding a tensor that does not require grad; non-positive
+            ``max_iter``, ``history_size`` or tolerances; an ``objective`` that returns more than one number, or a
+            tensor without an autograd graph (detached, or computed under ``no_grad``).
+        InputTypeError: ``params`` holding something other than a tensor; an ``objective`` that returns no tensor.
         Exception: one of ``undefined``, raised by the objective at the starting point.
-        TypeError: ``params`` holding something other than a tensor.
 
     Example:
         >>> x = torch.zeros(2, dtype=torch.float64, requires_grad=True)
@@ -145,12 +147,14 @@ def minimize(
     """
     params = list(params)
     if not params:
-        raise ValueError("params must hold at least one tensor, got none")
+        raise InputError("params must hold at least one tensor, got none", argument="params")
     for i, p in enumerate(params):
         if not isinstance(p, Tensor):
-            raise TypeError(f"params[{i}] must be a tensor, got {describe(p)}")
+            raise InputTypeError(f"params[{i}] must be a tensor, got {describe(p)}", argument="params")
         if not p.requires_grad:
-            raise ValueError(f"params[{i}] must require grad, got {describe(p)} with requires_grad=False")
+            raise InputError(
+                f"params[{i}] must require grad, got {describe(p)} with requires_grad=False", argument="params"
+            )
     max_iter = check_int("max_iter", max_iter)
     history_size = check_int("history_size", history_size)
     stall_restarts = check_int("stall_restarts", stall_restarts, minimum=0)
@@ -176,7 +180,7 @@ def minimize(
         if not all(all_finite(p) for p in params):
             raise _Halt("the parameters became non-finite (a line-search step overflowed)")
         calls += 1
-        loss = objective()
+        loss = check_returned_loss("objective", objective())
         value = float(loss.detach())
         if not math.isfinite(value):
             raise _Halt(f"the loss became non-finite ({value})")

@@ -8,11 +8,13 @@ Nothing here knows about images, forces' parameters or fits; every layer above b
 * :mod:`~torchfluidwarp.core.spectral`: DCT/DST transforms and the exact Poisson/Helmholtz solves;
 * :mod:`~torchfluidwarp.core.linalg`: conjugate gradients and the implicit adjoint;
 * :mod:`~torchfluidwarp.core.spline`: thin-plate splines (the morph's straight paths);
-* :mod:`~torchfluidwarp.core.fluid`: the pure step functions (advect, diffuse, project);
+* :mod:`~torchfluidwarp.core.staggered`: :class:`StaggeredGrid`, the one owner of the staggered layout, its
+  constants and the unchecked point kernels (velocity at points, back-trace, carry), points ``(B, N, 2)``;
+* :mod:`~torchfluidwarp.core.advection`: the checked semi-Lagrangian functions (advect, advect_points, ...);
+* :mod:`~torchfluidwarp.core.fluid`: the pure step functions (diffuse, project, the grid operators);
 * :mod:`~torchfluidwarp.core.simulator`: the steps as ``nn.Module`` s and :class:`FluidSimulator`.
 """
 
-from torchfluidwarp.core.advection import FlowBlewUp
 from torchfluidwarp.core.grid import (
     FluidGrid,
     cell_centres,
@@ -45,6 +47,7 @@ from torchfluidwarp.core.simulator import (
     Project,
     StableFluidsStep,
 )
+from torchfluidwarp.core.staggered import StaggeredGrid
 
 __all__ = [
     "FluidGrid",
@@ -62,7 +65,6 @@ __all__ = [
     "CGConfig",
     "CGInfo",
     "ConvergenceError",
-    "FlowBlewUp",
     "ConvergenceWarning",
     "conjugate_gradient",
     "implicit_solve",
@@ -75,4 +77,5 @@ __all__ = [
     "FluidSimulator",
     "Project",
     "StableFluidsStep",
+    "StaggeredGrid",
 ]

@@ -7,12 +7,12 @@ The modules in :mod:`torchfluidwarp.core.simulator` are thin wrappers over these
 
 This module holds the grid operators (divergence, gradient, the staggered <-> cell-centred averages, the
 Laplacian and strain operators) and the two implicit solves, :func:`diffuse` and :func:`project`. The
-semi-Lagrangian steps live in :mod:`torchfluidwarp.core.advection` and are importable from here too.
+semi-Lagrangian steps live in :mod:`torchfluidwarp.core.advection`; the layout itself in
+:class:`~torchfluidwarp.core.staggered.StaggeredGrid`.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
@@ -20,89 +20,37 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import check_positive, check_tensor
-from torchfluidwarp.core.advection import (  # noqa: F401  (re-exported for callers of the old home)
-    MAX_STRAIN_PER_SUBSTEP,
-    _advect_points,
-    _advect_velocity,
-    _backtrace,
-    _extend,
-    _geo,
-    _sample,
-    advect,
-    advect_points,
-    advect_velocity,
-    check_velocity,
-    sample_velocity,
-    substeps,
-)
-from torchfluidwarp.core.grid import FluidGrid, interior_mask
 from torchfluidwarp.core.linalg import CGConfig, implicit_solve
-from torchfluidwarp.core.spectral import neumann_filter, solve_pressure_poisson, solve_velocity_helmholtz
+from torchfluidwarp.core.spectral import (
+    SpectralBases,
+    neumann_filter,
+    solve_pressure_poisson,
+    solve_velocity_helmholtz,
+)
+from torchfluidwarp.core.staggered import StaggeredGrid
+from torchfluidwarp.errors import InputError
 
 __all__ = [
     "divergence",
     "gradient",
     "faces_from_cells",
     "cells_from_faces",
-    "sample_velocity",
-    "advect",
-    "advect_velocity",
-    "advect_points",
     "vector_laplacian",
     "strain_operator",
     "diffuse",
     "project",
-    "check_velocity",
+    "check_viscosity",
 ]
 
 Viscosity = float | Tensor
 
 
-@functools.lru_cache(maxsize=32)
-def _grid_constants(h: int, w: int, device: torch.device, dtype: torch.dtype) -> dict[str, Tensor]:
-    """Memo of a pure function: the divergence stencil and the interior-face mask of an ``(h, w)`` grid."""
-    with torch.inference_mode(False), torch.no_grad():
-        return {
-            # divergence as one 2x2 convolution: cell (j, i) reads u at (j, i), (j, i + 1) and v at (j, i), (j + 1, i)
-            "div_stencil": torch.tensor(
-                [[[[-1.0, 1.0], [0.0, 0.0]], [[-1.0, 0.0], [1.0, 0.0]]]], device=device, dtype=dtype
-            ),
-            "mask": interior_mask(FluidGrid(h, w), device=device, dtype=dtype),
-        }
-
-
-def _constants(velocity: Tensor) -> dict[str, Tensor]:
-    return _grid_constants(velocity.shape[-2] - 1, velocity.shape[-1] - 1, velocity.device, velocity.dtype)
-
-
-def _split(vel: Tensor) -> tuple[Tensor, Tensor]:
-    h, w = vel.shape[-2] - 1, vel.shape[-1] - 1
-    return vel[:, 0, :h, :], vel[:, 1, :, :w]  # (B, h, w + 1), (B, h + 1, w)
-
-
-def _pack(u: Tensor, v: Tensor) -> Tensor:
-    return torch.stack([F.pad(u, (0, 0, 0, 1)), F.pad(v, (0, 1))], dim=1)
-
-
-CONV_DIVERGENCE_NODES = 96 * 96
-"""On the CPU, :func:`divergence` is one 2x2 convolution for a single velocity of at most this many nodes
-``(h + 1)(w + 1)``, and two differences otherwise. The convolution is one kernel, the fastest way for a small
-field, but beyond that (a batch, or a larger grid) torch's CPU convolution takes a slow path: with the
-differences a fluid step's forward + backward at 256^2 went from 24.8 to 18.8 ms, and at 1024^2 from 509 to
-381 ms (``benchmarks/bench_fluid.py``, AMD EPYC, one thread; ``docs/benchmarks.md``)."""
-
-
 def divergence(velocity: Tensor) -> Tensor:
     """Discrete divergence of a staggered velocity, per cell: ``(B, 1, h, w)`` in 1 / time unit.
 
-    ``u[j, i + 1] - u[j, i] + v[j + 1, i] - v[j, i]``: one 2x2 convolution (the padding row and column get zero
-    weight) on a GPU and for a single small field on the CPU, two differences otherwise
-    (:data:`CONV_DIVERGENCE_NODES`); the two agree to rounding.
+    ``u[j, i + 1] - u[j, i] + v[j + 1, i] - v[j, i]``.
     """
-    B, _, rows, cols = velocity.shape
-    if velocity.device.type != "cpu" or (B == 1 and rows * cols <= CONV_DIVERGENCE_NODES):
-        return F.conv2d(velocity, _constants(velocity)["div_stencil"])
-    u, v = _split(velocity)
+    u, v = StaggeredGrid.of(velocity).split(velocity)
     return (u.diff(dim=-1) + v.diff(dim=-2)).unsqueeze(1)
 
 
@@ -123,18 +71,18 @@ def faces_from_cells(field: Tensor) -> Tensor:
 
 def cells_from_faces(velocity: Tensor) -> Tensor:
     """Average a staggered velocity onto cell centres: ``(B, 2, h, w)``, channel 0 = x."""
-    u, v = _split(velocity)
+    u, v = StaggeredGrid.of(velocity).split(velocity)
     return torch.stack([0.5 * (u[..., 1:] + u[..., :-1]), 0.5 * (v[:, 1:] + v[:, :-1])], dim=1)
 
 
 def vector_laplacian(velocity: Tensor) -> Tensor:
     """Vector Laplacian of a staggered velocity: no flow through the walls, free slip along them."""
-    u, v = _split(velocity)
+    u, v = StaggeredGrid.of(velocity).split(velocity)
     uy = F.pad(u.unsqueeze(1), (0, 0, 1, 1), mode="replicate")[:, 0]
     lu = (u[..., 2:] - 2 * u[..., 1:-1] + u[..., :-2]) + (uy[:, 2:, 1:-1] - 2 * u[:, :, 1:-1] + uy[:, :-2, 1:-1])
     vx = F.pad(v.unsqueeze(1), (1, 1, 0, 0), mode="replicate")[:, 0]
     lv = (v[:, 2:] - 2 * v[:, 1:-1] + v[:, :-2]) + (vx[:, 1:-1, 2:] - 2 * v[:, 1:-1] + vx[:, 1:-1, :-2])
-    return _pack(F.pad(lu, (1, 1)), F.pad(lv, (0, 0, 1, 1)))
+    return StaggeredGrid.of(velocity).pack(F.pad(lu, (1, 1)), F.pad(lv, (0, 0, 1, 1)))
 
 
 def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
@@ -144,7 +92,7 @@ def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
     (shear is zero on the walls: free slip), hence symmetric positive semi-definite, and it couples ``u``
     and ``v``. The viscosity at a corner is the mean of its four cells.
     """
-    u, v = _split(velocity)
+    u, v = StaggeredGrid.of(velocity).split(velocity)
     mu = viscosity[:, 0]
     mu_n = 0.25 * (mu[:, 1:, 1:] + mu[:, :-1, 1:] + mu[:, 1:, :-1] + mu[:, :-1, :-1])  # (B, h-1, w-1)
     qx = 2 * mu * (u[..., 1:] - u[..., :-1])  # (B, h, w)
@@ -157,7 +105,7 @@ def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
     h, w = u.shape[-2], v.shape[-1]
     gu = torch.cat([gu[..., :1] * 0, gu[..., 1:w], gu[..., :1] * 0], dim=-1)
     gv = torch.cat([gv[:, :1] * 0, gv[:, 1:h], gv[:, :1] * 0], dim=1)
-    return _pack(gu, gv)
+    return StaggeredGrid.of(velocity).pack(gu, gv)
 
 
 # The diffusion operators act on the interior faces and as the identity on walls and padding, with no
@@ -179,7 +127,7 @@ def _variable_operator(dt: float, mask: Tensor):
     return op
 
 
-def _strain_preconditioner(r: Tensor, alpha: Tensor, mask: Tensor) -> Tensor:
+def _strain_preconditioner(r: Tensor, alpha: Tensor, mask: Tensor, bases: SpectralBases) -> Tensor:
     """Exact inverse of ``I + alpha K_mu`` for a constant ``mu`` (``alpha = dt * mu``, ``(B,)``).
 
     With these walls the vector Laplacian commutes with the discrete gradient and divergence, so on
@@ -188,8 +136,8 @@ def _strain_preconditioner(r: Tensor, alpha: Tensor, mask: Tensor) -> Tensor:
     ``s = a / ((1 + 2 a e)(1 + a e)) * D r``: two fast solves and no null space.
     """
     a = alpha.view(-1, 1, 1, 1)
-    s = neumann_filter(divergence(r * mask), lambda e: a / ((1 + 2 * a * e) * (1 + a * e)))
-    return solve_velocity_helmholtz(r, alpha) + gradient(s)
+    s = neumann_filter(divergence(r * mask), lambda e: a / ((1 + 2 * a * e) * (1 + a * e)), bases)
+    return solve_velocity_helmholtz(r, alpha, bases) + gradient(s)
 
 
 def diffuse(
@@ -200,6 +148,7 @@ def diffuse(
     config: CGConfig = CGConfig(),
     adjoint_config: CGConfig | None = None,
     return_iterations: bool = False,
+    grid: StaggeredGrid | None = None,
 ) -> Tensor | tuple[Tensor, int]:
     """Implicit viscous diffusion ``(I - dt L_mu) v_new = v``.
 
@@ -212,11 +161,14 @@ def diffuse(
         dt: time step (time units).
         config: CG settings of the solve; ``adjoint_config`` those of its backward solve.
         return_iterations: also return the CG iteration count.
+        grid: the velocity's :class:`~torchfluidwarp.core.staggered.StaggeredGrid`, whose spectral bases the
+            solve reuses (a simulator passes its own); built anew when ``None``.
 
     Returns:
         ``(B, 2, h + 1, w + 1)`` the diffused velocity (and the iteration count if asked).
     """
-    mask = _constants(velocity)["mask"]
+    grid = StaggeredGrid.of(velocity) if grid is None else grid
+    mask, bases = grid.mask(velocity), grid.spectral
     if isinstance(viscosity, Tensor):
         mu = viscosity
         alpha = dt * mu.detach().flatten(1).mean(1).expand(velocity.shape[0])
@@ -224,7 +176,7 @@ def diffuse(
             _variable_operator(dt, mask),
             velocity,
             (mu,),
-            precond=lambda r: _strain_preconditioner(r, alpha, mask),
+            precond=lambda r: _strain_preconditioner(r, alpha, mask, bases),
             config=config,
             adjoint_config=adjoint_config,
             name="viscosity solve",
@@ -234,7 +186,7 @@ def diffuse(
     else:
         coefficient = dt * viscosity
         if not math.isfinite(coefficient) or abs(coefficient) > torch.finfo(velocity.dtype).max:
-            raise ValueError(
+            raise InputError(
                 f"dt * viscosity = {float(coefficient):.3g} is beyond the range of {velocity.dtype} "
                 f"(dt {dt!r}, viscosity {viscosity!r}); use a smaller dt or viscosity"
             )
@@ -242,7 +194,7 @@ def diffuse(
         x, iters = implicit_solve(
             _constant_operator(dt * viscosity, mask),
             velocity,
-            precond=lambda r: solve_velocity_helmholtz(r, a),
+            precond=lambda r: solve_velocity_helmholtz(r, a, bases),
             config=config,
             adjoint_config=adjoint_config,
             name="viscosity solve",
@@ -263,6 +215,7 @@ def project(
     config: CGConfig = CGConfig(),
     adjoint_config: CGConfig | None = None,
     return_iterations: bool = False,
+    grid: StaggeredGrid | None = None,
 ) -> Tensor | tuple[Tensor, int]:
     """Pressure projection: solve ``-L p = -div v`` and return ``v - grad p``, divergence-free.
 
@@ -271,15 +224,19 @@ def project(
     first iterate is the solution and is returned unchecked (``CGConfig(verify_exact=True)`` runs CG with
     its residual checks).
 
+    ``grid`` is the velocity's :class:`~torchfluidwarp.core.staggered.StaggeredGrid`, whose spectral bases the
+    solve reuses (a simulator passes its own); built anew when ``None``.
+
     Returns:
         ``(B, 2, h + 1, w + 1)`` the projected velocity (and the iteration count if asked).
     """
+    bases = (StaggeredGrid.of(velocity) if grid is None else grid).spectral
     rhs = -divergence(velocity)
     rhs = rhs - rhs.mean(dim=(-2, -1), keepdim=True)  # the walls make it zero-mean; remove round-off
     p, iters = implicit_solve(
         _pressure_operator,
         rhs,
-        precond=solve_pressure_poisson,
+        precond=lambda r: solve_pressure_poisson(r, bases),
         config=config,
         adjoint_config=adjoint_config,
         name="pressure solve",
@@ -296,11 +253,11 @@ def check_viscosity(viscosity: object, batch: int, grid: tuple[int, int]) -> Vis
         if mu.ndim == 0:
             mu = mu.reshape(1, 1, 1, 1).expand(1, 1, *grid)
         if mu.ndim != 4 or mu.shape[1] != 1 or tuple(mu.shape[-2:]) != tuple(grid) or mu.shape[0] not in (1, batch):
-            raise ValueError(
+            raise InputError(
                 f"viscosity must be a float or a field of shape ({batch} or 1, 1, {grid[0]}, {grid[1]}), "
                 f"got {tuple(mu.shape)}"
             )
         if bool((mu < 0).any()):
-            raise ValueError(f"viscosity must be >= 0 everywhere, got a minimum of {float(mu.min()):.3g}")
+            raise InputError(f"viscosity must be >= 0 everywhere, got a minimum of {float(mu.min()):.3g}")
         return mu
     return check_positive("viscosity", viscosity, allow_zero=True)  # type: ignore[arg-type]

@@ -1,25 +1,22 @@
 """Replaying the fluid step from a CUDA graph: a roll-out on a GPU without a kernel launch per operator.
 
 On a GPU a step of a 64 x 64 fluid is some 240 small operators whose launches, not their arithmetic, set its time
-(about 1 ms a step on an H100 against 0.25 ms replayed, ``benchmarks/bench_device.py``). :func:`rollout_step`
-gives :class:`~torchfluidwarp.core.simulator.FluidSimulator` the step to call for each step of a roll-out: the
-module itself, or, where it can, one step captured in a CUDA graph and replayed.
+(about 1 ms a step on an H100 against 0.25 ms replayed, ``benchmarks/bench_device.py``). A
+:class:`~torchfluidwarp.core.simulator.FluidSimulator` built with ``cuda_graphs=True`` holds a :class:`StepGraphs`:
+its step captured once per batch shape, dtype, device and viscosity, on first use, and replayed by every later
+roll-out of that simulator. Nothing is held by the module or the process: the graphs go with the simulator (or
+with :meth:`StepGraphs.clear`).
 
 A roll-out replays its step when it runs on the current CUDA device, has at least :data:`GRAPH_MIN_STEPS` steps,
 records no gradient, has a float viscosity, and every linear solve of its step is exact (no conjugate-gradient
 loop: a viscosity field, ``CGConfig(precondition=False)`` or ``verify_exact=True`` read a residual on the host
-every iteration). Its velocities are those of the step run step by step (``tests/core/test_simulator.py``).
-
-The cost: each such roll-out captures its step once (two warm-up steps and a capture; ``torch.cuda.graph``
-synchronises the device and empties the allocator's cache first), and holds the graph's memory until it ends.
-One graphed roll-out runs at a time in a process (a lock; another thread meanwhile runs step by step), on one
-side stream per device, so that no two of the library's graphs are alive at once and none shares a stream with
-a caller's own graphs. Where capture fails, the roll-out warns and runs step by step.
+every iteration). Its velocities are those of the step run step by step (``tests/core/test_simulator.py``). One
+roll-out of a simulator replays at a time (a lock of the instance; another thread meanwhile runs step by step).
+Where capture fails, the roll-out warns and runs step by step.
 """
 
 from __future__ import annotations
 
-import functools
 import threading
 import warnings
 from collections.abc import Iterator
@@ -35,13 +32,11 @@ if TYPE_CHECKING:
     from torchfluidwarp.core.fluid import Viscosity
     from torchfluidwarp.core.simulator import StableFluidsStep
 
-__all__ = ["GRAPH_MIN_STEPS", "GraphCaptureWarning", "rollout_step"]
+__all__ = ["GRAPH_MIN_STEPS", "GraphCaptureWarning", "StepGraphs"]
 
 GRAPH_MIN_STEPS = 8
 """The fewest steps of a roll-out that replays its step from a CUDA graph: shorter ones do not repay the
 capture (two warm-up steps and the capture itself)."""
-
-_ONE_AT_A_TIME = threading.Lock()
 
 
 class GraphCaptureWarning(RuntimeWarning):
@@ -76,21 +71,16 @@ def graphable(step: StableFluidsStep, forces: Tensor, velocity: Tensor, viscosit
     return velocity.device.index == torch.cuda.current_device() and not torch.cuda.is_current_stream_capturing()
 
 
-@functools.cache
-def _side_stream(device: torch.device) -> torch.cuda.Stream:
-    """Memo: the one stream per device that the library's captures run on."""
-    return torch.cuda.Stream(device=device)
-
-
 class _GraphedStep:
     """A no-grad step captured in a CUDA graph: each call copies the velocity and force into the graph's input
     buffers, replays it and returns a copy of its output. Captured after two warm-up steps on the side stream (as
     ``torch.cuda.graphs`` asks), which also fill the library's caches of grid constants outside the capture."""
 
-    def __init__(self, step: Step, velocity: Tensor, force: Tensor, viscosity: Viscosity) -> None:
+    def __init__(
+        self, step: Step, velocity: Tensor, force: Tensor, viscosity: Viscosity, side: torch.cuda.Stream
+    ) -> None:
         self.viscosity = viscosity
         self.velocity, self.force = velocity.clone(), force.clone()
-        side = _side_stream(velocity.device)
         side.wait_stream(torch.cuda.current_stream(velocity.device))
         with torch.no_grad(), torch.cuda.stream(side):
             for _ in range(2):
@@ -105,7 +95,7 @@ class _GraphedStep:
         self, velocity: Tensor, force: Tensor, viscosity: Viscosity, staggered: bool = True
     ) -> tuple[Tensor, tuple[int, int]]:
         if viscosity is not self.viscosity or not staggered:
-            raise ValueError("a captured step replays the viscosity it was captured with, on staggered forces")
+            raise RuntimeError("a captured step replays the viscosity it was captured with, on staggered forces")
         self.velocity.copy_(velocity)
         self.force.copy_(force)
         self.graph.replay()
@@ -115,35 +105,59 @@ class _GraphedStep:
         self.graph.reset()
 
 
-@contextmanager
-def rollout_step(
-    step: StableFluidsStep, forces: Tensor, velocity: Tensor, viscosity: Viscosity, steps: int
-) -> Iterator[Step]:
-    """The step for each step of a roll-out: ``step`` itself, or its capture where :func:`graphable` allows and no
-    other graphed roll-out is running. ``forces`` are the roll-out's staggered forces ``(B, T, 2, h + 1, w + 1)``
-    and ``velocity`` its initial velocity; the graph is freed on leaving the block."""
-    if not graphable(step, forces, velocity, viscosity, steps) or not _ONE_AT_A_TIME.acquire(blocking=False):
-        yield step
-        return
-    try:
-        stream = torch.cuda.current_stream(velocity.device)
-        graphed: _GraphedStep | None = None
+class StepGraphs:
+    """The CUDA graphs of one simulator's step, captured on first use per batch shape, dtype, device and viscosity,
+    and replayed by every later roll-out; owned by the simulator.
+
+    Attributes:
+        captures: how many captures this instance has made (a roll-out that replays makes none).
+    """
+
+    def __init__(self, step: StableFluidsStep) -> None:
+        self.step = step
+        self.captures = 0
+        self._graphs: dict[tuple, _GraphedStep] = {}
+        self._streams: dict[torch.device, torch.cuda.Stream] = {}
+        self._lock = threading.Lock()
+
+    def clear(self) -> None:
+        """Free the graphs and their memory."""
+        with self._lock:
+            for graphed in self._graphs.values():
+                graphed.close()
+            self._graphs.clear()
+
+    @contextmanager
+    def rollout_step(self, forces: Tensor, velocity: Tensor, viscosity: Viscosity, steps: int) -> Iterator[Step]:
+        """The step for each step of a roll-out: the step module itself, or its replayed capture where
+        :func:`graphable` allows and no other roll-out of this simulator is replaying. ``forces`` are the
+        roll-out's staggered forces ``(B, T, 2, h + 1, w + 1)`` and ``velocity`` its initial velocity."""
+        if not graphable(self.step, forces, velocity, viscosity, steps) or not self._lock.acquire(blocking=False):
+            yield self.step
+            return
         try:
-            graphed = _GraphedStep(step, velocity, forces[:, 0], viscosity)
+            key = (tuple(velocity.shape), velocity.dtype, velocity.device, float(viscosity))
+            graphed = self._graphs.get(key)
+            if graphed is None:
+                graphed = self._capture(key, forces[:, 0], velocity, viscosity)
+            yield self.step if graphed is None else graphed
+        finally:
+            self._lock.release()
+
+    def _capture(self, key: tuple, force: Tensor, velocity: Tensor, viscosity: Viscosity) -> _GraphedStep | None:
+        stream = torch.cuda.current_stream(velocity.device)
+        side = self._streams.setdefault(velocity.device, torch.cuda.Stream(device=velocity.device))
+        try:
+            graphed = _GraphedStep(self.step, velocity, force, viscosity, side)
         except Exception as e:  # noqa: BLE001  (any failure to capture leaves the same roll-out, step by step)
             torch.cuda.set_stream(stream)  # a capture that fails while ending may leave its stream current
             warnings.warn(
                 f"the fluid step could not be captured in a CUDA graph ({type(e).__name__}: {e}); the roll-out runs "
                 "step by step",
                 GraphCaptureWarning,
-                stacklevel=4,
+                stacklevel=5,
             )
-        if graphed is None:
-            yield step
-            return
-        try:
-            yield graphed
-        finally:
-            graphed.close()
-    finally:
-        _ONE_AT_A_TIME.release()
+            return None
+        self.captures += 1
+        self._graphs[key] = graphed
+        return graphed

@@ -19,6 +19,8 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
+from torchfluidwarp.errors import InputError
+
 __all__ = ["CGConfig", "CGInfo", "ConvergenceWarning", "ConvergenceError", "conjugate_gradient", "implicit_solve"]
 
 Operator = Callable[..., Tensor]
@@ -67,15 +69,15 @@ class CGConfig:
 
     def __post_init__(self) -> None:
         if self.rtol is not None and not (self.rtol >= 0):
-            raise ValueError(f"rtol must be >= 0, got {self.rtol!r}")
+            raise InputError(f"rtol must be >= 0, got {self.rtol!r}")
         if not (self.atol >= 0):
-            raise ValueError(f"atol must be >= 0, got {self.atol!r}")
+            raise InputError(f"atol must be >= 0, got {self.atol!r}")
         if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, int) or self.max_iter < 1:
-            raise ValueError(f"max_iter must be an int >= 1, got {self.max_iter!r}")
+            raise InputError(f"max_iter must be an int >= 1, got {self.max_iter!r}")
         if self.on_failure not in ("warn", "raise", "ignore"):
-            raise ValueError(f"on_failure must be 'warn', 'raise' or 'ignore', got {self.on_failure!r}")
+            raise InputError(f"on_failure must be 'warn', 'raise' or 'ignore', got {self.on_failure!r}")
         if self.backward not in ("implicit", "unrolled"):
-            raise ValueError(f"backward must be 'implicit' or 'unrolled', got {self.backward!r}")
+            raise InputError(f"backward must be 'implicit' or 'unrolled', got {self.backward!r}")
 
     def tolerance(self, dtype: torch.dtype) -> float:
         """The relative tolerance in force for ``dtype``."""

@@ -6,7 +6,7 @@ says, at each call site, whether that grid is guarded here or is finite by const
 
 The policy (see ``docs/design.rst``, "Sampling"):
 
-* **Once per frame** (an image read through a map: :func:`~torchfluidwarp.warp.maps.warp_image`, the frames of
+* **Once per frame** (an image read through a map: :func:`~torchfluidwarp.warp.frames.warp_image`, the frames of
   :class:`~torchfluidwarp.warp.layer.FluidWarp`, the morph): the grid is checked here, one reduction per call.
 * **Per sub-step** (velocity sampling in advection, carrying points, composing maps): unchecked. These run
   dozens of times per fluid step; their inputs are validated once at the public boundary (forces, velocities,
@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import all_finite
+from torchfluidwarp.errors import InputError
 
 __all__ = ["sample", "SampleMode"]
 
@@ -48,20 +49,20 @@ def sample(
         ``(N, C, H_out, W_out)``.
 
     Raises:
-        ValueError: ``check`` is given and the grid holds NaN or inf.
+        InputError: ``check`` is given and the grid holds NaN or inf.
 
     Example:
         >>> import torch
         >>> grid = torch.zeros(1, 1, 1, 2)  # the centre of the image
         >>> sample(torch.arange(4.0).view(1, 1, 2, 2), grid, align_corners=False, check="grid").item()
         1.5
-        >>> sample(torch.zeros(1, 1, 2, 2), grid * float("nan"), align_corners=False, check="coords")
+        >>> sample(torch.zeros(1, 1, 2, 2), grid * float("nan"), align_corners=False, check="xy")
         Traceback (most recent call last):
         ...
-        ValueError: non-finite sampling positions (NaN or inf) from coords; grid of shape (1, 1, 1, 2)
+        torchfluidwarp.errors.InputError: non-finite sampling positions (NaN or inf) from xy; grid of shape (1, 1, 1, 2)
     """
     # one sum in the grid's own dtype (a NaN or inf makes it non-finite); only then the exact test, which also
     # clears a sum that merely overflowed
     if check is not None and grid.numel() and not (math.isfinite(float(grid.detach().sum())) or all_finite(grid)):
-        raise ValueError(f"non-finite sampling positions (NaN or inf) from {check}; grid of shape {tuple(grid.shape)}")
+        raise InputError(f"non-finite sampling positions (NaN or inf) from {check}; grid of shape {tuple(grid.shape)}")
     return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)

@@ -7,6 +7,7 @@ and carries passive points along.
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypedDict, cast
 
@@ -14,7 +15,6 @@ import torch
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import all_finite, check_fraction, check_positive, check_tensor, compute_dtype
-from torchfluidwarp.core.advection import FlowBlewUp, _advect_points, _advect_velocity
 from torchfluidwarp.core.fluid import (
     Viscosity,
     check_viscosity,
@@ -22,9 +22,11 @@ from torchfluidwarp.core.fluid import (
     faces_from_cells,
     project,
 )
-from torchfluidwarp.core.graphs import rollout_step
+from torchfluidwarp.core.graphs import StepGraphs
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.core.linalg import CGConfig
+from torchfluidwarp.core.staggered import StaggeredGrid
+from torchfluidwarp.errors import FlowBlewUp, InputError
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack from Python 3.11
@@ -45,18 +47,31 @@ class AddForce(nn.Module):
         return velocity + self.dt * (force if staggered else faces_from_cells(force))
 
 
-class Advect(nn.Module):
-    """Semi-Lagrangian self-advection of the velocity (:func:`~torchfluidwarp.core.fluid.advect_velocity`)."""
+class _HoldsLayout(nn.Module):
+    """A step module that holds the :class:`~torchfluidwarp.core.staggered.StaggeredGrid` of the velocities it
+    is called on (their constants and spectral bases), made anew only when the grid changes."""
+
+    _layout: StaggeredGrid | None = None
+
+    def layout(self, velocity: Tensor) -> StaggeredGrid:
+        held = self._layout
+        if held is None or held.shape != tuple(velocity.shape[-2:]):
+            held = self._layout = StaggeredGrid.of(velocity)
+        return held
+
+
+class Advect(_HoldsLayout):
+    """Semi-Lagrangian self-advection of the velocity (:func:`~torchfluidwarp.core.advection.advect_velocity`)."""
 
     def __init__(self, dt: float = 1.0) -> None:
         super().__init__()
         self.dt = check_positive("dt", dt)
 
     def forward(self, velocity: Tensor) -> Tensor:
-        return _advect_velocity(velocity, self.dt)
+        return self.layout(velocity).advect_velocity(velocity, self.dt)
 
 
-class Diffuse(nn.Module):
+class Diffuse(_HoldsLayout):
     """Implicit diffusion (:func:`~torchfluidwarp.core.fluid.diffuse`); the viscosity is passed per call."""
 
     def __init__(self, dt: float = 1.0, config: CGConfig = CGConfig(), adjoint_config: CGConfig | None = None):
@@ -65,12 +80,18 @@ class Diffuse(nn.Module):
         self.config, self.adjoint_config = config, adjoint_config
 
     def forward(self, velocity: Tensor, viscosity: Viscosity) -> tuple[Tensor, int]:
-        return diffuse(
-            velocity, viscosity, self.dt, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True
-        )  # type: ignore[return-value]
+        return diffuse(  # type: ignore[return-value]
+            velocity,
+            viscosity,
+            self.dt,
+            config=self.config,
+            adjoint_config=self.adjoint_config,
+            return_iterations=True,
+            grid=self.layout(velocity),
+        )
 
 
-class Project(nn.Module):
+class Project(_HoldsLayout):
     """Pressure projection (:func:`~torchfluidwarp.core.fluid.project`)."""
 
     def __init__(self, config: CGConfig = CGConfig(), adjoint_config: CGConfig | None = None) -> None:
@@ -78,7 +99,13 @@ class Project(nn.Module):
         self.config, self.adjoint_config = config, adjoint_config
 
     def forward(self, velocity: Tensor) -> tuple[Tensor, int]:
-        return project(velocity, config=self.config, adjoint_config=self.adjoint_config, return_iterations=True)  # type: ignore[return-value]
+        return project(  # type: ignore[return-value]
+            velocity,
+            config=self.config,
+            adjoint_config=self.adjoint_config,
+            return_iterations=True,
+            grid=self.layout(velocity),
+        )
 
 
 class StepSettings(TypedDict, total=False):
@@ -177,6 +204,10 @@ class FluidSimulator(nn.Module):
         viscosity: float ``>= 0``, a field ``(B|1, 1, h, w)`` (stored as a buffer, or a parameter if it is one),
             or a module called as ``viscosity(grid, image_size)`` that returns such a field (see
             :mod:`torchfluidwarp.warp.forces`; ``image_size`` is the grid's own size unless a warp passes the image's).
+        cuda_graphs: on a GPU, capture the step in a CUDA graph on the first no-grad roll-out of at least
+            :data:`~torchfluidwarp.core.graphs.GRAPH_MIN_STEPS` steps and replay it in every later one of the same
+            batch shape, dtype and viscosity (:class:`~torchfluidwarp.core.graphs.StepGraphs`, held by this
+            simulator as ``graphs``). Off by default: a capture synchronises the device and holds memory.
         **step: the keyword settings of :class:`StableFluidsStep` (:class:`StepSettings`): ``pressure``,
             ``diffusion`` and ``adjoint`` CG settings, and ``compressible``; its defaults otherwise.
 
@@ -193,12 +224,16 @@ class FluidSimulator(nn.Module):
         grid: FluidGrid | int | tuple[int, int],
         dt: float = 1.0,
         viscosity: Viscosity | nn.Module = 0.0,
+        *,
+        cuda_graphs: bool = False,
         **step: Unpack[StepSettings],
     ) -> None:
         super().__init__()
         self.grid = FluidGrid.of(grid)
+        self.layout = StaggeredGrid(self.grid)  # the staggered layout and its constants, held with the simulator
         self.dt = check_positive("dt", dt)
         self.step = StableFluidsStep(dt, **step)
+        self.graphs = StepGraphs(self.step) if cuda_graphs else None
         self.viscosity: Viscosity | nn.Module
         if isinstance(viscosity, (nn.Module, nn.Parameter)):
             self.viscosity = viscosity
@@ -220,7 +255,7 @@ class FluidSimulator(nn.Module):
         h, w = self.grid.shape
         check_tensor("forces", forces, finite=False)
         if forces.ndim != 5 or forces.shape[0] < 1 or forces.shape[1] < 1 or tuple(forces.shape[2:]) != (2, h, w):
-            raise ValueError(
+            raise InputError(
                 f"forces must have shape (*, *, 2, {h}, {w}) on the grid of {h} x {w} cells, with a batch B >= 1 "
                 f"and at least one step T >= 1, "
                 f"got {tuple(forces.shape)}"
@@ -267,28 +302,32 @@ class FluidSimulator(nn.Module):
         if isinstance(mu, Tensor):
             mu = mu.to(dtype)
         vels, iters = [], []
-        traj = [points.transpose(1, 2)] if points is not None else []  # channel-first (B, 2, M)
+        traj = [points] if points is not None else []  # (B, M, 2) cells
         # all steps' forces onto the faces at once, then unbind: one backward node each for the whole schedule
         # (per-step selects would each scatter their gradient into a full-size zero tensor)
         on_faces = faces_from_cells(forces.flatten(0, 1)).view(B, T, 2, h + 1, w + 1)
-        # on a GPU, where it can, each step is one replay of a captured step (core.graphs)
-        with rollout_step(self.step, on_faces, velocity, mu, T) as step:
+        # with cuda_graphs, on a GPU where it can, each step is one replay of a captured step (core.graphs)
+        with (
+            nullcontext(self.step)
+            if self.graphs is None
+            else self.graphs.rollout_step(on_faces, velocity, mu, T) as step
+        ):
             for t, force in enumerate(on_faces.unbind(1)):
                 velocity, it = step(velocity, force, mu, staggered=True)
                 vels.append(velocity)
                 iters.append(it)
                 if points is not None:
-                    traj.append(_advect_points(traj[-1], velocity, self.dt))
+                    traj.append(self.layout.carry(velocity, traj[-1], self.dt))
                 if not all_finite(velocity):
                     raise FlowBlewUp(
                         f"the flow blew up at step {t}: non-finite velocity (forces, velocity or dt too large)"
                     )
-        pts = torch.stack(traj, 1).transpose(2, 3).to(out_dtype) if points is not None else None
+        pts = torch.stack(traj, 1).to(out_dtype) if points is not None else None
         return FluidRollout(torch.stack(vels, 1).to(out_dtype), pts, iters)
 
 
 def _same_batch(name: str, x: object, batch: int) -> int:
     """``batch``, after refusing a tensor ``x`` whose batch differs from the forces' (naming both)."""
     if isinstance(x, Tensor) and x.ndim and x.shape[0] != batch:
-        raise ValueError(f"{name} has batch {x.shape[0]} but forces have batch {batch}; got shape {tuple(x.shape)}")
+        raise InputError(f"{name} has batch {x.shape[0]} but forces have batch {batch}; got shape {tuple(x.shape)}")
     return batch

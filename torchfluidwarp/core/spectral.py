@@ -14,14 +14,13 @@ DST along its own axis times DCT along the other, so :func:`solve_pressure_poiss
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
-__all__ = ["dct", "idct", "dst1", "idst1", "solve_pressure_poisson", "solve_velocity_helmholtz"]
+__all__ = ["dct", "idct", "dst1", "idst1", "SpectralBases", "solve_pressure_poisson", "solve_velocity_helmholtz"]
 
 
 def _along(fn, x: Tensor, dim: int) -> Tensor:
@@ -92,24 +91,56 @@ DENSE_MAX = 256
 these sizes on CPUs); longer axes use the ``O(n log n)`` FFT transforms above."""
 
 
-@functools.lru_cache(maxsize=64)
+class SpectralBases:
+    """The transform matrices and eigenvalues of the solves below, built on first use per size, device and dtype
+    and held by this instance (a :class:`~torchfluidwarp.core.staggered.StaggeredGrid` holds one, so a simulator
+    holds its own). A solve given none builds what it needs anew."""
+
+    def __init__(self) -> None:
+        self._memo: dict[tuple, object] = {}
+
+    def _get(self, key: tuple, build: Callable[[], object]) -> object:
+        found = self._memo.get(key)
+        if found is None:
+            with torch.inference_mode(False), torch.no_grad():
+                found = self._memo[key] = build()
+        return found
+
+    def axis(self, n: int, kind: str, like: Tensor) -> tuple[Tensor | None, Tensor]:
+        """``(orthonormal transform matrix or None, eigenvalues)`` for one axis of ``n`` samples."""
+        return self._get(("axis", n, kind, like.device, like.dtype), lambda: _axis(n, kind, like.device, like.dtype))  # type: ignore[return-value]
+
+    def eigenvalues(self, ny: int, nx: int, kind_y: str, kind_x: str, like: Tensor) -> Tensor:
+        """The ``(ny, nx)`` eigenvalues of ``-L`` for the given axis kinds."""
+        key = ("eig", ny, nx, kind_y, kind_x, like.device, like.dtype)
+        return self._get(key, lambda: self.axis(ny, kind_y, like)[1][:, None] + self.axis(nx, kind_x, like)[1][None, :])  # type: ignore[return-value]
+
+    def pressure_gain(self, h: int, w: int, like: Tensor) -> Tensor:
+        """``1 / e`` per cosine mode of the ``(h, w)`` Neumann Laplacian (1 for ``e = 0``)."""
+
+        def build() -> Tensor:
+            eig = self.eigenvalues(h, w, "neumann", "neumann", like)
+            return 1.0 / torch.where(eig > 0, eig, 1.0)
+
+        return self._get(("gain", h, w, like.device, like.dtype), build)  # type: ignore[return-value]
+
+
 def _axis(n: int, kind: str, device: torch.device, dtype: torch.dtype) -> tuple[Tensor | None, Tensor]:
-    """Memo of a pure function: ``(orthonormal transform matrix or None, eigenvalues)`` for one axis."""
-    with torch.inference_mode(False), torch.no_grad():
-        k = torch.arange(n, device=device, dtype=torch.float64)
-        if kind == "neumann":
-            eig = 4 * torch.sin(math.pi * k / (2 * n)) ** 2
-            mat = torch.cos(math.pi * (2 * k[None, :] + 1) * k[:, None] / (2 * n)) * math.sqrt(2.0 / n)
-            mat[0] /= math.sqrt(2.0)
-        else:
-            eig = 4 * torch.sin(math.pi * (k + 1) / (2 * (n + 1))) ** 2
-            mat = torch.sin(math.pi * (k[None, :] + 1) * (k[:, None] + 1) / (n + 1)) * math.sqrt(2.0 / (n + 1))
-        return (mat.to(dtype) if n <= DENSE_MAX else None), eig.to(dtype)
+    """``(orthonormal transform matrix or None, eigenvalues)`` for one axis."""
+    k = torch.arange(n, device=device, dtype=torch.float64)
+    if kind == "neumann":
+        eig = 4 * torch.sin(math.pi * k / (2 * n)) ** 2
+        mat = torch.cos(math.pi * (2 * k[None, :] + 1) * k[:, None] / (2 * n)) * math.sqrt(2.0 / n)
+        mat[0] /= math.sqrt(2.0)
+    else:
+        eig = 4 * torch.sin(math.pi * (k + 1) / (2 * (n + 1))) ** 2
+        mat = torch.sin(math.pi * (k[None, :] + 1) * (k[:, None] + 1) / (n + 1)) * math.sqrt(2.0 / (n + 1))
+    return (mat.to(dtype) if n <= DENSE_MAX else None), eig.to(dtype)
 
 
-def _forward(x: Tensor, kind: str, dim: int) -> Tensor:
+def _forward(x: Tensor, kind: str, dim: int, bases: SpectralBases) -> Tensor:
     n = x.shape[dim]
-    mat = _axis(n, kind, x.device, x.dtype)[0]
+    mat = bases.axis(n, kind, x)[0]
     if mat is not None:
         return x @ mat.T if dim == -1 else mat @ x
     if kind == "neumann":
@@ -117,9 +148,9 @@ def _forward(x: Tensor, kind: str, dim: int) -> Tensor:
     return dst1(x, dim) * math.sqrt(2.0 / (n + 1))
 
 
-def _inverse(x: Tensor, kind: str, dim: int) -> Tensor:
+def _inverse(x: Tensor, kind: str, dim: int, bases: SpectralBases) -> Tensor:
     n = x.shape[dim]
-    mat = _axis(n, kind, x.device, x.dtype)[0]
+    mat = bases.axis(n, kind, x)[0]
     if mat is not None:
         return x @ mat if dim == -1 else mat.T @ x
     if kind == "neumann":
@@ -134,7 +165,7 @@ def _dct_scale(n: int, like: Tensor, dim: int) -> Tensor:
     return s if dim == -1 else s[:, None]
 
 
-def solve_pressure_poisson(b: Tensor) -> Tensor:
+def solve_pressure_poisson(b: Tensor, bases: SpectralBases | None = None) -> Tensor:
     """Solve ``-L p = b`` for the 5-point Laplacian with zero-flux walls, exactly.
 
     Args:
@@ -145,33 +176,19 @@ def solve_pressure_poisson(b: Tensor) -> Tensor:
         eigenvalue 1, i.e. this inverts ``-L p + mean(p)``: a zero-mean ``b`` gets the zero-mean solution.
     """
     h, w = b.shape[-2:]
-    coef = _forward(_forward(b, "neumann", -1), "neumann", -2) * _pressure_gain(h, w, b.device, b.dtype)
-    return _inverse(_inverse(coef, "neumann", -2), "neumann", -1)
+    bases = SpectralBases() if bases is None else bases
+    coef = _forward(_forward(b, "neumann", -1, bases), "neumann", -2, bases) * bases.pressure_gain(h, w, b)
+    return _inverse(_inverse(coef, "neumann", -2, bases), "neumann", -1, bases)
 
 
-@functools.lru_cache(maxsize=64)
-def _eigenvalues_2d(ny: int, nx: int, kind_y: str, kind_x: str, device: torch.device, dtype: torch.dtype) -> Tensor:
-    """Memo of a pure function: the ``(ny, nx)`` eigenvalues of ``-L`` for the given axis kinds."""
-    with torch.inference_mode(False), torch.no_grad():
-        return _axis(ny, kind_y, device, dtype)[1][:, None] + _axis(nx, kind_x, device, dtype)[1][None, :]
-
-
-@functools.lru_cache(maxsize=32)
-def _pressure_gain(h: int, w: int, device: torch.device, dtype: torch.dtype) -> Tensor:
-    """Memo of a pure function: ``1 / e`` per cosine mode of the ``(h, w)`` Neumann Laplacian (1 for ``e = 0``)."""
-    with torch.inference_mode(False), torch.no_grad():
-        eig = _eigenvalues_2d(h, w, "neumann", "neumann", device, dtype)
-        return 1.0 / torch.where(eig > 0, eig, 1.0)
-
-
-def _solve_component(b: Tensor, alpha: Tensor, kind_y: str, kind_x: str) -> Tensor:
+def _solve_component(b: Tensor, alpha: Tensor, kind_y: str, kind_x: str, bases: SpectralBases) -> Tensor:
     ny, nx = b.shape[-2:]
-    eig = _eigenvalues_2d(ny, nx, kind_y, kind_x, b.device, b.dtype)
-    coef = _forward(_forward(b, kind_x, -1), kind_y, -2) / (1 + alpha.reshape(-1, 1, 1) * eig)
-    return _inverse(_inverse(coef, kind_y, -2), kind_x, -1)
+    eig = bases.eigenvalues(ny, nx, kind_y, kind_x, b)
+    coef = _forward(_forward(b, kind_x, -1, bases), kind_y, -2, bases) / (1 + alpha.reshape(-1, 1, 1) * eig)
+    return _inverse(_inverse(coef, kind_y, -2, bases), kind_x, -1, bases)
 
 
-def solve_velocity_helmholtz(b: Tensor, alpha: Tensor) -> Tensor:
+def solve_velocity_helmholtz(b: Tensor, alpha: Tensor, bases: SpectralBases | None = None) -> Tensor:
     """Solve ``(I - alpha L) v = b`` for a staggered velocity, exactly, component by component.
 
     ``L`` is the vector Laplacian with no flow through the walls (Dirichlet for the normal component) and
@@ -186,13 +203,14 @@ def solve_velocity_helmholtz(b: Tensor, alpha: Tensor) -> Tensor:
         operator is the identity there), so that adjoint right-hand sides with wall entries stay consistent.
     """
     h, w = b.shape[-2] - 1, b.shape[-1] - 1
+    bases = SpectralBases() if bases is None else bases
     out = b.clone()
-    out[:, 0, :h, 1:w] = _solve_component(b[:, 0, :h, 1:w], alpha, "neumann", "dirichlet")
-    out[:, 1, 1:h, :w] = _solve_component(b[:, 1, 1:h, :w], alpha, "dirichlet", "neumann")
+    out[:, 0, :h, 1:w] = _solve_component(b[:, 0, :h, 1:w], alpha, "neumann", "dirichlet", bases)
+    out[:, 1, 1:h, :w] = _solve_component(b[:, 1, 1:h, :w], alpha, "dirichlet", "neumann", bases)
     return out
 
 
-def neumann_filter(b: Tensor, gain: Callable[[Tensor], Tensor]) -> Tensor:
+def neumann_filter(b: Tensor, gain: Callable[[Tensor], Tensor], bases: SpectralBases | None = None) -> Tensor:
     """Apply a function of the Neumann Laplacian to a cell-centred field: ``IDCT(gain(e) * DCT(b))``.
 
     Args:
@@ -201,6 +219,7 @@ def neumann_filter(b: Tensor, gain: Callable[[Tensor], Tensor]) -> Tensor:
             against ``(B, 1, h, w)``.
     """
     h, w = b.shape[-2:]
-    eig = _eigenvalues_2d(h, w, "neumann", "neumann", b.device, b.dtype)
-    coef = _forward(_forward(b, "neumann", -1), "neumann", -2) * gain(eig)
-    return _inverse(_inverse(coef, "neumann", -2), "neumann", -1)
+    bases = SpectralBases() if bases is None else bases
+    eig = bases.eigenvalues(h, w, "neumann", "neumann", b)
+    coef = _forward(_forward(b, "neumann", -1, bases), "neumann", -2, bases) * gain(eig)
+    return _inverse(_inverse(coef, "neumann", -2, bases), "neumann", -1, bases)

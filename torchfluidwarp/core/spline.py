@@ -4,7 +4,7 @@
 given values at the centres ``c_i`` that minimises the bending energy ``int f_xx^2 + 2 f_xy^2 + f_yy^2``.
 :func:`tps_fit` solves the system once and returns the spline as a function; for fixed centres the spline is
 linear in the values, so :func:`tps_cardinal` returns the matrix that takes values at the centres to the
-spline at any points (:class:`~torchfluidwarp.warp.forces.LandmarkForces` caches it).
+spline at any points (:class:`~torchfluidwarp.warp.landmarks.LandmarkForces` caches it).
 
 kornia's ``get_tps_transform`` solves a different system (kernels centred on the destination points, evaluated
 at the source points), which cannot prescribe values at fixed centres; hence this small module.
@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_tensor
+from torchfluidwarp.errors import InputError
 
 __all__ = ["tps_kernel", "tps_fit", "tps_cardinal", "tps_interpolate"]
 
@@ -54,9 +55,9 @@ def tps_fit(centers: Tensor, values: Tensor, smoothing: float = 0.0) -> Callable
     v = check_tensor("values", values, ndim=2)
     m = c.shape[0]
     if m < 3:
-        raise ValueError(f"a thin-plate spline needs at least 3 centres, got {m}")
+        raise InputError(f"a thin-plate spline needs at least 3 centres, got {m}")
     if v.shape[0] != m:
-        raise ValueError(f"values must have one row per centre ({m}), got shape {tuple(v.shape)}")
+        raise InputError(f"values must have one row per centre ({m}), got shape {tuple(v.shape)}")
     # shift and scale to a unit box: the same spline, a better-conditioned system
     origin, scale = c.mean(0), float((c - c.mean(0)).abs().max()) or 1.0
     c = (c - origin) / scale
@@ -70,7 +71,7 @@ def tps_fit(centers: Tensor, values: Tensor, smoothing: float = 0.0) -> Callable
     rhs[:m] = v.double()
     coef = torch.linalg.solve_ex(system, rhs)[0]  # (M + 3, D): kernel weights, then a_0, a_1, a_2
     if not bool(torch.isfinite(coef).all()) or float(coef.abs().max()) > 1e12 * (1 + float(v.abs().max())):
-        raise ValueError(
+        raise InputError(
             f"centers must be at least 3 distinct points, not all on one line: the spline's system is singular "
             f"for the {m} centres given"
         )

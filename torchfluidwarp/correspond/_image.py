@@ -6,7 +6,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_tensor
+from torchfluidwarp._checks import argument_of, check_tensor
+from torchfluidwarp.errors import InputError
 
 
 def single_image(name: str, image: object) -> Tensor:
@@ -21,7 +22,10 @@ def single_image(name: str, image: object) -> Tensor:
     if x.ndim == 3:
         x = x.unsqueeze(0)
     if x.shape[0] != 1 or x.shape[1] not in (1, 3, 4):
-        raise ValueError(f"{name} must be one image (C, H, W) or (1, C, H, W) with 1, 3 or 4 channels, got {shape}")
+        raise InputError(
+            f"{name} must be one image (C, H, W) or (1, C, H, W) with 1, 3 or 4 channels, got {shape}",
+            argument=argument_of(name),
+        )
     return x
 
 

@@ -9,9 +9,10 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_size
 from torchfluidwarp.correspond._image import single_image
-from torchfluidwarp.correspond.faces import detect_face_points, load_mediapipe
+from torchfluidwarp.correspond.faces import NoFaceFound, detect_face_points, load_mediapipe
 from torchfluidwarp.correspond.features import match_features
 from torchfluidwarp.correspond.refine import refine_points
+from torchfluidwarp.errors import InputError
 
 __all__ = ["MatchMode", "auto_points", "border_points", "usable_pairs"]
 
@@ -76,11 +77,7 @@ def _faces_or_none(a: Tensor, b: Tensor, face_index: tuple[int | None, int | Non
             detect_face_points(a, face_index=face_index[0], name=names[0]),
             detect_face_points(b, face_index=face_index[1], name=names[1]),
         )
-    except ImportError:
-        return None
-    except ValueError as exc:
-        if not str(exc).startswith("no face found"):
-            raise
+    except (ImportError, NoFaceFound):
         return None
 
 
@@ -135,7 +132,7 @@ def auto_points(
     """
     a, b = single_image("image_a", image_a), single_image("image_b", image_b)
     if match not in ("auto", "faces", "features", "pixels"):
-        raise ValueError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}")
+        raise InputError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}", argument="match")
     found = None
     if match == "faces":
         found = (
@@ -150,9 +147,10 @@ def auto_points(
     if found is None:
         found = match_features(a, b, max_points=max_points)
         if len(found[0]) < 3:
-            raise ValueError(
+            raise InputError(
                 f"found {len(found[0])} matching features between {names[0]} and {names[1]} (need 3 or more); "
-                "give the points by hand, or let the pixels place them (match='pixels')"
+                "give the points by hand, or let the pixels place them (match='pixels')",
+                argument="match",
             )
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])

@@ -22,8 +22,9 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int
 from torchfluidwarp.correspond._image import rgb_uint8, single_image
+from torchfluidwarp.errors import InputError
 
-__all__ = ["FACE_LANDMARKS", "FACE_MESH_INDICES", "MAX_FACES", "detect_face_points", "load_mediapipe"]
+__all__ = ["FACE_LANDMARKS", "FACE_MESH_INDICES", "MAX_FACES", "NoFaceFound", "detect_face_points", "load_mediapipe"]
 
 # mediapipe face-mesh indices, by group; "left"/"right" as seen in the image
 FACE_LANDMARKS: dict[str, tuple[int, ...]] = {
@@ -37,6 +38,12 @@ FACE_LANDMARKS: dict[str, tuple[int, ...]] = {
 }
 FACE_MESH_INDICES: tuple[int, ...] = tuple(i for group in FACE_LANDMARKS.values() for i in group)
 MAX_FACES = 8  # faces looked for in one image
+
+
+class NoFaceFound(InputError):
+    """:func:`detect_face_points` found no face in the image (an :class:`~torchfluidwarp.errors.InputError`), so
+    that :func:`~torchfluidwarp.correspond.auto_points` can tell it from the other refusals and match features."""
+
 
 INSTALL_HINT = 'face landmarks need mediapipe 0.10.14: pip install "torchfluidwarp[faces]"'
 
@@ -90,8 +97,9 @@ def detect_face_points(image: Tensor, *, face_index: int | None = None, name: st
 
     Raises:
         ImportError: mediapipe is not installed (the message says ``pip install "torchfluidwarp[faces]"``).
-        ValueError: no face found in the image, or ``face_index`` beyond the faces found (the messages name
+        NoFaceFound: no face found in the image (an ``InputError``, so a ``ValueError``; the message names
             ``name``).
+        InputError: ``face_index`` beyond the faces found.
 
     Warns:
         UserWarning: several faces and ``face_index=None``: says how many, and how to pick another.
@@ -110,7 +118,7 @@ def detect_face_points(image: Tensor, *, face_index: int | None = None, name: st
         face_index = check_int("face_index", face_index, minimum=0)
     faces = sorted(_mesh_points(x), key=_area, reverse=True)
     if not faces:
-        raise ValueError(f"no face found in {name} ({x.shape[-1]} x {x.shape[-2]} pixels)")
+        raise NoFaceFound(f"no face found in {name} ({x.shape[-1]} x {x.shape[-2]} pixels)", argument="image")
     if face_index is None:
         if len(faces) > 1:
             warnings.warn(
@@ -121,6 +129,9 @@ def detect_face_points(image: Tensor, *, face_index: int | None = None, name: st
             )
         face_index = 0
     if face_index >= len(faces):
-        raise ValueError(f"face_index={face_index}, but {name} has {len(faces)} face(s) (0 to {len(faces) - 1})")
+        raise InputError(
+            f"face_index={face_index}, but {name} has {len(faces)} face(s) (0 to {len(faces) - 1})",
+            argument="face_index",
+        )
     points = faces[face_index][list(FACE_MESH_INDICES)]
     return points.to(device=x.device, dtype=x.dtype)

@@ -24,6 +24,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive
 from torchfluidwarp.correspond._image import gray, single_image
+from torchfluidwarp.errors import InputError
 
 __all__ = ["RansacModel", "consistent_matches", "match_features", "thin_matches"]
 
@@ -145,9 +146,11 @@ def match_features(
     seed = check_int("seed", seed, minimum=0)
     ratio = check_positive("ratio", ratio)
     if ratio > 1:
-        raise ValueError(f"ratio must be in (0, 1], got {ratio!r}")
+        raise InputError(f"ratio must be in (0, 1], got {ratio!r}", argument="ratio")
     if model is not None and model not in MIN_RANSAC:
-        raise ValueError(f"model must be 'homography', 'affine', 'fundamental' or None, got {model!r}")
+        raise InputError(
+            f"model must be 'homography', 'affine', 'fundamental' or None, got {model!r}", argument="model"
+        )
     Hb, Wb = b.shape[-2:]
     threshold = 0.03 * float(Hb**2 + Wb**2) ** 0.5 if inlier_threshold is None else inlier_threshold
     threshold = check_positive("inlier_threshold", threshold)

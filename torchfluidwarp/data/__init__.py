@@ -19,6 +19,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, read_points
 
 __all__ = ["SAMPLES", "POINT_LABELS", "sample_path", "load_sample", "load_sample_points"]
@@ -70,10 +71,10 @@ def sample_path(name: str, kind: Literal["image", "points"] = "image") -> Path:
         'cat.png'
     """
     if name not in SAMPLES:
-        raise ValueError(f"unknown sample {name!r}; available samples: {', '.join(SAMPLES)}")
+        raise InputError(f"unknown sample {name!r}; available samples: {', '.join(SAMPLES)}")
     suffix = {"image": ".png", "points": ".pts"}.get(kind)
     if suffix is None:
-        raise ValueError(f"kind must be 'image' or 'points', got {kind!r}")
+        raise InputError(f"kind must be 'image' or 'points', got {kind!r}")
     resource = resources.files(__name__) / f"{name}{suffix}"
     if not isinstance(resource, Path):  # only a zipped install gives something else
         raise RuntimeError(f"sample {name!r} is not a file on disk ({resource!r}); install the package unzipped")

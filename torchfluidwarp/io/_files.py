@@ -12,7 +12,8 @@ from pathlib import Path
 
 import torch
 
-from torchfluidwarp._checks import describe
+from torchfluidwarp._checks import argument_of, describe
+from torchfluidwarp.errors import InputError, InputTypeError
 
 PathLike = str | os.PathLike[str]
 
@@ -30,10 +31,12 @@ def first_line(exc: BaseException) -> str:
 def check_path(name: str, path: object) -> Path:
     """Validate a path argument (a ``str`` or ``os.PathLike``, not empty) and return it as a :class:`Path`."""
     if isinstance(path, bytes) or not isinstance(path, (str, os.PathLike)):
-        raise TypeError(f"{name} must be a str or os.PathLike path, got {describe(path)}")
+        raise InputTypeError(
+            f"{name} must be a str or os.PathLike path, got {describe(path)}", argument=argument_of(name)
+        )
     text = os.fspath(path)
     if not isinstance(text, str) or not text:
-        raise ValueError(f"{name} must be a non-empty path, got {path!r}")
+        raise InputError(f"{name} must be a non-empty path, got {path!r}", argument=argument_of(name))
     return Path(text)
 
 
@@ -42,9 +45,14 @@ def check_output_path(name: str, path: object, *, folder_ok: bool = False) -> Pa
     an existing folder (replacing a folder by a file would delete what it holds)."""
     target = check_path(name, path)
     if target.name in ("", ".", ".."):
-        raise ValueError(f"{name} {str(path)!r} names no file or folder of its own; give it a name")
+        raise InputError(
+            f"{name} {str(path)!r} names no file or folder of its own; give it a name", argument=argument_of(name)
+        )
     if not folder_ok and target.is_dir():
-        raise ValueError(f"{name} {str(path)!r} is a folder; give a file name (refusing to replace a folder)")
+        raise InputError(
+            f"{name} {str(path)!r} is a folder; give a file name (refusing to replace a folder)",
+            argument=argument_of(name),
+        )
     return target
 
 
@@ -53,13 +61,17 @@ def make_parents(name: str, target: Path) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
-        raise ValueError(f"{name} {str(target)!r}: a parent of it is a file, not a folder") from None
+        raise InputError(
+            f"{name} {str(target)!r}: a parent of it is a file, not a folder", argument=argument_of(name)
+        ) from None
 
 
 def check_float_dtype(name: str, dtype: object) -> torch.dtype:
     """Validate a floating-point ``torch.dtype`` argument."""
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
-        raise TypeError(f"{name} must be a floating-point torch.dtype, got {describe(dtype)}")
+        raise InputTypeError(
+            f"{name} must be a floating-point torch.dtype, got {describe(dtype)}", argument=argument_of(name)
+        )
     return dtype
 
 

@@ -24,6 +24,7 @@ from PIL import GifImagePlugin, Image, features
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_real, check_tensor, describe
+from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.io._files import PathLike, atomic_output, check_output_path, check_overwrite, make_parents
 from torchfluidwarp.io.images import _uint8_frames
 
@@ -98,7 +99,7 @@ def write_animation(
         The path written.
 
     Raises:
-        TypeError, ValueError: bad ``path``, ``frames``, ``fps``, ``loop`` or ``overwrite``, or an unknown
+        InputTypeError, InputError: bad ``path``, ``frames``, ``fps``, ``loop`` or ``overwrite``, or an unknown
             suffix. They are checked before anything is written (a tensor's frames all, an iterable's first
             one; a later bad frame of an iterable raises as it comes, and leaves nothing behind).
         FileExistsError: the output exists and ``overwrite`` is false.
@@ -110,7 +111,7 @@ def write_animation(
     fps = check_fps(fps)
     _check_loop(loop)
     if not isinstance(overwrite, bool):
-        raise TypeError(f"overwrite must be a bool, got {describe(overwrite)}")
+        raise InputTypeError(f"overwrite must be a bool, got {describe(overwrite)}", argument="overwrite")
     data = _uint8_stream(frames)
     if kind == "mp4":
         _require_ffmpeg()
@@ -149,7 +150,7 @@ def encode_animation(
         The encoded file contents, as :func:`write_animation` would write them.
 
     Raises:
-        TypeError, ValueError: bad ``frames``, ``fmt``, ``fps`` or ``loop``.
+        InputTypeError, InputError: bad ``frames``, ``fmt``, ``fps`` or ``loop``.
         RuntimeError: ``fmt="mp4"`` without imageio-ffmpeg installed, ``fmt="webp"`` without Pillow's WebP.
 
     Example:
@@ -158,7 +159,7 @@ def encode_animation(
         b'GIF89a'
     """
     if fmt not in ("gif", "mp4", "webp"):
-        raise ValueError(f"fmt must be 'gif', 'mp4' or 'webp', got {fmt!r}")
+        raise InputError(f"fmt must be 'gif', 'mp4' or 'webp', got {fmt!r}", argument="fmt")
     fps = check_fps(fps)
     _check_loop(loop)
     data = _uint8_stream(frames)
@@ -179,8 +180,8 @@ def check_fps(fps: object) -> float:
     """Validate a frame rate for :func:`write_animation` and :func:`encode_animation` and return it as a float.
 
     Raises:
-        TypeError: ``fps`` is not a real number.
-        ValueError: ``fps`` is not finite, or outside :data:`MIN_FPS` to :data:`MAX_FPS`.
+        InputTypeError: ``fps`` is not a real number.
+        InputError: ``fps`` is not finite, or outside :data:`MIN_FPS` to :data:`MAX_FPS`.
 
     Example:
         >>> check_fps(25)
@@ -188,21 +189,25 @@ def check_fps(fps: object) -> float:
     """
     value = check_real("fps", fps)
     if not MIN_FPS <= value <= MAX_FPS:
-        raise ValueError(f"fps must be from {MIN_FPS} to {MAX_FPS:g} frames per second, got {fps!r}")
+        raise InputError(f"fps must be from {MIN_FPS} to {MAX_FPS:g} frames per second, got {fps!r}", argument="fps")
     return value
 
 
 def _check_loop(loop: object) -> None:
     if check_int("loop", loop, minimum=0) > MAX_LOOP:
-        raise ValueError(f"loop must be at most {MAX_LOOP} (a GIF's 16-bit repeat count; 0 loops forever), got {loop}")
+        raise InputError(
+            f"loop must be at most {MAX_LOOP} (a GIF's 16-bit repeat count; 0 loops forever), got {loop}",
+            argument="loop",
+        )
 
 
 def _animation_format(suffix: str) -> str:
     kind = suffix.lower().lstrip(".")
     if kind not in ("gif", "mp4", "webp"):
-        raise ValueError(
+        raise InputError(
             f"unknown animation suffix {suffix!r}: use .gif, .mp4, .webp, or a folder (a path ending in '/' or "
-            "without suffix)"
+            "without suffix)",
+            argument="path",
         )
     return kind
 
@@ -229,26 +234,28 @@ def _uint8_stream(frames: Tensor | Iterable[Tensor]) -> Iterator[np.ndarray]:
         data = _uint8_frames(frames, "frames")
         return iter(data)
     if isinstance(frames, (str, bytes)) or not isinstance(frames, Iterable):
-        raise TypeError(
-            f"frames must be a (T, C, H, W) tensor or an iterable of (C, H, W) tensors, got {describe(frames)}"
+        raise InputTypeError(
+            f"frames must be a (T, C, H, W) tensor or an iterable of (C, H, W) tensors, got {describe(frames)}",
+            argument="frames",
         )
     source = iter(frames)
     first = next(source, None)
     if first is None:
-        raise ValueError("frames is empty: an animation needs at least one frame")
+        raise InputError("frames is empty: an animation needs at least one frame", argument="frames")
     head = _uint8_frame(first, 0, None)
     return itertools.chain([head], (_uint8_frame(f, k, head.shape) for k, f in enumerate(source, 1)))
 
 
 def _uint8_frame(frame: object, k: int, shape: tuple[int, ...] | None) -> np.ndarray:
     if not isinstance(frame, Tensor):
-        raise TypeError(f"frames[{k}] must be a (C, H, W) tensor, got {describe(frame)}")
+        raise InputTypeError(f"frames[{k}] must be a (C, H, W) tensor, got {describe(frame)}", argument="frames")
     check_tensor(f"frames[{k}]", frame, ndim=3)
     out = _uint8_frames(frame[None], f"frames[{k}]")[0]
     if shape is not None and out.shape != shape:
-        raise ValueError(
+        raise InputError(
             f"frames[{k}] has shape {tuple(frame.shape)}, but frames[0] is {(shape[2], shape[0], shape[1])}; "
-            "all frames of an animation have one size"
+            "all frames of an animation have one size",
+            argument="frames",
         )
     return out
 
@@ -309,9 +316,10 @@ def _write_webp(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: in
     for frame in frames:
         held += frame.shape[0] * frame.shape[1] * 4
         if held > MAX_WEBP_BYTES:
-            raise ValueError(
+            raise InputError(
                 f"an animated WebP holds its frames in memory, and these pass {MAX_WEBP_BYTES / 2**30:g} GiB "
-                f"(MAX_WEBP_BYTES) at frame {len(images)}; write a .gif or a folder of PNG frames instead"
+                f"(MAX_WEBP_BYTES) at frame {len(images)}; write a .gif or a folder of PNG frames instead",
+                argument="frames",
             )
         rgb = _rgb(frame)
         images.append(Image.fromarray(np.dstack([rgb, frame[..., 3]]) if frame.shape[-1] == 4 else rgb))

@@ -17,7 +17,16 @@ from imageio.plugins.pillow import PillowPlugin
 from PIL import Image
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_memory, check_size, check_tensor, compute_dtype, describe
+from torchfluidwarp._checks import (
+    argument_of,
+    check_int,
+    check_memory,
+    check_size,
+    check_tensor,
+    compute_dtype,
+    describe,
+)
+from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.io._files import (
     DECODE_ERRORS,
     PathLike,
@@ -72,9 +81,9 @@ def read_image(
         ``(1, C, H, W)`` tensor on the CPU.
 
     Raises:
-        ValueError: the file does not exist or is not a readable image, its header claims more than
+        InputError: the file does not exist or is not a readable image, its header claims more than
             ``max_pixels`` pixels, or ``channels`` is not ``None``, 1, 3 or 4.
-        TypeError: ``path`` is not a path, ``dtype`` is not floating point, or ``max_pixels`` not an int.
+        InputTypeError: ``path`` is not a path, ``dtype`` is not floating point, or ``max_pixels`` not an int.
 
     Example:
         >>> import tempfile, torch
@@ -86,9 +95,9 @@ def read_image(
     path = check_path("path", path)
     _check_image_options(channels, dtype, max_pixels)
     if path.is_dir():
-        raise ValueError(f"cannot read image {str(path)!r}: it is a folder, not a file")
+        raise InputError(f"cannot read image {str(path)!r}: it is a folder, not a file", argument="path")
     if not path.is_file():
-        raise ValueError(f"cannot read image {str(path)!r}: no such file")
+        raise InputError(f"cannot read image {str(path)!r}: no such file", argument="path")
     source = f"image {str(path)!r}"
     return _tensor_from_array(_decode(path, source, max_pixels), source, channels, dtype)
 
@@ -112,15 +121,15 @@ def read_image_bytes(
         ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
 
     Raises:
-        TypeError: ``data`` is not bytes-like, ``dtype`` is not floating point, or ``max_pixels`` not an int.
-        ValueError: ``data`` is not a readable image, claims more than ``max_pixels`` pixels, or ``channels``
+        InputTypeError: ``data`` is not bytes-like, ``dtype`` is not floating point, or ``max_pixels`` not an int.
+        InputError: ``data`` is not a readable image, claims more than ``max_pixels`` pixels, or ``channels``
             is invalid.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise TypeError(f"data must be bytes, got {describe(data)}")
+        raise InputTypeError(f"data must be bytes, got {describe(data)}", argument="data")
     _check_image_options(channels, dtype, max_pixels)
     source = f"image bytes ({len(data)} bytes)"
-    return _tensor_from_array(_decode(bytes(data), source, max_pixels), source, channels, dtype)
+    return _tensor_from_array(_decode(bytes(data), source, max_pixels), source, channels, dtype, "data")
 
 
 def write_image(path: PathLike, image: Tensor) -> Path:
@@ -139,23 +148,24 @@ def write_image(path: PathLike, image: Tensor) -> Path:
         The path written.
 
     Raises:
-        TypeError, ValueError: ``image`` is not a finite float tensor of one of those shapes; ``path`` is not
+        InputTypeError, InputError: ``image`` is not a finite float tensor of one of those shapes; ``path`` is not
             a path, is a folder, or has a suffix whose format cannot hold the image.
     """
     target = check_output_path("path", path)
     check_tensor("image", image, ndim=(3, 4))
     if image.ndim == 4 and image.shape[0] != 1:
-        raise ValueError(f"image must be (C, H, W) or (1, C, H, W), got shape {tuple(image.shape)}")
+        raise InputError(f"image must be (C, H, W) or (1, C, H, W), got shape {tuple(image.shape)}", argument="image")
     array = _uint8_frames(image.reshape(1, *image.shape[-3:]), "image")[0]  # (H, W, C)
     if not target.suffix:
-        raise ValueError(f"path {str(path)!r} has no suffix to choose an image format by (e.g. .png)")
+        raise InputError(f"path {str(path)!r} has no suffix to choose an image format by (e.g. .png)", argument="path")
     try:
         encoded = iio.imwrite("<bytes>", array[..., 0] if array.shape[-1] == 1 else array, extension=target.suffix)
     except (*DECODE_ERRORS, KeyError, IndexError) as exc:
         known = target.suffix.lower() in Image.registered_extensions()
         why = first_line(exc) if known else "no image format has this suffix (e.g. use .png)"
-        raise ValueError(
-            f"cannot write image {str(path)!r} (suffix {target.suffix!r}, {array.shape[-1]} channels): {why}"
+        raise InputError(
+            f"cannot write image {str(path)!r} (suffix {target.suffix!r}, {array.shape[-1]} channels): {why}",
+            argument="path",
         ) from exc
     make_parents("path", target)
     with atomic_output(target) as tmp:
@@ -185,7 +195,7 @@ def resize_image(image: Tensor, size: tuple[int, int], *, max_memory: float | No
         ``(B, C, H', W')``; ``image`` itself when it already has that size.
 
     Raises:
-        TypeError, ValueError: ``image`` is not a 4-D float tensor with non-empty ``C, H, W``, or ``size`` is
+        InputTypeError, InputError: ``image`` is not a 4-D float tensor with non-empty ``C, H, W``, or ``size`` is
             not a pair of ints >= 1; the result would exceed ``max_memory``.
 
     Example:
@@ -195,7 +205,7 @@ def resize_image(image: Tensor, size: tuple[int, int], *, max_memory: float | No
     check_tensor("image", image, ndim=4)  # NaN or inf would smear over the neighbours
     size = check_size("size", size)
     if min(image.shape[1:]) < 1:
-        raise ValueError(f"image must have C, H and W >= 1, got shape {tuple(image.shape)}")
+        raise InputError(f"image must have C, H and W >= 1, got shape {tuple(image.shape)}", argument="image")
     if tuple(image.shape[-2:]) == size:
         return image
     work = compute_dtype(image.dtype)  # float16 and bfloat16 in float32: torch's CPU antialiased kernel has neither
@@ -235,13 +245,14 @@ def _check_image_options(channels: int | None, dtype: torch.dtype, max_pixels: i
     if channels is not None and (
         isinstance(channels, bool) or not isinstance(channels, int) or channels not in (1, 3, 4)
     ):
-        raise ValueError(f"channels must be None, 1, 3 or 4, got {channels!r}")
+        raise InputError(f"channels must be None, 1, 3 or 4, got {channels!r}", argument="channels")
     check_float_dtype("dtype", dtype)
     check_int("max_pixels", max_pixels)
 
 
 def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first."""
+    argument = "data" if isinstance(uri, bytes) else "path"
     try:
         with iio.imopen(uri, "r") as file:
             shape = file.properties(index=0).shape
@@ -250,16 +261,18 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
         match = _BOMB_PIXELS.search(str(exc))
         claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
-        raise ValueError(
+        raise InputError(
             f"cannot read {source}: its header claims {claimed}, more than Pillow decodes "
-            f"(a possible decompression bomb; the limit here is max_pixels={max_pixels:,})"
+            f"(a possible decompression bomb; the limit here is max_pixels={max_pixels:,})",
+            argument=argument,
         ) from None
     except DECODE_ERRORS as exc:
-        raise ValueError(f"cannot read {source}: not a readable image ({first_line(exc)})") from exc
+        raise InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument) from exc
     if array is None:
-        raise ValueError(
+        raise InputError(
             f"cannot read {source}: its header claims {shape[1]} x {shape[0]} = {shape[0] * shape[1]:,} pixels, "
-            f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)"
+            f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
+            argument=argument,
         )
     return array
 
@@ -278,12 +291,15 @@ def _pillow_conversion(file: object) -> dict[str, str]:
     return {}
 
 
-def _tensor_from_array(array: np.ndarray, source: str, channels: int | None, dtype: torch.dtype) -> Tensor:
-    """``(H, W)`` or ``(H, W, C)`` decoded pixels -> ``(1, C', H, W)`` in ``[0, 1]``."""
+def _tensor_from_array(
+    array: np.ndarray, source: str, channels: int | None, dtype: torch.dtype, argument: str = "path"
+) -> Tensor:
+    """``(H, W)`` or ``(H, W, C)`` decoded pixels -> ``(1, C', H, W)`` in ``[0, 1]``; ``argument`` names where
+    they came from in errors (``"path"`` or ``"data"``)."""
     if array.ndim == 2:
         array = array[..., None]
     if array.ndim != 3 or not 1 <= array.shape[-1] <= 4:
-        raise ValueError(f"cannot read {source}: unsupported pixel layout {array.shape}")
+        raise InputError(f"cannot read {source}: unsupported pixel layout {array.shape}", argument=argument)
     # channels first while still in the file's dtype (a 6000 x 6000 RGB photo: 108 MB as uint8), then one
     # conversion to the working float dtype, scaled in place: no float64 or non-contiguous float copy
     planar = np.ascontiguousarray(array.transpose(2, 0, 1))  # (C, H, W)
@@ -330,7 +346,10 @@ def _uint8_frames(frames: Tensor, name: str) -> np.ndarray:
     check_tensor(name, frames, ndim=4)
     t, c, h, w = frames.shape
     if c not in (1, 3, 4) or min(t, h, w) < 1:
-        raise ValueError(f"{name} must have C in 1, 3, 4 and non-empty T, H, W; got shape {tuple(frames.shape)}")
+        raise InputError(
+            f"{name} must have C in 1, 3, 4 and non-empty T, H, W; got shape {tuple(frames.shape)}",
+            argument=argument_of(name),
+        )
     out = torch.empty(t, h, w, c, dtype=torch.uint8)
     chunk = max(1, _CONVERT_BYTES // (8 * c * h * w))  # frames per float64 chunk: memory stays bounded
     rows = h if chunk > 1 else max(1, _CONVERT_BYTES // (8 * c * w))  # rows per chunk of one large frame

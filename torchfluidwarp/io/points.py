@@ -15,7 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_tensor
+from torchfluidwarp._checks import argument_of, check_int, check_tensor
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io._files import (
     PathLike,
     atomic_output,
@@ -59,40 +60,45 @@ def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32, max_bytes
         ``(M, 2)`` tensor of ``(x, y)`` pixel coordinates.
 
     Raises:
-        ValueError: the file is missing or larger than ``max_bytes``, its suffix is unknown, it is malformed
+        InputError: the file is missing or larger than ``max_bytes``, its suffix is unknown, it is malformed
             (JSON nested deeper than a list of pairs included), a value is not finite in ``dtype``, or a
             ``.pts`` file's ``n_points`` disagrees with its point lines.
-        TypeError: ``path`` is not a path, ``dtype`` is not a floating-point dtype, or ``max_bytes`` not an int.
+        InputTypeError: ``path`` is not a path, ``dtype`` is not a floating-point dtype, or ``max_bytes`` not an int.
     """
     path = check_path("path", path)
     check_float_dtype("dtype", dtype)
     check_int("max_bytes", max_bytes)
     suffix = _point_suffix(path)
     if path.is_dir():
-        raise ValueError(f"cannot read points {str(path)!r}: it is a folder, not a file")
+        raise InputError(f"cannot read points {str(path)!r}: it is a folder, not a file", argument="path")
     if not path.is_file():
-        raise ValueError(f"cannot read points {str(path)!r}: no such file")
+        raise InputError(f"cannot read points {str(path)!r}: no such file", argument="path")
     if (size := path.stat().st_size) > max_bytes:
-        raise ValueError(
+        raise InputError(
             f"cannot read points {str(path)!r}: {size:,} bytes, more than max_bytes={max_bytes:,} "
-            "(pass a larger max_bytes to read it)"
+            "(pass a larger max_bytes to read it)",
+            argument="path",
         )
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read points {str(path)!r}: {first_line(exc)}") from exc
+        raise InputError(f"cannot read points {str(path)!r}: {first_line(exc)}", argument="path") from exc
     parse = {".pts": _parse_pts, ".json": _parse_json, ".csv": _parse_csv}[suffix]
     try:
         rows = parse(text)
-    except ValueError as exc:
-        raise ValueError(f"malformed points file {str(path)!r}: {exc}") from None
+    except ValueError as exc:  # the parsers below say what they could not parse with a ValueError
+        raise InputError(f"malformed points file {str(path)!r}: {exc}", argument="path") from None
     points = torch.tensor(rows, dtype=torch.float64).reshape(-1, 2)
     if not bool(torch.isfinite(points).all()):
-        raise ValueError(f"malformed points file {str(path)!r}: contains non-finite values (NaN or inf)")
+        raise InputError(
+            f"malformed points file {str(path)!r}: contains non-finite values (NaN or inf)", argument="path"
+        )
     converted = points.to(dtype)
     if not bool(torch.isfinite(converted).all()):
         largest = float(points.abs().max())
-        raise ValueError(f"points file {str(path)!r}: a value ({largest:g}) is out of the range of dtype {dtype}")
+        raise InputError(
+            f"points file {str(path)!r}: a value ({largest:g}) is out of the range of dtype {dtype}", argument="dtype"
+        )
     return converted
 
 
@@ -112,7 +118,7 @@ def write_points(path: PathLike, points: Tensor) -> Path:
         The path written.
 
     Raises:
-        TypeError, ValueError: ``points`` is not a finite ``(M, 2)`` float tensor, ``path`` is not a path or
+        InputTypeError, InputError: ``points`` is not a finite ``(M, 2)`` float tensor, ``path`` is not a path or
             is a folder, or the suffix is not ``.pts``, ``.json`` or ``.csv``.
 
     Example:
@@ -151,26 +157,32 @@ def check_point_counts(points_a: Tensor, points_b: Tensor, name_a: str = "points
         name_b: how ``points_b`` is named in the error.
 
     Raises:
-        TypeError, ValueError: either is not a finite ``(M, 2)`` float tensor.
-        ValueError: ``M != N``; the message names both counts.
+        InputTypeError, InputError: either is not a finite ``(M, 2)`` float tensor.
+        InputError: ``M != N``; the message names both counts.
 
     Example:
         >>> import torch
         >>> check_point_counts(torch.zeros(3, 2), torch.zeros(2, 2), "src", "dst")
         Traceback (most recent call last):
         ...
-        ValueError: src has 3 points but dst has 2
+        torchfluidwarp.errors.InputError: src has 3 points but dst has 2
     """
     check_tensor(name_a, points_a, shape=(None, 2))
     check_tensor(name_b, points_b, shape=(None, 2))
     if points_a.shape[0] != points_b.shape[0]:
-        raise ValueError(f"{name_a} has {points_a.shape[0]} points but {name_b} has {points_b.shape[0]}")
+        raise InputError(
+            f"{name_a} has {points_a.shape[0]} points but {name_b} has {points_b.shape[0]}",
+            argument=argument_of(name_b),
+        )
 
 
 def _point_suffix(path: Path) -> str:
     suffix = path.suffix.lower()
     if suffix not in POINT_SUFFIXES:
-        raise ValueError(f"unknown points format for {str(path)!r}: suffix must be one of {', '.join(POINT_SUFFIXES)}")
+        raise InputError(
+            f"unknown points format for {str(path)!r}: suffix must be one of {', '.join(POINT_SUFFIXES)}",
+            argument="path",
+        )
     return suffix
 
 

@@ -5,8 +5,8 @@ fluid's :class:`~torchfluidwarp.morph.MorphResult`, or a thin-plate-spline or De
 :func:`morph_report` gathers them for a :class:`~torchfluidwarp.morph.MorphResult` in one streamed pass:
 
 * **folds**: map pixels whose Jacobian determinant is ``<= 0`` (:func:`folded_pixels`, per frame);
-* **landmark error** at the keyframe (``result.fit.error``) and the **held-out error**: where A's held-out points
-  show in the last frame against B's (:func:`end_error`);
+* **landmark error** at the last frame (``result.error``, in the frames' pixels) and the **held-out error**: where
+  A's held-out points show in the last frame against B's (:func:`end_error`);
 * **ghosting**: how far apart A's and B's copies of a point show in the middle frame (:func:`ghosting`);
 * **seam figure**: a high quantile of the map's second derivative (:func:`seam_figure`);
 * **path smoothness**: the distance between neighbouring frames, its total and its variance

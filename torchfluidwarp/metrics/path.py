@@ -10,6 +10,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_tensor
 from torchfluidwarp.control.losses import ssim_loss
+from torchfluidwarp.errors import InputError
 
 PathKind = Literal["pixel", "ssim"]
 
@@ -28,7 +29,7 @@ def path_distances(frames: Iterable[Tensor], kind: PathKind = "pixel") -> Tensor
         ``(N - 1,)`` float64; zeros for a still morph.
     """
     if kind not in ("pixel", "ssim"):
-        raise ValueError(f"kind must be 'pixel' or 'ssim', got {kind!r}")
+        raise InputError(f"kind must be 'pixel' or 'ssim', got {kind!r}", argument="kind")
     out: list[float] = []
     prev: Tensor | None = None
     for frame in frames:

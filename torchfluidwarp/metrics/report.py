@@ -13,15 +13,17 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_tensor
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.core.grid import rescale_points, scale_factor
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.metrics.maps import folded_pixels, seam_figure
 from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
-from torchfluidwarp.metrics.points import end_error, ghosting, landmark_error
+from torchfluidwarp.metrics.points import end_error, ghosting
 
 
 class Morph(Protocol):
     """What the measures read from a morph (a :class:`~torchfluidwarp.morph.MorphResult`)."""
 
     fit: KeyframeFit
+    error: Tensor  # (M,) pixels of the last frame
 
     def __len__(self) -> int: ...
 
@@ -133,7 +135,9 @@ def morph_report(
 
     distances = path_distances(frames(), path)
     if tuple(kept[mid][0].shape[:2]) != size:
-        raise ValueError(f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}")
+        raise InputError(
+            f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}", argument="image_a"
+        )
     pairs = {"marked": (points_a, points_b)}
     if held_out is not None:
         check_tensor("held_out[0]", held_out[0], shape=[None, 2])
@@ -146,7 +150,7 @@ def morph_report(
             "end": _stats(*end_error(kept[n - 1][0], pa, pb)),
             "ghost": _stats(*ghosting(*kept[mid], pa, pb)),
         }
-    err = landmark_error(result.fit).cpu()
+    err = result.error.detach().reshape(-1).double().cpu()  # the last frame's pixels (MorphResult.error)
     seam_a, seam_b = seam_figure(kept[mid][0]), seam_figure(kept[mid][1])
     folded = sum(folds_a) + sum(folds_b)
     return {

@@ -1,8 +1,10 @@
 """Morphing two images: straight landmark paths, the forward warp of A, the inverse warp of B, the dissolve.
 
-:func:`morph` (:mod:`~torchfluidwarp.morph.morphing`) fits the flow (:mod:`~torchfluidwarp.morph.fit`) and
-returns a :class:`MorphResult` (:mod:`~torchfluidwarp.morph.result`) that renders frames on demand
-(:mod:`~torchfluidwarp.morph.render`): one at any time ``t``, all ``N`` streamed, or all at once.
+:func:`morph` (:mod:`~torchfluidwarp.morph.morphing`) takes typed settings (:mod:`~torchfluidwarp.morph.settings`:
+:class:`NaturalSettings` or :class:`PaperSettings`, :class:`Timing`, :class:`Blending`, :class:`Matching`), fits
+the flow (:mod:`~torchfluidwarp.morph.fit`) and returns a :class:`MorphResult` (:mod:`~torchfluidwarp.morph.result`)
+that renders frames on demand (:mod:`~torchfluidwarp.morph.render`): one at any time ``t``, all ``N`` streamed, or
+all at once.
 """
 
 from torchfluidwarp.morph.morphing import morph, region_of_interest, resize_pair
@@ -10,6 +12,8 @@ from torchfluidwarp.morph.regions import hull_mask, paste_back
 from torchfluidwarp.morph.render import MorphFrames
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.sequence import AverageResult, MorphSequence, average, morph_sequence
+from torchfluidwarp.morph.settings import Blending, Matching, MorphSettings, NaturalSettings, PaperSettings, Timing
 
 __all__ = ["MorphFrames", "MorphResult", "morph", "region_of_interest", "resize_pair", "hull_mask", "paste_back"]
 __all__ += ["MorphSequence", "morph_sequence", "AverageResult", "average"]
+__all__ += ["NaturalSettings", "PaperSettings", "MorphSettings", "Timing", "Blending", "Matching"]

@@ -1,22 +1,27 @@
-"""Fitting a morph's flow: checking the marks, the natural morph's straight paths, and its fit.
+"""Fitting a morph's flow: checking the marks, the natural morph's straight paths and its fit, the paper's
+keyframe fit, and the paper inverse's small fits.
 
 Points are ``(M, 2)`` in pixels, ``(x, y)``, pixel centres at integers; the fluid's box is given in the same
-pixels as ``(x0, y0, x1, y1)``.
+pixels as ``(x0, y0, x1, y1)``. Every fit here is in the fluid box's frame: its points, trajectories, errors,
+warp and forces are in pixels of the box, whose top-left pixel is ``(x0, y0)`` of image A.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
-from typing import Any
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
-from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
+from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
+from torchfluidwarp.core.grid import mean_pixels_per_cell
 from torchfluidwarp.core.spline import tps_fit
-from torchfluidwarp.warp.forces import LandmarkForces, solve_midpoints
+from torchfluidwarp.errors import InputError
+from torchfluidwarp.morph.settings import MorphSettings, NaturalSettings, PaperSettings
+from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints
 
 PAD = 0.125
 """The natural morph's fluid box reaches this fraction of the image's longer side beyond each edge: the walls,
@@ -64,7 +69,7 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
         i, j = torch.nonzero(d < 1e-6, as_tuple=True)
         pairs = [(int(a), int(b)) for a, b in zip(i, j) if a < b]
         if pairs:
-            raise ValueError(
+            raise InputError(
                 f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
                 "position; each feature must be marked once"
             )
@@ -83,7 +88,7 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
             listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
             warnings.warn(
                 f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth morph "
-                "can do without folding; check their order (result.fit.error shows which points were not reached)",
+                "can do without folding; check their order (result.error shows which points were not reached)",
                 RuntimeWarning,
                 stacklevel=3,
             )
@@ -112,7 +117,7 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     unless the spline ``D`` through them would squeeze part of the picture (the rectangle ``inside``) below
     :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Then the
     spline's smoothing (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until
-    none does, and each mark travels as that spline says; the marks it then misses show in ``fit.error``.
+    none does, and each mark travels as that spline says; the marks it then misses show in the morph's ``result.error``.
     """
     x0, y0, x1, y1 = inside
     n = 64
@@ -128,7 +133,7 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     def least(smoothing: float) -> float:
         try:
             return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
-        except ValueError:  # marks that swap places share a midpoint: no spline interpolates both
+        except InputError:  # marks that swap places share a midpoint: no spline interpolates both
             return -math.inf
 
     if least(0.0) >= MIN_AREA:
@@ -139,8 +144,8 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
         lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
     try:
         travel = tps_fit(mids, disp, 10.0**hi)
-    except ValueError as exc:
-        raise ValueError(
+    except InputError as exc:
+        raise InputError(
             "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
             "places meet halfway) to guide the morph; check that both list the same features in the same order"
         ) from exc
@@ -152,12 +157,27 @@ def fit_natural(
     pa: Tensor,
     target: Tensor,
     size: tuple[int, int],
-    steps: int,
-    fit_kwargs: dict[str, Any],
+    settings: NaturalSettings,
     warm_start: KeyframeFit | None,
+    progress: bool,
 ) -> tuple[KeyframeFit, tuple[int, int, int, int]]:
-    """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see :func:`morph`)."""
+    """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
+    :class:`~torchfluidwarp.morph.settings.NaturalSettings`).
+
+    Args:
+        pa: ``(M, 2)`` A's points, A's pixels.
+        target: ``(M, 2)`` where they must go, A's pixels (B's points taken back through the pre-alignment).
+        size: ``(H, W)`` of image A.
+        settings: the method's settings.
+        warm_start: a previous fit whose kicks' corrections start this one, when their shapes agree.
+        progress: tqdm bars.
+
+    Returns:
+        The fit, in the box's frame, and the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and
+        :data:`PAD` of its longer side around it.
+    """
     H, W = size
+    steps = settings.steps
     pad = max(1, round(PAD * max(H, W)))
     box = (-pad, -pad, W + pad, H + pad)
     offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
@@ -175,5 +195,78 @@ def fit_natural(
     along = torch.linspace(0, 1, steps + 1, dtype=torch.float64, device=pa.device).view(-1, 1, 1)
     straight = mids + (along - 0.5) * disp  # (T + 1, M, 2) box pixels
     keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
-    fit = fit_keyframes(src, keyframes, steps=steps, forces=forces, image_size=(H + 2 * pad, W + 2 * pad), **fit_kwargs)
+    fit = fit_keyframes(
+        src,
+        keyframes,
+        steps=steps,
+        forces=forces,
+        image_size=(H + 2 * pad, W + 2 * pad),
+        grid=settings.grid,
+        viscosity=settings.viscosity,
+        compressible=settings.compressible,
+        regularization=settings.straightness,
+        max_iter=settings.max_iter,
+        tolerance=settings.tolerance,
+        progress=progress,
+    )
     return fit, box
+
+
+def fit_paper(
+    source: Tensor,
+    target: Keyframes,
+    size: tuple[int, int],
+    settings: PaperSettings,
+    forces: nn.Module | None,
+    progress: bool,
+) -> KeyframeFit:
+    """The paper's keyframe fit of a control grid (:class:`~torchfluidwarp.morph.settings.PaperSettings`) on a
+    box of ``size`` ``(H, W)`` pixels: ``source`` ``(M, 2)`` box pixels to ``target`` at the last step.
+    ``settings.smoothness`` is scaled by the square of the pixels per fluid cell (its unit is fluid cells^2 per
+    pixel^2 of point error); ``forces``: a previous fit's, to warm-start from."""
+    return fit_keyframes(
+        source,
+        target,
+        steps=settings.steps,
+        image_size=size,
+        grid=settings.grid,
+        control=settings.control,
+        viscosity=settings.viscosity,
+        compressible=settings.compressible,
+        smoothness=settings.smoothness * mean_pixels_per_cell(size, settings.grid) ** 2,
+        max_iter=settings.max_iter,
+        tolerance=settings.tolerance,
+        forces=forces,
+        progress=progress,
+    )
+
+
+def paper_flows(fit: KeyframeFit, size: tuple[int, int], settings: MorphSettings) -> list[tuple[Tensor, float]]:
+    """The paper's stepwise inverse warping, fitted: one small flow per step, ``(velocities, dt)`` for
+    ``l = 0 .. T-1``, each carrying the points from their step-``l+1`` positions back to their step-``l`` ones.
+
+    ``fit`` and the flows are in the fluid box's frame, of ``size`` ``(H, W)`` pixels. The small fits use the
+    method's fluid and stopping rules; for the paper's method also its control grid and smoothness, for the
+    natural method :func:`~torchfluidwarp.control.keyframes.fit_keyframes`' default control grid.
+    """
+    traj = fit.trajectories  # (1, T + 1, M, 2) box pixels
+    flows = []
+    for step in range(traj.shape[1] - 1):
+        source, target = traj[:, step + 1], traj[:, step]
+        if isinstance(settings, PaperSettings):
+            small = fit_paper(source, target, size, dataclasses.replace(settings, steps=1), None, False)
+        else:
+            small = fit_keyframes(
+                source,
+                target,
+                steps=1,
+                image_size=size,
+                grid=settings.grid,
+                viscosity=settings.viscosity,
+                compressible=settings.compressible,
+                max_iter=settings.max_iter,
+                tolerance=settings.tolerance,
+                progress=False,
+            )
+        flows.append((small.warp.rollout(small.forces, size).velocities, small.warp.dt))
+    return flows

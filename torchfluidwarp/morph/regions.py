@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_positive, check_tensor
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 
 __all__ = ["Background", "hull_mask", "paste_back"]
@@ -64,7 +65,7 @@ def hull_mask(points: Tensor, size: tuple[int, int], margin: float = 0.25, band:
     margin = check_positive("margin", margin, allow_zero=True)
     hull = _convex_hull([(float(x), float(y)) for x, y in p.tolist()])
     if len(hull) < 3:
-        raise ValueError(f"points must hold 3 points not on one line to make a region, got {p.shape[0]} points")
+        raise InputError(f"points must hold 3 points not on one line to make a region, got {p.shape[0]} points")
     extent = float((p.max(0).values - p.min(0).values).max())
     band = 0.1 * extent if band is None else check_positive("band", band)
     dtype = p.dtype if p.dtype in (torch.float32, torch.float64) else torch.float32
@@ -98,10 +99,10 @@ def paste_back(
     f = check_tensor("frame", frame, ndim=3)
     ph = check_tensor("photo", photo, ndim=3)
     if f.shape[0] != ph.shape[0]:
-        raise ValueError(f"frame has {f.shape[0]} channels but photo has {ph.shape[0]}")
+        raise InputError(f"frame has {f.shape[0]} channels but photo has {ph.shape[0]}")
     x0, y0, x1, y1 = (int(v) for v in box)
     if x1 <= x0 or y1 <= y0:
-        raise ValueError(f"box must be (x0, y0, x1, y1) with x1 > x0 and y1 > y0, got {box}")
+        raise InputError(f"box must be (x0, y0, x1, y1) with x1 > x0 and y1 > y0, got {box}")
     band = check_positive("band", band, allow_zero=True)
     h, w = y1 - y0, x1 - x0
     resized = resize_image(f[None].to(ph.dtype), (h, w))[0]

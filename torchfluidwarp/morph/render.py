@@ -11,24 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
 
 import torch
 from torch import Tensor
 
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
-from torchfluidwarp.control.keyframes import KeyframeFit, fit_keyframes
 from torchfluidwarp.morph.regions import composite
-from torchfluidwarp.warp.layer import _warp_image, backward_maps, identity_map, jacobian_determinant
-from torchfluidwarp.warp.maps import raster_displacements, read_displacement, upsample_raster
-
-InverseMethod = Literal["flow", "paper"]
-
-
-FEATHER = 64.0
-"""Output pixels: the cross-dissolve hands a frame over to the other image within this distance inside an
-image's edge (see :func:`_dissolve`), so neither image's edge, nor the edge pixels that sampling smears beyond
-it, shows as a line."""
+from torchfluidwarp.morph.settings import FEATHER, InverseMethod
+from torchfluidwarp.warp.frames import identity_map, jacobian_determinant, sample_map
+from torchfluidwarp.warp.maps import backward_maps, raster_displacements, read_displacement, upsample_raster
 
 
 def _coverage(coords: Tensor, det: Tensor, size: tuple[int, int], feather: float = FEATHER) -> Tensor:
@@ -80,19 +71,9 @@ def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     return at + read_displacement(disp.permute(0, 3, 1, 2), size, at)
 
 
-def paper_flows(fit: KeyframeFit, size: tuple[int, int], kwargs: dict) -> list[tuple[Tensor, float]]:
-    """The paper's stepwise inverse warping, fitted: one small flow per step, ``(velocities, dt)`` for
-    ``l = 0 .. T-1``, each carrying the points from their step-``l+1`` positions back to their step-``l`` ones."""
-    traj = fit.trajectories  # (1, T + 1, M, 2) in the fluid frame
-    flows = []
-    for step in range(traj.shape[1] - 1):
-        small = fit_keyframes(traj[:, step + 1], traj[:, step], steps=1, **kwargs)
-        flows.append((small.warp.rollout(small.forces, size).velocities, small.warp.dt))
-    return flows
-
-
 def _paper_inverse(flows: list[tuple[Tensor, float]], times: list[float], size: tuple[int, int]) -> list[Tensor]:
-    """Maps ``P_s(z)`` into the fluid frame of time ``T`` from the small flows of :func:`paper_flows`:
+    """Maps ``P_s(z)`` into the fluid frame of time ``T`` from the small flows of
+    :func:`~torchfluidwarp.morph.fit.paper_flows`:
     ``P_T`` is the identity and ``P_l = P_{l+1} o g^(l)`` with ``g^(l)`` step ``l``'s small backward map."""
     T = len(flows)
     vel0 = flows[0][0]
@@ -132,7 +113,7 @@ class Scene:
     motion: Callable[[float], float]  # the shape's schedule: t -> progress (see morph.timing)
     blend: Callable[[float], float]  # the colour's schedule: t -> the weight of image B
     feather: float
-    flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of paper_flows
+    flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of fit.paper_flows
     masks: tuple[Tensor, Tensor] | None = None  # a region: soft masks (1, 1, H, W) over A and over (resized) B
     background: str = "blend"  # outside the region: "a", "b" or "blend" (see morph.regions)
 
@@ -188,15 +169,15 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     z = apply_alignment(unalign, ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
     map_a = z + read_displacement(g, scene.roi, z) + offset
     map_b = apply_alignment(scene.M, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
-    fa, fb = _warp_image(a, map_a, "bilinear"), _warp_image(b, map_b, "bilinear")
+    fa, fb = sample_map(a, map_a, "bilinear"), sample_map(b, map_b, "bilinear")
     det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, n, W) each
     frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, (H, W), scene.feather)
     mine = slice(rows[0] - lo, rows[1] - lo)  # the band's own rows
     a_rows, b_rows = a[:, :, rows[0] : rows[1]], b[:, :, rows[0] : rows[1]]
     frame, fa, fb, map_a, map_b = frame[:, :, mine], fa[:, :, mine], fb[:, :, mine], map_a[:, mine], map_b[:, mine]
     if scene.masks is not None:  # the region, carried by each image's map, shows the morph; the rest the background
-        ma = _warp_image(scene.masks[0], map_a, "bilinear")
-        mb = _warp_image(scene.masks[1], map_b, "bilinear")
+        ma = sample_map(scene.masks[0], map_a, "bilinear")
+        mb = sample_map(scene.masks[1], map_b, "bilinear")
         background = {"a": a_rows, "b": b_rows}.get(scene.background)
         background = torch.lerp(a_rows, b_rows, w) if background is None else background
         frame = composite(frame, background, torch.lerp(ma, mb, w))

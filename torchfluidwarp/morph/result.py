@@ -20,6 +20,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_memory, check_real
 from torchfluidwarp.control.keyframes import KeyframeFit
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph.render import MorphFrames, Scene, render
 
 __all__ = ["MorphResult"]
@@ -28,10 +29,30 @@ __all__ = ["MorphResult"]
 class MorphResult:
     """A fitted morph of ``N`` frames (``len(result)``), rendered on demand.
 
+    Two frames of coordinates, each stated:
+
+    * **the frames' pixels** (image A's pixels, ``(x, y)``, pixel centres at integers; the last frame is image B
+      resized to A's size): :attr:`trajectories`, :attr:`points`, :attr:`error`, :attr:`maps` and the frames.
+      These are the morph's figures: the pre-alignment is in them.
+    * **the fluid box's frame**: everything :attr:`fit` holds (its ``points``, ``trajectories``, ``error``,
+      ``keyframe_errors``, ``warp`` and ``forces``) is in pixels of the fluid's box :attr:`box`, before the
+      pre-alignment: box pixel ``(0, 0)`` is pixel ``(box[0], box[1])`` of image A. So ``fit.error`` is
+      ``fit.keyframe_errors[-1]``'s, and ``fit.animate(image)`` replays the flow on a picture of the box's size
+      ``(box[3] - box[1], box[2] - box[0])``. When the box is the picture (``PaperSettings(margin=None)``) and
+      there is no pre-alignment (``align=None``), ``fit.animate(image_a)`` gives :attr:`forward_frames` at the
+      frames' times ``0, 1, ..., T`` steps (``frames=T + 1`` with the linear motion).
+
     Attributes:
-        fit: the keyframe fit; its ``points``, ``trajectories`` and ``error`` are in the frames' pixel
-            coordinates (A's points carried to the last frame, and their distance to B's points).
+        fit: the keyframe fit, in the fluid box's frame (see above): pass it as another morph's ``warm_start``.
         alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
+        box: ``(x0, y0, x1, y1)`` the fluid's box in A's pixels (``x1``, ``y1`` exclusive); it may reach beyond
+            the picture (the natural method's does, by :data:`~torchfluidwarp.morph.fit.PAD` on each side).
+        trajectories: ``(T + 1, M, 2)`` A's points at each fluid step, in the frames' pixels (the fit's paths
+            moved to A's pixels and pre-aligned by ``M`` interpolated to that step).
+        points: ``(M, 2)`` A's points carried to the last frame (``trajectories[-1]``), the frames' pixels.
+        error: ``(M,)`` pixels of the last frame: the distance from each of A's points carried to the last frame
+            to B's point (resized to A's size with B).
+        message: the fit's summary, with :attr:`error`'s mean and maximum.
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
             inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
         frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B. This and the
@@ -40,7 +61,7 @@ class MorphResult:
         backward_frames: ``(N, C, H, W)`` image B pulled back along the flow.
         maps: ``(N, H, W, 2)`` backward coordinate maps of image A's whole warp (pre-alignment included), in
             A's pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
-            :func:`~torchfluidwarp.warp.maps.jacobian_determinant`.
+            :func:`~torchfluidwarp.warp.frames.jacobian_determinant`.
         maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's pixels, after resizing to A's size).
         folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
             ``<= 0`` (0 for a fold-free morph; a ``RuntimeWarning`` gives their number when it is not).
@@ -51,6 +72,8 @@ class MorphResult:
         scene: Scene,
         fit: KeyframeFit,
         alignment: Tensor,
+        trajectories: Tensor,
+        error: Tensor,
         count: int,
         dtype: torch.dtype,
         seconds: dict[str, float],
@@ -59,12 +82,29 @@ class MorphResult:
         self._scene = scene
         self.fit = fit
         self.alignment = alignment
+        self.trajectories = trajectories
+        self.error = error
         self._count = count
         self._dtype = dtype
         self.seconds = seconds
         self._max_memory = max_memory
         self._all: MorphFrames | None = None
         self._folded: float | None = None
+
+    @property
+    def box(self) -> tuple[int, int, int, int]:
+        return self._scene.box
+
+    @property
+    def points(self) -> Tensor:
+        return self.trajectories[-1]
+
+    @property
+    def message(self) -> str:
+        return (
+            f"{self.fit.message}; in the last frame's pixels: mean error {float(self.error.mean()):.4f} px, "
+            f"max {float(self.error.max()):.4f} px"
+        )
 
     def __len__(self) -> int:
         return self._count
@@ -95,7 +135,7 @@ class MorphResult:
         """
         values = [check_real("ts", t) for t in ts]
         if not values or any(not 0 <= t <= 1 for t in values) or any(b < a for a, b in zip(values, values[1:])):
-            raise ValueError(f"ts must be a non-empty, non-decreasing sequence of times in [0, 1], got {list(ts)}")
+            raise InputError(f"ts must be a non-empty, non-decreasing sequence of times in [0, 1], got {list(ts)}")
         return self._render(values)
 
     def frame(self, t: float) -> Tensor:
@@ -105,7 +145,7 @@ class MorphResult:
         """
         u = check_real("t", t)
         if not 0 <= u <= 1:
-            raise ValueError(f"t must be in [0, 1], got {t!r}")
+            raise InputError(f"t must be in [0, 1], got {t!r}")
         return self._render([u]).frames[0].to(self._dtype)
 
     def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]:
@@ -135,7 +175,8 @@ class MorphResult:
             warnings.warn(
                 f"the morph's maps fold on {count} of {n_pixels} pixels over all frames of "
                 "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
-                "(result.fit.error names the points not reached), or raise smoothness",
+                "(result.error names the points not reached), or raise NaturalSettings.straightness or "
+                "PaperSettings.smoothness",
                 RuntimeWarning,
                 stacklevel=4,
             )

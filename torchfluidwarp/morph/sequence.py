@@ -15,15 +15,16 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_real
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, morph, resize_pair
 from torchfluidwarp.morph.result import MorphResult
+from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettings, Timing
 
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
@@ -31,11 +32,11 @@ __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 def _prepared(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[Tensor, Tensor]]:
     """Each image ``(1, C, H, W)`` at the first one's size, with its points scaled to match."""
     if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple)):
-        raise TypeError("images and points must be lists (or tuples) of tensors")
+        raise InputTypeError("images and points must be lists (or tuples) of tensors")
     if len(images) < 2:
-        raise ValueError(f"images must hold at least 2 images, got {len(images)}")
+        raise InputError(f"images must hold at least 2 images, got {len(images)}")
     if len(points) != len(images):
-        raise ValueError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
+        raise InputError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
     first = _as_image("images[0]", images[0])
     out = []
     for i, (image, p) in enumerate(zip(images, points)):
@@ -67,7 +68,7 @@ class MorphSequence:
         """The frame at ``t`` in ``[0, 1]`` of the whole sequence, ``(C, H, W)``."""
         u = check_real("t", t)
         if not 0 <= u <= 1:
-            raise ValueError(f"t must be in [0, 1], got {t!r}")
+            raise InputError(f"t must be in [0, 1], got {t!r}")
         i = max(k for k in range(len(self.segments)) if self._starts[k] <= u)
         lo, hi = self._starts[i], self._starts[i + 1]
         return self.segments[i].frame(min(1.0, (u - lo) / (hi - lo)))
@@ -92,24 +93,30 @@ def _travel(pa: Tensor, pb: Tensor) -> float:
 
 
 def morph_sequence(
-    images: Sequence[Tensor], points: Sequence[Tensor], *, frames: int = 60, **options: Any
+    images: Sequence[Tensor],
+    points: Sequence[Tensor],
+    *,
+    settings: MorphSettings = NaturalSettings(),
+    frames: int = 60,
+    timing: Timing = Timing(),
+    blending: Blending = Blending(),
+    progress: bool = True,
+    max_memory: float | None = None,
 ) -> MorphSequence:
     """Morph through ``images`` in order, so that their ``points`` travel from set to set.
 
     Args:
         images: two or more images ``(C, H, W)``; each is resized to the first one's size.
         points: one ``(M, 2)`` set per image, in that image's pixels.
+        settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
+            every segment. With the linear motion (``Timing()``, the default) the frames are shared out in
+            proportion to each segment's travel, so the points' speed is the same on both sides of every middle
+            image; ``Timing(motion="smooth")`` eases to rest at each image instead.
         frames: frames of the whole sequence (at least one more than the number of segments).
-        options: any :func:`~torchfluidwarp.morph.morph` setting (``method``, ``steps``, ``motion``,
-            ``blend``, ``region`` ...), used for every segment. With ``motion="linear"`` (the default) the frames
-            are shared out in proportion to each segment's travel, so the points' speed is the same on both sides
-            of every middle image; ``motion="smooth"`` eases to rest at each image instead.
 
     Returns:
         a :class:`MorphSequence`.
     """
-    if "frames" in options:
-        raise TypeError("frames is the whole sequence's count; it cannot be set per segment")
     scaled = [p for _, p in _prepared(images, points)]
     n = check_int("frames", frames, minimum=len(images))
     travel = [max(_travel(a, b), 1e-6) for a, b in zip(scaled, scaled[1:])]
@@ -121,7 +128,18 @@ def morph_sequence(
     while sum(shares) > steps_total:  # rounding overshot: take from the largest
         shares[shares.index(max(shares))] -= 1
     results = [
-        morph(images[i], images[i + 1], points[i], points[i + 1], frames=shares[i] + 1, **options)
+        morph(
+            images[i],
+            images[i + 1],
+            points[i],
+            points[i + 1],
+            settings=settings,
+            frames=shares[i] + 1,
+            timing=timing,
+            blending=blending,
+            progress=progress,
+            max_memory=max_memory,
+        )
         for i in range(segments)
     ]
     return MorphSequence(results, [s + 1 for s in shares])
@@ -146,7 +164,14 @@ class AverageResult:
     errors: Tensor
 
 
-def average(images: Sequence[Tensor], points: Sequence[Tensor], **options: Any) -> AverageResult:
+def average(
+    images: Sequence[Tensor],
+    points: Sequence[Tensor],
+    *,
+    settings: MorphSettings = NaturalSettings(),
+    progress: bool = False,
+    max_memory: float | None = None,
+) -> AverageResult:
     """The average of ``images``: each warped to the mean shape of ``points`` by its own flow, then averaged.
 
     The mean shape: every point set brought onto the first by a similarity (least squares), averaged, and
@@ -155,13 +180,12 @@ def average(images: Sequence[Tensor], points: Sequence[Tensor], **options: Any) 
     Args:
         images: two or more images ``(C, H, W)``; each is resized to the first one's size.
         points: one ``(M, 2)`` set per image, the same features in the same order.
-        options: any :func:`~torchfluidwarp.morph.morph` setting (``method``, ``grid``, ``steps`` ...).
+        settings, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for every warp (each
+            is rendered at its end only, so there are no frames, timing or region to set).
 
     Returns:
         an :class:`AverageResult`.
     """
-    if "frames" in options or "region" in options:
-        raise TypeError("average takes no frames or region: it renders each warp at its end only")
     pairs = _prepared(images, points)
     first = pairs[0][0]
     sets = [p.double() for _, p in pairs]
@@ -176,10 +200,12 @@ def average(images: Sequence[Tensor], points: Sequence[Tensor], **options: Any) 
     for image, p in pairs:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
-            result = morph(image, image, p, back.to(p), frames=2, **{"progress": False, **options})
+            result = morph(
+                image, image, p, back.to(p), settings=settings, frames=2, progress=progress, max_memory=max_memory
+            )
             end = result.render([1.0])  # its forward warp at the end: A in the mean shape
         warped.append(end.forward[0])
         folded += end.folded / (2 * H * W)
-        errors.append(float(result.fit.error.mean()))
+        errors.append(float(result.error.mean()))
     stack = torch.stack(warped)
     return AverageResult(stack.mean(0), back.to(first.dtype), stack, folded / len(pairs), torch.tensor(errors))

@@ -3,7 +3,9 @@
 A schedule maps ``t`` to a progress in ``[0, 1]``, from 0 at ``t = 0`` to 1 at ``t = 1``, never going back. The
 shape's progress picks the fluid time (``progress * T`` steps) and the pre-alignment's share; the colour's is the
 cross-dissolve's weight of image B. Give the shape a schedule that leads the colour (``"ease-out"`` for the
-shape, ``"ease-in"`` for the colour) and the features arrive before their colours change.
+shape, ``"ease-in"`` for the colour) and the features arrive before their colours change:
+``morph(a, b, pa, pb, timing=Timing(motion="ease-out", blend="ease-in"))``
+(:class:`~torchfluidwarp.morph.settings.Timing`).
 
 A schedule is a name or a few control points ``[(t, progress), ...]`` joined by straight lines:
 
@@ -20,11 +22,14 @@ from collections.abc import Callable, Sequence
 from typing import Literal
 
 from torchfluidwarp._checks import describe
+from torchfluidwarp.errors import InputError, InputTypeError
 
-__all__ = ["Timing", "EASINGS", "schedule"]
+__all__ = ["Schedule", "EASINGS", "schedule"]
 
 Easing = Literal["linear", "smooth", "ease-in", "ease-out"]
-Timing = Easing | Sequence[Sequence[float]]
+Schedule = Easing | Sequence[Sequence[float]]
+"""A schedule: an easing name or control points ``[(t, progress), ...]`` (the fields of
+:class:`~torchfluidwarp.morph.settings.Timing`)."""
 
 EASINGS: dict[str, Callable[[float], float]] = {
     "linear": lambda t: t,
@@ -50,21 +55,21 @@ def schedule(name: str, timing: object) -> Callable[[float], float]:
     """
     if isinstance(timing, str):
         if timing not in EASINGS:
-            raise ValueError(f"{name} must be one of {', '.join(map(repr, EASINGS))} or control points, got {timing!r}")
+            raise InputError(f"{name} must be one of {', '.join(map(repr, EASINGS))} or control points, got {timing!r}")
         return EASINGS[timing]
     try:
         points = [(float(t), float(v)) for t, v in timing]  # type: ignore[attr-defined]
     except (TypeError, ValueError):
-        raise TypeError(
+        raise InputTypeError(
             f"{name} must be an easing name or control points [(t, progress), ...], got {describe(timing)}"
         ) from None
     ts, vs = [t for t, _ in points], [v for _, v in points]
     if len(points) < 2 or ts[0] != 0 or ts[-1] != 1 or vs[0] != 0 or vs[-1] != 1:
-        raise ValueError(f"{name}'s control points must run from (0, 0) to (1, 1), got {points}")
+        raise InputError(f"{name}'s control points must run from (0, 0) to (1, 1), got {points}")
     if not all(math.isfinite(x) for x in ts + vs):
-        raise ValueError(f"{name}'s control points must be finite, got {points}")
+        raise InputError(f"{name}'s control points must be finite, got {points}")
     if any(b <= a for a, b in zip(ts, ts[1:])) or any(b < a for a, b in zip(vs, vs[1:])):
-        raise ValueError(f"{name}'s control points need increasing t and non-decreasing progress, got {points}")
+        raise InputError(f"{name}'s control points need increasing t and non-decreasing progress, got {points}")
 
     def piecewise(t: float) -> float:
         for (t0, v0), (t1, v1) in zip(points, points[1:]):

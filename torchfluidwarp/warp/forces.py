@@ -6,12 +6,11 @@ Force modules are called as ``forces(grid, steps, dt, image_size)`` and return a
 lengths given to them are in **pixels** of an image of size ``image_size = (H, W)`` (pixel centres at
 integers), so the same module drives any fluid resolution. Every parameter is an ``nn.Parameter``, so
 brushes and control grids are differentiable and can be fitted. The landmark forces of the natural morph live in
-:mod:`torchfluidwarp.warp.landmarks` (importable from here too).
+:mod:`torchfluidwarp.warp.landmarks`.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
 
@@ -22,14 +21,14 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.core.grid import FluidGrid, cell_scale
 from torchfluidwarp.core.grid import cell_centres as _grid_cell_centres
-from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints  # noqa: F401  (their old home)
+from torchfluidwarp.errors import InputError
 
 __all__ = [
     "Brushes",
     "SumForces",
     "ControlGrid",
     "CellForces",
-    "LandmarkForces",
+    "bicubic_axis",
     "ViscosityBrushes",
     "viscosity_from_mask",
     "cell_centres",
@@ -100,20 +99,20 @@ class Brushes(nn.Module):
         check_tensor("centers", c, shape=[None, 2])
         k = c.shape[0]
         if k < 1:
-            raise ValueError("centers must hold at least one brush, got shape (0, 2)")
+            raise InputError("centers must hold at least one brush, got shape (0, 2)")
         d = torch.as_tensor(directions, dtype=c.dtype, device=c.device).detach().clone()
         check_tensor("directions", d, shape=[k, 2])
         if bool((d.norm(dim=-1) == 0).any()):
-            raise ValueError("directions must be non-zero vectors")
+            raise InputError("directions must be non-zero vectors")
 
         def per_brush(name: str, v: Tensor | Sequence | float, positive: bool) -> nn.Parameter:
             t = torch.as_tensor(v, dtype=c.dtype, device=c.device).detach().clone().flatten()
             t = t.expand(k).clone() if t.numel() == 1 else t
             check_tensor(name, t, shape=[k])
             if positive and bool((t <= 0).any()):
-                raise ValueError(f"{name} must be > 0, got {t.tolist()}")
+                raise InputError(f"{name} must be > 0, got {t.tolist()}")
             if not positive and name == "frequency" and bool((t < 0).any()):
-                raise ValueError(f"frequency must be >= 0, got {t.tolist()}")
+                raise InputError(f"frequency must be >= 0, got {t.tolist()}")
             return nn.Parameter(t)
 
         self.centers = nn.Parameter(c)
@@ -146,21 +145,22 @@ class SumForces(nn.Module):
     def __init__(self, *modules: nn.Module) -> None:
         super().__init__()
         if not modules:
-            raise ValueError("SumForces needs at least one force module")
+            raise InputError("SumForces needs at least one force module")
         self.parts = nn.ModuleList(modules)
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         return sum(p(grid, steps, dt, image_size) for p in self.parts)  # type: ignore[return-value]
 
 
-@functools.lru_cache(maxsize=32)
-def _bicubic_axis(k: int, n: int, device: torch.device, dtype: torch.dtype) -> Tensor:
-    """Memo of a pure function: the ``(n, k)`` matrix of ``F.interpolate(..., mode="bicubic", align_corners=True)``
-    from ``k`` to ``n`` samples along one axis.
+def bicubic_axis(k: int, n: int, *, device: torch.device | None = None, dtype: torch.dtype | None = None) -> Tensor:
+    """The ``(n, k)`` matrix of ``F.interpolate(..., mode="bicubic", align_corners=True)`` from ``k`` to ``n``
+    samples along one axis.
 
     Bicubic resizing is separable, so ``R_y @ W @ R_x.T`` equals it exactly on a ``(K_y, K_x)`` grid, and costs two
     small matrix products forward and backward instead of the resize kernels (6% of a keyframe gradient).
     """
+    # outside inference mode: a ControlGrid keeps these for the life of the module, also for fits that record
+    # gradients after a first call under torch.inference_mode()
     with torch.inference_mode(False), torch.no_grad():
         basis = torch.eye(k, device=device, dtype=dtype).view(k, 1, k, 1).expand(k, 1, k, 4)
         rows = F.interpolate(basis, size=(n, 4), mode="bicubic", align_corners=True)  # constant along the width
@@ -218,6 +218,8 @@ class ControlGrid(nn.Module):
         check_tensor("init", init, shape=[batch, steps, 2, ky, kx])
         self.weight = nn.Parameter(init.detach().clone())
         self.cumulative = bool(cumulative)
+        # the upsampling matrices per fluid grid, device and dtype: built once for the life of this module
+        self._upsample: dict[tuple[int, int, torch.device, torch.dtype], tuple[Tensor, Tensor]] = {}
 
     def extra_repr(self) -> str:
         return f"steps={self.weight.shape[1]}, control={tuple(self.weight.shape[-2:])}, cumulative={self.cumulative}"
@@ -230,10 +232,16 @@ class ControlGrid(nn.Module):
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         B, T, _, ky, kx = self.weight.shape
         if steps != T:
-            raise ValueError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
+            raise InputError(f"this ControlGrid holds {T} steps, but {steps} were asked for")
         h, w = FluidGrid.of(grid).shape
         like = self.weight
-        ry, rx = _bicubic_axis(ky, h, like.device, like.dtype), _bicubic_axis(kx, w, like.device, like.dtype)
+        key = (h, w, like.device, like.dtype)
+        if key not in self._upsample:
+            self._upsample[key] = (
+                bicubic_axis(ky, h, device=like.device, dtype=like.dtype),
+                bicubic_axis(kx, w, device=like.device, dtype=like.dtype),
+            )
+        ry, rx = self._upsample[key]
         return ry @ self.control_forces() @ rx.T
 
 
@@ -259,7 +267,7 @@ class CellForces(nn.Module):
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         if FluidGrid.of(grid).shape != tuple(self.weight.shape[-2:]) or steps != self.weight.shape[1]:
-            raise ValueError(
+            raise InputError(
                 f"CellForces holds {tuple(self.weight.shape)}, but grid {FluidGrid.of(grid).shape} "
                 f"and {steps} steps were asked for"
             )
@@ -283,7 +291,7 @@ def viscosity_from_mask(
     m = mask if mask.ndim == 4 else mask.reshape(1, 1, *mask.shape[-2:])
     check_tensor("mask", m, shape=[None, 1, None, None])
     if stiff < 0 or soft < 0:
-        raise ValueError(f"stiff and soft must be >= 0, got stiff={stiff}, soft={soft}")
+        raise InputError(f"stiff and soft must be >= 0, got stiff={stiff}, soft={soft}")
     cells = F.adaptive_avg_pool2d(m.clamp(0, 1), FluidGrid.of(grid).shape)
     return soft + (stiff - soft) * cells
 
@@ -311,9 +319,9 @@ class ViscosityBrushes(nn.Module):
         r = torch.as_tensor(radius, dtype=c.dtype, device=c.device).flatten().expand(k).clone()
         v = torch.as_tensor(value, dtype=c.dtype, device=c.device).flatten().expand(k).clone()
         if bool((r <= 0).any()):
-            raise ValueError(f"radius must be > 0, got {r.tolist()}")
+            raise InputError(f"radius must be > 0, got {r.tolist()}")
         if base < 0:
-            raise ValueError(f"base must be >= 0, got {base}")
+            raise InputError(f"base must be >= 0, got {base}")
         self.centers, self.radius, self.value = nn.Parameter(c), nn.Parameter(r), nn.Parameter(v)
         self.base = float(base)
 

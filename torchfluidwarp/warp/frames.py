@@ -13,8 +13,9 @@ from torch import Tensor
 from torchfluidwarp._checks import all_finite, check_size, check_tensor
 from torchfluidwarp.core.grid import normalized_affine
 from torchfluidwarp.core.sampling import SampleMode, sample
+from torchfluidwarp.errors import InputError
 
-__all__ = ["identity_map", "warp_image", "jacobian_determinant"]
+__all__ = ["identity_map", "warp_image", "sample_map", "jacobian_determinant"]
 
 
 def identity_map(size: tuple[int, int], *, batch: int = 1, device=None, dtype=torch.float32) -> Tensor:
@@ -54,17 +55,25 @@ def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> 
     check_tensor("image", image, ndim=4)
     check_tensor("coords", coords, shape=[None, None, None, 2])
     if image.shape[0] != coords.shape[0] or min(image.shape[-2:]) < 1:
-        raise ValueError(f"image {tuple(image.shape)} must be non-empty with the batch of coords {tuple(coords.shape)}")
+        raise InputError(f"image {tuple(image.shape)} must be non-empty with the batch of coords {tuple(coords.shape)}")
     if mode not in ("bilinear", "bicubic", "nearest"):
-        raise ValueError(f"mode must be 'bilinear', 'bicubic' or 'nearest', got {mode!r}")
-    return _warp_image(image, coords, mode, check=None)  # coords checked above
+        raise InputError(f"mode must be 'bilinear', 'bicubic' or 'nearest', got {mode!r}")
+    return sample_map(image, coords, mode, check=None)  # coords checked above
 
 
-def _warp_image(image: Tensor, coords: Tensor, mode: SampleMode, check: str | None = "coords") -> Tensor:
-    """:func:`warp_image` without its argument checks, for internal callers.
+def sample_map(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear", check: str | None = "coords") -> Tensor:
+    """:func:`warp_image` without its shape checks, for callers that built ``image`` and ``coords`` themselves
+    (the renderer, once per frame).
 
-    The sampling grid is still refused if non-finite (one reduction per call, once per frame), with ``check``
-    naming where the coordinates came from; ``check=None`` where they were checked already.
+    Args:
+        image: ``(B, C, H, W)``.
+        coords: ``(B, H', W', 2)`` source positions in ``image``'s pixels.
+        mode: ``"bilinear"``, ``"bicubic"`` or ``"nearest"``.
+        check: the name under which non-finite ``coords`` are refused (one reduction per call); ``None`` where
+            they were checked already.
+
+    Returns:
+        ``(B, C, H', W')``.
     """
     scale, shift = normalized_affine((image.shape[-2], image.shape[-1]), device=image.device, dtype=image.dtype)
     grid = torch.addcmul(shift.view(1, 1, 1, 2), coords.to(image.dtype), scale.view(1, 1, 1, 2))
@@ -86,10 +95,10 @@ def jacobian_determinant(coords: Tensor) -> Tensor:
     """
     check_tensor("coords", coords, ndim=4)
     if coords.shape[-1] != 2 or min(coords.shape[1:3]) < 2:
-        raise ValueError(f"coords must have shape (B, H, W, 2) with H, W >= 2, got {tuple(coords.shape)}")
+        raise InputError(f"coords must have shape (B, H, W, 2) with H, W >= 2, got {tuple(coords.shape)}")
     dx_dy, dx_dx = torch.gradient(coords[..., 0], dim=(1, 2))
     dy_dy, dy_dx = torch.gradient(coords[..., 1], dim=(1, 2))
     det = dx_dx * dy_dy - dx_dy * dy_dx
     if det.numel() and not all_finite(det):  # finite coordinates whose products overflow the dtype
-        raise ValueError(f"coords are too large for {coords.dtype}: their Jacobian determinant overflows")
+        raise InputError(f"coords are too large for {coords.dtype}: their Jacobian determinant overflows")
     return det

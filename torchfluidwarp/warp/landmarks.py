@@ -17,6 +17,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import check_int, check_size, check_tensor
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale
 from torchfluidwarp.core.spline import tps_fit
+from torchfluidwarp.errors import InputError
 
 __all__ = ["LandmarkForces", "solve_midpoints"]
 
@@ -103,7 +104,7 @@ class LandmarkForces(nn.Module):
         super().__init__()
         m = check_tensor("midpoints", midpoints, shape=[None, 2])
         if m.shape[0] < 3:
-            raise ValueError(f"midpoints must hold at least 3 points, got shape {tuple(m.shape)}")
+            raise InputError(f"midpoints must hold at least 3 points, got shape {tuple(m.shape)}")
         d = check_tensor("displacements", displacements, shape=[m.shape[0], 2]).to(m.dtype)
         steps, batch = check_int("steps", steps), check_int("batch", batch)
         self.register_buffer("midpoints", m.detach().clone())
@@ -121,7 +122,7 @@ class LandmarkForces(nn.Module):
         """``(T, h w, M)``: per step, the points' cardinal splines at each cell's particle, faded toward the walls."""
         key = (grid.shape, image_size, self.midpoints.device, self.weight.dtype)
         if key not in self._basis:
-            with torch.no_grad():
+            with torch.inference_mode(False), torch.no_grad():  # kept for later fits that record gradients
                 mids, disp = self.midpoints.double(), self.displacements.double()
                 cells = cell_centres(grid, image_size, device=mids.device, dtype=mids.dtype).reshape(
                     -1, 2
@@ -147,7 +148,7 @@ class LandmarkForces(nn.Module):
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
         B, T, m, _ = self.weight.shape
         if steps != T:
-            raise ValueError(f"this LandmarkForces holds {T} steps, but {steps} were asked for")
+            raise InputError(f"this LandmarkForces holds {T} steps, but {steps} were asked for")
         g = FluidGrid.of(grid)
         H, W = check_size("image_size", image_size)
         v = self.displacements.to(self.weight.dtype) / (T * dt) + self.weight  # (B, T, M, 2) pixels per time unit

@@ -1,17 +1,15 @@
 """The differentiable fluid warp layer: forces in, frames out.
 
 :class:`FluidWarp` rolls the fluid out over a force schedule (:class:`~torchfluidwarp.core.simulator.FluidSimulator`)
-and reads the image through the roll-out's texture-coordinate maps (:mod:`torchfluidwarp.warp.maps`, whose names
-are importable from here too). Conventions: images ``(B, C, H, W)``; points ``(x, y)`` in pixels, pixel centres at
-integers (see :mod:`torchfluidwarp.core.grid`).
+and reads the image through the roll-out's texture-coordinate maps (:mod:`torchfluidwarp.warp.maps`).
+Conventions: images ``(B, C, H, W)``; points ``(x, y)`` in pixels, pixel centres at integers (see
+:mod:`torchfluidwarp.core.grid`).
 """
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Generator, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import closing, nullcontext
+from contextlib import closing
 
 import torch
 from torch import Tensor, nn
@@ -22,21 +20,11 @@ from torchfluidwarp.core.grid import FluidGrid, normalized_affine, pixel_to_norm
 from torchfluidwarp.core.linalg import CGConfig
 from torchfluidwarp.core.sampling import SampleMode, sample
 from torchfluidwarp.core.simulator import FluidRollout, FluidSimulator
-from torchfluidwarp.warp.maps import *  # noqa: F403  (the maps' old home: every public name still resolves here)
-from torchfluidwarp.warp.maps import (  # noqa: F401  (what this module uses, and private helpers imported from here)
-    MapConfig,
-    _carry,
-    _displacement,
-    _iter_displacements,
-    _raster,
-    _warp_image,
-    backward_maps,
-    forward_maps,
-    identity_map,
-    upsample_raster,
-)
+from torchfluidwarp.errors import InputError, InputTypeError
+from torchfluidwarp.warp.frames import identity_map
+from torchfluidwarp.warp.maps import MapConfig, _iter_displacements, backward_maps, forward_maps, upsample_raster
 
-__all__ = ["FluidWarp"]  # the maps' names resolve here too, but live in torchfluidwarp.warp.maps
+__all__ = ["FluidWarp"]
 
 ForceSource = Tensor | Callable[..., Tensor]
 
@@ -45,23 +33,8 @@ def check_image(image: object) -> Tensor:
     """Validate an image ``(B, C, H, W)`` to warp, with ``B, H, W >= 1``."""
     x = check_tensor("image", image, ndim=4)
     if min(x.shape[0], *x.shape[-2:]) < 1:
-        raise ValueError(f"image must have B, H and W >= 1, got shape {tuple(x.shape)}")
+        raise InputError(f"image must have B, H and W >= 1, got shape {tuple(x.shape)}")
     return x
-
-
-PREFETCH_PIXELS = 2**17
-"""Frames over this many pixels (about 362 x 362) build their next sampling grid in a worker thread by default,
-on the CPU: measured on a 2-core AMD EPYC, a 256 x 256 frame ran 1.6x slower with the worker (the hand-over costs
-more than the overlap gains) and a 600 x 600 frame 1.3x faster. On a GPU, whose work runs asynchronously anyway,
-the worker mostly adds the hand-over: on an H100 with the fluid step replayed from a CUDA graph, ``iter_frames``
-ran 1.3x faster at 600 x 600 and 1.2x at 1920 x 1080 without it (``benchmarks/bench_device.py``; step by step,
-the result was mixed), so there it is off by default."""
-
-
-def _prefetch(size: tuple[int, int], prefetch: bool | None, device: torch.device) -> bool:
-    if prefetch is not None:
-        return bool(prefetch)
-    return device.type == "cpu" and size[0] * size[1] > PREFETCH_PIXELS
 
 
 class FluidWarp(nn.Module):
@@ -80,6 +53,8 @@ class FluidWarp(nn.Module):
         pressure, diffusion, adjoint: CG settings (:class:`~torchfluidwarp.core.linalg.CGConfig`).
         map_config: how finely the maps are composed, and the sub-steps' strain for maps and points
             (:class:`~torchfluidwarp.warp.maps.MapConfig`; its defaults when ``None``).
+        cuda_graphs: replay the fluid step from a CUDA graph that this layer's simulator captures once and keeps
+            (no-grad roll-outs on a GPU; see :class:`~torchfluidwarp.core.simulator.FluidSimulator`).
 
     Forces are a tensor ``(B|1, T, 2, h, w)`` in fluid cells per time unit^2 (channel 0 = x), or a force
     module from :mod:`torchfluidwarp.warp.forces` called as ``forces(grid, steps, dt, image_size)``.
@@ -106,18 +81,26 @@ class FluidWarp(nn.Module):
         diffusion: CGConfig = CGConfig(),
         adjoint: CGConfig | None = None,
         map_config: MapConfig | None = None,
+        cuda_graphs: bool = False,
     ) -> None:
         super().__init__()
         self.simulator = FluidSimulator(
-            grid, dt, viscosity, pressure=pressure, diffusion=diffusion, adjoint=adjoint, compressible=compressible
+            grid,
+            dt,
+            viscosity,
+            pressure=pressure,
+            diffusion=diffusion,
+            adjoint=adjoint,
+            compressible=compressible,
+            cuda_graphs=cuda_graphs,
         )
         self.steps = check_int("steps", steps)
         self.image_size = None if image_size is None else check_size("image_size", image_size)
         if mode not in ("bilinear", "bicubic"):
-            raise ValueError(f"mode must be 'bilinear' or 'bicubic', got {mode!r}")
+            raise InputError(f"mode must be 'bilinear' or 'bicubic', got {mode!r}")
         self.mode: SampleMode = mode
         if not isinstance(map_config, (MapConfig, type(None))):
-            raise TypeError(f"map_config must be a MapConfig or None, got {type(map_config).__name__}")
+            raise InputTypeError(f"map_config must be a MapConfig or None, got {type(map_config).__name__}")
         self.map_config = MapConfig() if map_config is None else map_config
 
     @property
@@ -132,7 +115,7 @@ class FluidWarp(nn.Module):
         if size is not None:
             return check_size("size", size)
         if self.image_size is None:
-            raise ValueError("size is needed: pass size=(H, W) or build FluidWarp with image_size=(H, W)")
+            raise InputError("size is needed: pass size=(H, W) or build FluidWarp with image_size=(H, W)")
         return self.image_size
 
     def resolve_forces(self, forces: ForceSource, image_size: tuple[int, int]) -> Tensor:
@@ -147,13 +130,13 @@ class FluidWarp(nn.Module):
         check_memory(what, nbytes, self.map_config.max_memory, "MapConfig(max_memory=...)")
         if not isinstance(forces, Tensor):
             if not callable(forces):
-                raise TypeError(
+                raise InputTypeError(
                     f"forces must be a tensor (B, T, 2, h, w) or a force module, got {type(forces).__name__}"
                 )
             forces = forces(self.grid, self.steps, self.dt, image_size)
         check_tensor("forces", forces, finite=False)
         if forces.ndim != 5 or tuple(forces.shape[1:]) != (self.steps, 2, h, w):
-            raise ValueError(
+            raise InputError(
                 f"forces must have shape (*, {self.steps}, 2, {h}, {w}) for steps={self.steps} on the grid of "
                 f"{h} x {w} cells, got {tuple(forces.shape)}"
             )
@@ -173,10 +156,10 @@ class FluidWarp(nn.Module):
         shared. Velocities that overflowed (in the roll-out, or on the way to ``dtype``) are refused by name."""
         vel = self.rollout(forces, size).velocities
         if vel.shape[0] not in (1, batch):
-            raise ValueError(f"forces have batch {vel.shape[0]}, but {name} has batch {batch} (or give forces batch 1)")
+            raise InputError(f"forces have batch {vel.shape[0]}, but {name} has batch {batch} (or give forces batch 1)")
         vel = vel if dtype is None else vel.to(dtype)
         if not all_finite(vel):
-            raise ValueError(
+            raise InputError(
                 f"the flow of these forces overflowed {vel.dtype} (non-finite velocities, dt {self.dt!r}): "
                 "use smaller forces or dt, or a wider dtype"
             )
@@ -185,26 +168,21 @@ class FluidWarp(nn.Module):
     def forward(self, image: Tensor, forces: ForceSource) -> Tensor:
         """Warp ``image`` ``(B, C, H, W)``: returns the frames ``(B, T + 1, C, H, W)``; frame 0 is the input.
 
-        The frames come from the same machinery as :meth:`iter_frames` (one resampling of ``image`` per frame,
-        the next sampling grid built in a worker thread meanwhile); without grad they are written straight into
-        the output, so the only large allocation is the output itself.
+        The frames come from the same machinery as :meth:`iter_frames` (one resampling of ``image`` per frame);
+        without grad they are written straight into the output, so the only large allocation is the output itself.
         """
         check_image(image)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
-            frames = self._resampled(image, vel, _prefetch(size, None, image.device))
-            return torch.stack([image, *frames], dim=1)  # autograd keeps each frame
-        # new memory costs about 0.5 ms a MB to map in on first write on some machines (a 600 x 600 RGB frame is
-        # 4.3 MB): zeroing the output first maps it in on all of torch's threads at once, instead of page by
-        # page in the frame loop (docs/benchmarks.md, issue #20)
-        out = image.new_zeros(image.shape[0], self.steps + 1, *image.shape[1:])
+            return torch.stack([image, *self._resampled(image, vel)], dim=1)  # autograd keeps each frame
+        out = image.new_empty(image.shape[0], self.steps + 1, *image.shape[1:])
         out[:, 0] = image
-        for t, frame in enumerate(self._resampled(image, vel, _prefetch(size, None, image.device)), start=1):
+        for t, frame in enumerate(self._resampled(image, vel), start=1):
             out[:, t] = frame
         return out
 
-    def iter_frames(self, image: Tensor, forces: ForceSource, *, prefetch: bool | None = None) -> Iterator[Tensor]:
+    def iter_frames(self, image: Tensor, forces: ForceSource) -> Iterator[Tensor]:
         """Yield the frames ``(B, C, H, W)`` one at a time (``T + 1`` of them): long animations in little memory.
 
         The fluid is rolled out first (cheap at fluid resolution); each frame is then resampled on demand, so a
@@ -213,27 +191,20 @@ class FluidWarp(nn.Module):
         Args:
             image: ``(B, C, H, W)``.
             forces: as for :meth:`forward`.
-            prefetch: build the next frame's sampling grid in a worker thread while this frame is resampled and
-                consumed (PyTorch releases the GIL inside its operators, so on two cores the two overlap).
-                ``False`` does everything in the calling thread. ``None`` (default): prefetch for frames over
-                :data:`PREFETCH_PIXELS` pixels on the CPU, where the overlap pays for the hand-over between
-                threads; not on a GPU.
         """
         check_image(image)
         size = (image.shape[-2], image.shape[-1])
         vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         yield image
-        # closing: a caller that stops early stops the worker
-        with closing(self._resampled(image, vel, _prefetch(size, prefetch, image.device))) as frames:
+        with closing(self._resampled(image, vel)) as frames:
             for frame in frames:
                 yield frame.contiguous()
 
-    def _resampled(self, image: Tensor, vel: Tensor, prefetch: bool) -> Generator[Tensor, None, None]:
+    def _resampled(self, image: Tensor, vel: Tensor) -> Generator[Tensor, None, None]:
         """Frames 1 to ``T`` of ``image`` through the backward maps of ``vel``, one ``grid_sample`` each.
 
         The sampling grids are built straight from the maps' raster (identity + upsampled displacement, in
-        normalised coordinates, one pass), by a worker thread one frame ahead when ``prefetch``. A frame may come
-        back channels-last.
+        normalised coordinates, one pass). A frame may come back channels-last.
         """
         size = (image.shape[-2], image.shape[-1])
         displacements, _, (Hr, Wr) = _iter_displacements(vel, size, self.dt, None, self.map_config)
@@ -242,38 +213,17 @@ class FluidWarp(nn.Module):
         ident = pixel_to_normalized(identity_map(size, device=vel.device, dtype=vel.dtype), size)
         ident = ident.permute(0, 3, 1, 2).contiguous()
         ratio = normalized_affine((Hr, Wr), device=vel.device, dtype=vel.dtype)[0].view(1, 2, 1, 1)  # raster px
-        grad = torch.is_grad_enabled()  # grad mode is per thread: the worker follows the caller's
-        # without autograd (which keeps each grid for the backward) the grids go into two buffers used in turn:
-        # the worker fills one while the caller samples through the other. New memory costs about 1 ms per MB
-        # to touch on some machines, 2.5 ms of a 600 x 600 frame's grid.
-        keep = grad and (image.requires_grad or vel.requires_grad)
-        buffers = [] if keep else [ident.new_empty(vel.shape[0], 2, *size) for _ in range(2)]
-        frame = 0
-
-        def next_grid() -> Tensor | None:
-            nonlocal frame
-            with torch.set_grad_enabled(grad):
-                disp = next(displacements, None)
-                if disp is None:
-                    return None
-                out = buffers[frame % 2] if buffers else None
-                grid = torch.addcmul(ident, upsample_raster(disp, size), ratio, out=out).permute(0, 2, 3, 1)
-            frame += 1
-            return grid
-
+        # without autograd (which keeps each grid for the backward) every frame's grid goes into one buffer: new
+        # memory costs about 1 ms per MB to touch on some machines, 2.5 ms of a 600 x 600 frame's grid
+        keep = torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad)
+        buffer = None if keep else ident.new_empty(vel.shape[0], 2, *size)
         # grid_sample reads a channels-last image about 1.5x faster on some CPUs, which repays the one copy
         # over a whole animation (not over one call)
         src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
         next(displacements)  # map 0 is the identity: frame 0 is the input
-        with ThreadPoolExecutor(max_workers=1) if prefetch else nullcontext() as pool:
-            pending = pool.submit(next_grid) if pool is not None else None
-            while True:
-                grid = pending.result() if pending is not None else next_grid()
-                if grid is None:
-                    return
-                if pool is not None:
-                    pending = pool.submit(next_grid)
-                yield sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
+        for disp in displacements:
+            grid = torch.addcmul(ident, upsample_raster(disp, size), ratio, out=buffer).permute(0, 2, 3, 1)
+            yield sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
@@ -292,7 +242,7 @@ class FluidWarp(nn.Module):
         """Carry points through the whole roll-out, step by step: their trajectories.
 
         Each point moves like a particle of the fluid, by RK2 through each step's velocity (the one-step function
-        is :func:`torchfluidwarp.core.fluid.advect_points`), so it lands where the warped frames show its pixel.
+        is :func:`torchfluidwarp.core.advection.advect_points`), so it lands where the warped frames show its pixel.
 
         Args:
             points: ``(B|1, M, 2)`` ``(x, y)`` in pixels of an image of ``size``.
@@ -306,14 +256,6 @@ class FluidWarp(nn.Module):
         check_tensor("points", points, shape=[None, None, 2])
         velocities = self._velocities(forces, size, points.shape[0], "points")
         config = self.map_config
-        return _carry(velocities, points, size, self.dt, config.max_strain, config.max_substeps)
-
-    def advect_points(self, points: Tensor, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
-        """Deprecated alias of :meth:`carry_points` (goes in the next release)."""
-        warnings.warn(
-            "FluidWarp.advect_points was renamed FluidWarp.carry_points (advect_points is the one-step function "
-            "torchfluidwarp.core.fluid.advect_points); the old name goes in the next release.",
-            DeprecationWarning,
-            stacklevel=2,
+        return self.simulator.layout.trajectories(
+            velocities, points, self.dt, size, config.max_strain, config.max_substeps
         )
-        return self.carry_points(points, forces, size)

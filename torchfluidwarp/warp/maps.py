@@ -28,25 +28,16 @@ from torchfluidwarp._checks import (
     check_real,
     check_size,
     check_tensor,
-    compute_dtype,
-)
-from torchfluidwarp.core.advection import (
-    MAX_STRAIN_PER_SUBSTEP,
-    MAX_SUBSTEPS,
-    _advect_points,
-    _backtrace,
-    _extend,
-    _geo,
-    _sample,
-    substeps,
 )
 from torchfluidwarp.core.grid import normalized_affine, rescale_points, scale_factor
-from torchfluidwarp.warp.frames import _warp_image, identity_map, jacobian_determinant, warp_image  # noqa: F401  (re-exported: their home until 0.x)
+from torchfluidwarp.core.sampling import sample
+from torchfluidwarp.core.staggered import MAX_STRAIN_PER_SUBSTEP, MAX_SUBSTEPS, StaggeredGrid
+from torchfluidwarp.errors import InputError, InputTypeError
+from torchfluidwarp.warp.frames import identity_map, sample_map
 
 __all__ = [
     "MapConfig",
-    "warp_image",
-    "identity_map",
+    "working_raster",
     "upsample_raster",
     "backward_maps",
     "iter_backward_maps",
@@ -54,15 +45,9 @@ __all__ = [
     "maps_to_end",
     "raster_displacements",
     "read_displacement",
-    "jacobian_determinant",
     "OVERSAMPLE",
     "TRACE_OVERSAMPLE",
 ]
-
-
-def _cell_scale(size: tuple[int, int], h: int, w: int, like: Tensor) -> Tensor:
-    """Cells per pixel of an image of ``size``, ``(1, 2, 1)`` for channel-first points (see :func:`scale_factor`)."""
-    return scale_factor(size, (h, w), device=like.device, dtype=like.dtype).view(1, 2, 1)
 
 
 OVERSAMPLE = 4
@@ -90,10 +75,10 @@ class MapConfig:
         trace_oversample: each step's back-trace is evaluated exactly on a raster of at most this many points
             per fluid cell and axis and interpolated bilinearly from there. Default :data:`TRACE_OVERSAMPLE`.
         max_strain: maps and points are carried in sub-steps of at most this strain ``dt_sub * max|grad v|``
-            (:func:`~torchfluidwarp.core.advection.substeps`). Default
-            :data:`~torchfluidwarp.core.advection.MAX_STRAIN_PER_SUBSTEP`.
+            (:meth:`~torchfluidwarp.core.staggered.StaggeredGrid.substeps`). Default
+            :data:`~torchfluidwarp.core.staggered.MAX_STRAIN_PER_SUBSTEP`.
         max_substeps: the most sub-steps one step may take; a flow that needs more is refused with a
-            ``ValueError``. Default :data:`~torchfluidwarp.core.advection.MAX_SUBSTEPS`.
+            ``ValueError``. Default :data:`~torchfluidwarp.core.staggered.MAX_SUBSTEPS`.
         max_memory: bytes the maps of one call may hold; default :data:`torchfluidwarp._checks.MAX_BYTES`.
     """
 
@@ -136,21 +121,23 @@ def upsample_raster(field: Tensor, size: tuple[int, int]) -> Tensor:
     return F.interpolate(field, size=size, mode="bilinear", align_corners=False)
 
 
-def _displacement(velocity: Tensor, size: tuple[int, int], dt: float, oversample: int = TRACE_OVERSAMPLE) -> Tensor:
+def _displacement(
+    grid: StaggeredGrid, velocity: Tensor, size: tuple[int, int], dt: float, oversample: int = TRACE_OVERSAMPLE
+) -> Tensor:
     """Back-trace displacement ``x - back(x)`` at every pixel, in pixels: ``(B, 2, H, W)``.
 
     The midpoint back-trace through the staggered velocity is evaluated exactly at the pixel centres of a
     raster of ``min(H, oversample * h) x min(W, oversample * w)`` (the image itself when it is small) covering
     the same rectangle, then resized to ``(H, W)`` (:func:`upsample_raster`).
     """
-    h, w = velocity.shape[-2] - 1, velocity.shape[-1] - 1
-    raster = _raster(size, h, w, oversample)
-    geo = _geo(h, w, velocity)
-    c = _cell_scale(raster, h, w, velocity)
-    pix = identity_map(raster, device=velocity.device, dtype=velocity.dtype).reshape(1, -1, 2).transpose(1, 2)
-    cells = rescale_points(pix, c).expand(velocity.shape[0], -1, -1)  # (B, 2, N) raster centres in cells
-    back = _backtrace(_extend(velocity), cells, dt, geo)
-    disp = ((cells - back) / _cell_scale(size, h, w, velocity)).view(-1, 2, *raster)
+    raster = working_raster(size, grid.grid.shape, oversample)
+    like = velocity
+    c = scale_factor(raster, grid.grid.shape, device=like.device, dtype=like.dtype)
+    pix = identity_map(raster, device=like.device, dtype=like.dtype).reshape(1, -1, 2)
+    cells = rescale_points(pix, c).expand(velocity.shape[0], -1, -1)  # (B, N, 2) raster centres in cells
+    back = grid.backtrace(grid.extend(velocity), cells, dt)
+    per_pixel = scale_factor(size, grid.grid.shape, device=like.device, dtype=like.dtype)
+    disp = ((cells - back) / per_pixel).view(-1, *raster, 2).permute(0, 3, 1, 2)
     return upsample_raster(disp, size)
 
 
@@ -159,13 +146,14 @@ def _frame_times(T: int, times: Times) -> list[float]:
         return [float(t) for t in range(T + 1)]
     out = [float(t) for t in times]
     if any(not (0 <= t <= T) for t in out) or any(b < a for a, b in zip(out, out[1:])):
-        raise ValueError(f"times must be non-decreasing and within [0, {T}] (steps), got {out}")
+        raise InputError(f"times must be non-decreasing and within [0, {T}] (steps), got {out}")
     return out
 
 
-def _raster(size: tuple[int, int], h: int, w: int, oversample: int = OVERSAMPLE) -> tuple[int, int]:
-    """The working raster of the maps: the image, or ``oversample`` points per fluid cell if that is smaller."""
-    return (min(size[0], oversample * h), min(size[1], oversample * w))
+def working_raster(size: tuple[int, int], grid: tuple[int, int], oversample: int = OVERSAMPLE) -> tuple[int, int]:
+    """The working raster of the maps, ``(H_r, W_r)``: the image of ``size`` ``(H, W)``, or ``oversample`` points
+    per fluid cell of ``grid`` ``(h, w)`` along each axis where that is smaller."""
+    return (min(size[0], oversample * grid[0]), min(size[1], oversample * grid[1]))
 
 
 def _map_composer(
@@ -176,35 +164,37 @@ def _map_composer(
     ``compose(disp, t, duration)`` advances ``disp`` ``(B, 2, Hr, Wr)``, a map minus the identity in raster
     pixels: the result is that map read at ``x - d(x)``, where ``d`` is the midpoint back-trace displacement of
     step ``t``'s velocity over ``duration * dt`` (a negative duration traces forward), in
-    :func:`~torchfluidwarp.core.advection.substeps` sub-steps short enough never to fold. The backward maps
-    (``duration > 0``) and the maps to the end (``duration < 0``) share it.
+    :meth:`~torchfluidwarp.core.staggered.StaggeredGrid.substeps` sub-steps short enough never to fold. The
+    backward maps (``duration > 0``) and the maps to the end (``duration < 0``) share it.
 
     ``to_map(disp)`` resizes a raster displacement bilinearly to the image and returns the map
-    ``(B, H, W, 2)`` in image pixels. The raster (:func:`_raster`, ``config.oversample`` points per cell)
+    ``(B, H, W, 2)`` in image pixels. The raster (:func:`working_raster`, ``config.oversample`` points per cell)
     holds every detail the fluid can make, so large images cost one resize per map, not a composition at full
     resolution.
     """
     H, W = size
-    B = velocities.shape[0]
-    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
-    raster = _raster(size, h, w, config.oversample)
+    grid = StaggeredGrid.of(velocities)
+    raster = working_raster(size, grid.grid.shape, config.oversample)
     Hr, Wr = raster
     like = velocities
     pix = identity_map(raster, device=like.device, dtype=like.dtype).permute(0, 3, 1, 2).contiguous()  # (1, 2, Hr, Wr)
     lo = torch.tensor([-0.5, -0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
     hi = torch.tensor([Wr - 0.5, Hr - 0.5], device=like.device, dtype=like.dtype).view(1, 2, 1, 1)
-    scale, shift = (a.view(1, 2, 1) for a in normalized_affine(raster, device=like.device, dtype=like.dtype))
+    scale, shift = (a.view(1, 1, 1, 2) for a in normalized_affine(raster, device=like.device, dtype=like.dtype))
     ratio = scale_factor(raster, size, device=like.device, dtype=like.dtype).view(1, 1, 1, 2)  # raster px -> image px
     ident: list[Tensor] = []  # the image's identity map (1, H, W, 2), built by the first to_map only
 
     def compose(disp: Tensor, t: int, duration: float) -> Tensor:
-        n = substeps(velocities[:, t], dt * duration, config.max_strain, config.max_substeps)
+        velocity = velocities[:, t]
+        n = grid.substeps(grid.extend(velocity.detach()), dt * duration, config.max_strain, config.max_substeps)
         # every sub-step traces the same velocity over the same time: one back-trace serves them all
-        back = _displacement(velocities[:, t], raster, dt * duration / n, config.trace_oversample)
+        back = _displacement(grid, velocity, raster, dt * duration / n, config.trace_oversample)
         at = torch.clamp(pix - back, lo, hi)
-        step, at = at - pix, at.view(B, 2, -1)
+        step = at - pix
+        # unchecked: the velocity was refused by substeps if non-finite, and `at` is clamped into the raster
+        at = torch.addcmul(shift, at.permute(0, 2, 3, 1), scale)  # (B, Hr, Wr, 2) grid_sample's coordinates
         for _ in range(n):
-            disp = step + _sample(disp, at, scale, shift, align_corners=False).view(B, 2, Hr, Wr)
+            disp = step + sample(disp, at, align_corners=False, check=None)
         return disp
 
     def to_map(disp: Tensor) -> Tensor:  # one pass, (B, H, W, 2) contiguous (ratio is 1 when raster == size)
@@ -225,12 +215,12 @@ class _Maps:
         size = check_size("size", size)
         dt = check_real("dt", dt)
         if not isinstance(config, MapConfig):
-            raise TypeError(f"config must be a MapConfig, got {type(config).__name__}")
+            raise InputTypeError(f"config must be a MapConfig, got {type(config).__name__}")
         self.T = velocities.shape[1]
         self.times = _frame_times(self.T, times)
-        h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
+        grid = (velocities.shape[-2] - 1, velocities.shape[-1] - 1)
         config.check_memory(
-            velocities, size if held == "size" else _raster(size, h, w, config.oversample), len(self.times)
+            velocities, size if held == "size" else working_raster(size, grid, config.oversample), len(self.times)
         )
         self.compose, self.to_map, self.raster = _map_composer(velocities, size, dt, config)
         self.zero = velocities.new_zeros(velocities.shape[0], 2, *self.raster)  # the identity's displacement
@@ -389,11 +379,11 @@ def read_displacement(displacement: Tensor, size: tuple[int, int], at: Tensor) -
     check_tensor("at", at, shape=[displacement.shape[0], None, None, 2], finite=False)
     size = check_size("size", size)
     if displacement.shape[1] != 2:
-        raise ValueError(f"displacement must have 2 channels (x, y), got shape {tuple(displacement.shape)}")
+        raise InputError(f"displacement must have 2 channels (x, y), got shape {tuple(displacement.shape)}")
     Hr, Wr = displacement.shape[-2:]
     ratio = at.new_tensor([Wr / size[1], Hr / size[0]])
     on_raster = (at + 0.5) * ratio - 0.5  # the same point in raster pixels
-    return _warp_image(displacement, on_raster, "bilinear", check="at").permute(0, 2, 3, 1)
+    return sample_map(displacement, on_raster, "bilinear", check="at").permute(0, 2, 3, 1)
 
 
 def forward_maps(
@@ -411,23 +401,7 @@ def forward_maps(
     B, T = velocities.shape[:2]
     config.check_memory(velocities, (H, W), T + 1)
     pix = identity_map((H, W), batch=B, device=velocities.device, dtype=velocities.dtype).reshape(B, -1, 2)
-    return _carry(velocities, pix, (H, W), dt, config.max_strain, config.max_substeps).view(B, T + 1, H, W, 2)
-
-
-def _carry(
-    velocities: Tensor,
-    points: Tensor,
-    size: tuple[int, int],
-    dt: float,
-    max_strain: float = MAX_STRAIN_PER_SUBSTEP,
-    max_substeps: int = MAX_SUBSTEPS,
-) -> Tensor:
-    """Carry ``(B, M, 2)`` pixel points through each step: ``(B, T + 1, M, 2)`` pixels, in the promoted dtype."""
-    dtype = torch.promote_types(velocities.dtype, points.dtype)
-    velocities, points = velocities.to(compute_dtype(dtype)), points.to(compute_dtype(dtype))
-    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
-    c = _cell_scale(size, h, w, points)
-    traj = [rescale_points(points.transpose(1, 2), c)]  # (B, 2, M) cells
-    for velocity in velocities.unbind(1):
-        traj.append(_advect_points(traj[-1], velocity, dt, max_strain=max_strain, max_substeps=max_substeps))
-    return rescale_points(torch.stack(traj, dim=1), c.unsqueeze(1), inverse=True).transpose(2, 3).to(dtype)
+    grid = StaggeredGrid.of(velocities)
+    return grid.trajectories(velocities, pix, dt, (H, W), config.max_strain, config.max_substeps).view(
+        B, T + 1, H, W, 2
+    )

@@ -59,6 +59,7 @@ import torch
 
 from torchfluidwarp._checks import check_int, check_positive, check_real, check_size, describe
 from torchfluidwarp.core.grid import rescale_points
+from torchfluidwarp.errors import InputError
 
 __all__ = [
     "BrushSpec",
@@ -161,21 +162,21 @@ def load_config(path: str | Path) -> AnimationConfig:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ValueError(f"cannot read config {str(path)!r}: no such file") from None
+        raise InputError(f"cannot read config {str(path)!r}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read config {str(path)!r}: {exc}") from None
+        raise InputError(f"cannot read config {str(path)!r}: {exc}") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(
+        raise InputError(
             f"config {str(path)!r} is not valid JSON: {exc.msg} (line {exc.lineno}, column {exc.colno})"
         ) from None
     except RecursionError:  # the decoder recurses once per level: a few bytes of "[[[[..." exhaust the stack
-        raise ValueError(f"config {str(path)!r} is nested too deeply to be an animation config") from None
+        raise InputError(f"config {str(path)!r} is nested too deeply to be an animation config") from None
     try:
         return parse_config(data, base_dir=path.parent)
-    except ValueError as exc:
-        raise ValueError(f"config {str(path)!r}: {exc}") from None
+    except InputError as exc:
+        raise InputError(f"config {str(path)!r}: {exc}") from None
 
 
 def parse_config(data: object, *, base_dir: Path | None = None) -> AnimationConfig:
@@ -218,7 +219,7 @@ def brush_from_values(values: Sequence[float], where: str = "brush") -> BrushSpe
         ValueError: not 7 or 8 values, or an invalid one (named with ``where``).
     """
     if len(values) not in (7, 8):
-        raise ValueError(f"{where} needs 7 or 8 values X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE], got {len(values)}")
+        raise InputError(f"{where} needs 7 or 8 values X,Y,DX,DY,RADIUS,FREQ,AMP[,PHASE], got {len(values)}")
     x, y, dx, dy, radius, freq, amp, *phase = values
     spec = {"position": [x, y], "direction": [dx, dy], "radius": radius, "frequency": freq, "amplitude": amp}
     with _as_value_error():
@@ -232,7 +233,7 @@ def region_from_values(values: Sequence[float], where: str = "region") -> Region
         ValueError: not 4 values, or an invalid one (named with ``where``).
     """
     if len(values) != 4:
-        raise ValueError(f"{where} needs 4 values X,Y,RADIUS,VALUE, got {len(values)}")
+        raise InputError(f"{where} needs 4 values X,Y,RADIUS,VALUE, got {len(values)}")
     x, y, radius, value = values
     with _as_value_error():
         return _region(where, {"position": [x, y], "radius": radius, "value": value})
@@ -259,30 +260,30 @@ def _as_value_error() -> Iterator[None]:
     try:
         yield
     except TypeError as exc:
-        raise ValueError(str(exc)) from None
+        raise InputError(str(exc)) from None
 
 
 def _object(where: str, value: object, allowed: Sequence[str], required: Sequence[str] = ()) -> Mapping:
     if not isinstance(value, Mapping):
-        raise ValueError(f"{where} must be a JSON object, got {describe(value)}")
+        raise InputError(f"{where} must be a JSON object, got {describe(value)}")
     unknown = [k for k in value if k not in allowed]
     if unknown:
-        raise ValueError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
+        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
     missing = [k for k in required if k not in value]
     if missing:
-        raise ValueError(f"{where}: missing key {missing[0]!r}")
+        raise InputError(f"{where}: missing key {missing[0]!r}")
     return value
 
 
 def _list(where: str, value: object) -> list:
     if not isinstance(value, list):
-        raise ValueError(f"{where} must be a list, got {describe(value)}")
+        raise InputError(f"{where} must be a list, got {describe(value)}")
     return value
 
 
 def _pair(where: str, value: object) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{where} must be a pair [x, y] of numbers, got {describe(value)}")
+        raise InputError(f"{where} must be a pair [x, y] of numbers, got {describe(value)}")
     return (check_real(f"{where}[0]", value[0]), check_real(f"{where}[1]", value[1]))
 
 
@@ -290,7 +291,7 @@ def _brush(where: str, value: object) -> BrushSpec:
     obj = _object(where, value, _BRUSH_KEYS, required=("position", "direction", "radius", "amplitude"))
     direction = _pair(f"{where}.direction", obj["direction"])
     if direction == (0.0, 0.0):
-        raise ValueError(f"{where}.direction must be a non-zero vector, got [0, 0]")
+        raise InputError(f"{where}.direction must be a non-zero vector, got [0, 0]")
     return BrushSpec(
         position=_pair(f"{where}.position", obj["position"]),
         direction=direction,
@@ -315,7 +316,7 @@ def _viscosity(value: object, base_dir: Path | None) -> ViscositySpec:
     mask = obj.get("mask")
     if mask is not None:
         if not isinstance(mask, str) or not mask:
-            raise ValueError(f"viscosity.mask must be an image path (a string), got {describe(mask)}")
+            raise InputError(f"viscosity.mask must be an image path (a string), got {describe(mask)}")
         mask = Path(mask) if base_dir is None else base_dir / mask
     regions = obj.get("regions", [])
     return ViscositySpec(

@@ -26,6 +26,7 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_tensor
 from torchfluidwarp.apps.animate.config import AnimationConfig
 from torchfluidwarp.core.grid import FluidGrid, scale_factor
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, shrink_image
 from torchfluidwarp.warp.forces import Brushes, ViscosityBrushes, viscosity_from_mask
 from torchfluidwarp.warp.layer import FluidWarp
@@ -106,7 +107,7 @@ def build_forces(config: AnimationConfig) -> Brushes:
         ValueError: the configuration has no brushes.
     """
     if not config.brushes:
-        raise ValueError("nothing to animate: give at least one brush")
+        raise InputError("nothing to animate: give at least one brush")
     b = config.brushes
     return Brushes(
         centers=[p.position for p in b],
@@ -148,11 +149,11 @@ def build_viscosity(
     if spec.mask is not None:
         try:
             mask = read_image(spec.mask, channels=1)
-        except ValueError as exc:
-            raise ValueError(f"viscosity.mask: {exc}") from None
+        except InputError as exc:
+            raise InputError(f"viscosity.mask: {exc}") from None
         want = mask_size or image_size
         if tuple(mask.shape[-2:]) != tuple(want):
-            raise ValueError(
+            raise InputError(
                 f"viscosity.mask {str(spec.mask)!r} is {mask.shape[-1]}x{mask.shape[-2]} pixels, "
                 f"but the image is {want[1]}x{want[0]}"
             )

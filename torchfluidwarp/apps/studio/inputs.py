@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal, cast
 
 import torch
 from starlette.requests import Request
@@ -17,6 +17,9 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_real
 from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp.errors import InputError
+from torchfluidwarp.morph import MorphSettings, PaperSettings, Timing
+from torchfluidwarp.morph.settings import METHODS
 
 __all__ = [
     "BadInput",
@@ -31,7 +34,7 @@ __all__ = [
 ]
 
 
-class BadInput(ValueError):
+class BadInput(InputError):
     """Bad input from the page: answered with 400 and a one-line message."""
 
 
@@ -97,20 +100,28 @@ def frame_index(text: str | None, frames: int) -> int:
     return k
 
 
-def morph_settings(value: object) -> dict[str, Any]:
-    """The page's morph settings as :func:`~torchfluidwarp.morph.morph` keyword arguments."""
+def morph_settings(value: object) -> tuple[MorphSettings, Timing]:
+    """The page's morph settings as the typed settings :func:`~torchfluidwarp.morph.morph` takes: the method's
+    (:class:`~torchfluidwarp.morph.NaturalSettings` or :class:`~torchfluidwarp.morph.PaperSettings`) and the
+    :class:`~torchfluidwarp.morph.Timing`. The page's ``control`` applies to the paper's method only; a
+    ``compressible`` of ``null`` leaves the method's default."""
     s = value if isinstance(value, dict) else {}
+    cls = METHODS[choice("method", s.get("method", "natural"), ("natural", "paper"))]
     align = choice("align", s.get("align", "similarity"), ("similarity", "affine", "none"))
-    compressible = s.get("compressible")
-    if compressible is not None and not isinstance(compressible, bool):
-        compressible = number("compressible", compressible, 0.0, 1.0)
-    return {
-        "method": choice("method", s.get("method", "natural"), ("natural", "paper")),
+    fields: dict[str, Any] = {
         "inverse": choice("inverse", s.get("inverse", "flow"), ("flow", "paper")),
         "grid": integer("grid", s.get("grid", 32), 4, 256),
         "steps": integer("steps", s.get("steps", 8), 1, 100),
-        "control": integer("control", s.get("control", 6), 2, 32),
         "align": None if align == "none" else align,
-        "blend": choice("blend", s.get("blend", "linear"), ("linear", "smooth")),
-        "compressible": compressible,
     }
+    control = integer("control", s.get("control", 6), 2, 32)
+    if cls is PaperSettings:
+        fields["control"] = control
+    compressible = s.get("compressible")
+    if compressible is not None:
+        fields["compressible"] = (
+            compressible if isinstance(compressible, bool) else number("compressible", compressible, 0.0, 1.0)
+        )
+    blend = choice("blend", s.get("blend", "linear"), ("linear", "smooth"))
+    timing = Timing(blend=cast(Literal["linear", "smooth"], blend))
+    return cls(**fields), timing

@@ -8,6 +8,7 @@ handler is ``async (session, request) -> response``; :mod:`~torchfluidwarp.apps.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from typing import Literal, cast
@@ -35,8 +36,9 @@ from torchfluidwarp.apps.studio.render import area_change_png, export_response, 
 from torchfluidwarp.apps.studio.session import Session
 from torchfluidwarp.control.alignment import estimate_alignment
 from torchfluidwarp.core.grid import rescale_points, scale_factor
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import encode_animation, resize_image, shrink_image
-from torchfluidwarp.morph import MorphResult, morph
+from torchfluidwarp.morph import MorphResult, MorphSettings, Timing, morph
 
 __all__ = [
     "ANIMATION_FORMATS",
@@ -68,7 +70,7 @@ def proposal(pa: Tensor, pb: Tensor, align: str | None) -> list | None:
         return None
     try:
         return estimate_alignment(pa, pb, "affine" if align == "affine" else "similarity").tolist()
-    except ValueError:
+    except InputError:
         return None
 
 
@@ -82,23 +84,24 @@ def _to_size(pts: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
 # ---------------------------------------------------------------------------------------------------- morph
 
 
-def _morph_inputs(session: Session, data: dict) -> tuple[Tensor, Tensor, Tensor, Tensor, dict, tuple]:
+def _morph_inputs(session: Session, data: dict) -> tuple[Tensor, Tensor, Tensor, Tensor, MorphSettings, Timing, tuple]:
     """Images, points and settings of a morph request, and the key under which its fit warm-starts others."""
     pa, pb = checked_pair(session, data)
-    settings = morph_settings(data.get("settings"))
-    need = 3 if settings["align"] == "affine" else 2
+    settings, timing = morph_settings(data.get("settings"))
+    need = 3 if settings.align == "affine" else 2
     if pa.shape[0] < need:
         raise BadInput(f"place at least {need} pairs of points first (have {pa.shape[0]})")
     a, b = session.image("a"), session.image("b")
-    names = ("method", "grid", "steps", "control", "compressible")
-    key = (*(settings[k] for k in names), tuple(a.shape), tuple(b.shape))
-    return a, b, pa, pb, settings, key
+    # a fit warm-starts another of the same fluid and forces (the pre-alignment, inverse and timing may differ)
+    flow = (settings.method, settings.grid, settings.steps, getattr(settings, "control", None), settings.compressible)
+    key = (*flow, tuple(a.shape), tuple(b.shape))
+    return a, b, pa, pb, settings, timing, key
 
 
 async def morph_preview(session: Session, request: Request) -> Response:
     t0 = time.perf_counter()
     config = session.config
-    a, b, pa, pb, settings, key = _morph_inputs(session, await body_json(request))
+    a, b, pa, pb, settings, timing, key = _morph_inputs(session, await body_json(request))
     with session.lock:
         session.points["a"], session.points["b"] = pa, pb
     ticket = session.worker.ticket("morph")
@@ -110,17 +113,17 @@ async def morph_preview(session: Session, request: Request) -> Response:
         size = (small_a.shape[-2], small_a.shape[-1])
         small_b = resize_image(b, size).clamp(0, 1)
         start = session.warm(key)
+        iterations = config.preview_iter if start is not None else 5 * config.preview_iter
         return morph(
             small_a[0],
             small_b[0],
             _to_size(pa, a, size).float(),
             _to_size(pb, b, size).float(),
+            settings=dataclasses.replace(settings, max_iter=iterations, tolerance=config.preview_tolerance),
             frames=config.preview_frames,
-            max_iter=config.preview_iter if start is not None else 5 * config.preview_iter,
-            tolerance=config.preview_tolerance,
+            timing=timing,
             warm_start=start,
             progress=False,
-            **settings,
         )
 
     gen, res = await run_in_worker(session.worker, "morph", job, ticket)
@@ -128,17 +131,17 @@ async def morph_preview(session: Session, request: Request) -> Response:
     with session.lock:
         session.morph_gen, session.morph_result = gen, res
     frame_size = (res.frames.shape[-2], res.frames.shape[-1])
-    to_a = scale_factor(frame_size, (a.shape[-2], a.shape[-1]), dtype=res.fit.error.dtype)[0]
-    err = res.fit.error[0] * to_a  # in A's pixels
+    to_a = scale_factor(frame_size, (a.shape[-2], a.shape[-1]), dtype=res.error.dtype)[0]
+    err = res.error * to_a  # in A's pixels
     return JSONResponse(
         {
             "generation": gen,
             "frames": int(res.frames.shape[0]),
-            "times": (res.times / settings["steps"]).tolist(),
-            "trajectories": res.fit.trajectories[0].permute(1, 0, 2).tolist(),  # (M, T + 1, 2) frame pixels
+            "times": (res.times / settings.steps).tolist(),
+            "trajectories": res.trajectories.permute(1, 0, 2).tolist(),  # (M, T + 1, 2) frame pixels
             "error": err.tolist(),
             "mean_error": float(err.mean()),
-            "alignment": proposal(pa, pb, settings["align"]),
+            "alignment": proposal(pa, pb, settings.align),
             "seconds": {k: round(v, 4) for k, v in res.seconds.items()},
             "server_seconds": round(time.perf_counter() - t0, 4),
             "size": [frame_size[1], frame_size[0]],  # trajectories are in these pixels
@@ -165,22 +168,23 @@ async def morph_frame(session: Session, request: Request) -> Response:
 
 async def morph_export(session: Session, request: Request) -> Response:
     data = await body_json(request)
-    a, b, pa, pb, settings, key = _morph_inputs(session, data)
+    a, b, pa, pb, settings, timing, key = _morph_inputs(session, data)
     fmt = choice("format", data.get("format", "gif"), ANIMATION_FORMATS)
     frames = integer("frames", data.get("frames", 30), 2, 600)
     fps = number("fps", data.get("fps", 10), 0.1, 120)
 
     def job() -> bytes:
+        iterations = session.config.export_iter  # None: the method's default
         res = morph(
             a[0],
             b[0],
             pa.float(),
             pb.float(),
+            settings=settings if iterations is None else dataclasses.replace(settings, max_iter=iterations),
             frames=frames,
-            max_iter=session.config.export_iter,
+            timing=timing,
             warm_start=session.warm(key),
             progress=False,
-            **settings,
         )
         session.keep_fit(key, res.fit)
         return encode_animation(res.frames, cast(Literal["gif", "mp4"], fmt), fps=fps)

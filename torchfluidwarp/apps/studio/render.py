@@ -1,6 +1,6 @@
 """What the studio sends back: PNG previews, the area-change colouring, downloads, point files as bytes.
 
-No numerics of its own: the Jacobian determinant comes from :func:`~torchfluidwarp.warp.layer.jacobian_determinant`
+No numerics of its own: the Jacobian determinant comes from :func:`~torchfluidwarp.warp.frames.jacobian_determinant`
 and point files are written and read by :mod:`torchfluidwarp.io`; this module only encodes them.
 """
 
@@ -18,8 +18,9 @@ from torch import Tensor
 
 from torchfluidwarp.apps.studio.guard import safe_name, save
 from torchfluidwarp.apps.studio.inputs import BadInput
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_points, write_points
-from torchfluidwarp.warp.layer import jacobian_determinant
+from torchfluidwarp.warp import jacobian_determinant
 
 __all__ = [
     "png",
@@ -54,7 +55,7 @@ def png_response(data: bytes) -> Response:
 def area_change_png(coords: Tensor) -> bytes:
     """A backward map's area change ``(1, H, W, 2)`` as a PNG: blue shrinks, white keeps, red grows, black folds.
 
-    The colour follows ``log2`` of :func:`~torchfluidwarp.warp.layer.jacobian_determinant`, clamped to
+    The colour follows ``log2`` of :func:`~torchfluidwarp.warp.frames.jacobian_determinant`, clamped to
     ``[-1, 1]`` (half to double the area); a determinant ``<= 0`` (a fold) is black.
     """
     det = jacobian_determinant(coords)[0]  # (H, W)
@@ -103,5 +104,5 @@ def points_from_bytes(data: bytes, name: str) -> Tensor:
         path.write_bytes(data)
         try:
             return read_points(path, dtype=torch.float64)
-        except ValueError as exc:
+        except InputError as exc:
             raise BadInput(str(exc).replace(str(path), name)) from None

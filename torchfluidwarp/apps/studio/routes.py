@@ -22,6 +22,7 @@ from torchfluidwarp.apps.studio.inputs import BadInput, body_json, choice, morph
 from torchfluidwarp.apps.studio.jobs import Superseded, in_thread
 from torchfluidwarp.apps.studio.render import export_response, png, png_response, points_bytes, points_from_bytes
 from torchfluidwarp.apps.studio.session import IMAGE_SLOTS, Session
+from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.io import read_image_bytes
 
 __all__ = ["routes"]
@@ -68,7 +69,7 @@ async def put_image(session: Session, request: Request) -> Response:
         raise BadInput("the upload is empty")
     try:
         img = await in_thread(lambda: read_image_bytes(data, channels=3))
-    except ValueError:
+    except InputError:
         raise BadInput(f"{name!r} is not an image that can be read (PNG, JPEG, ...)") from None
     if min(img.shape[-2:]) < 8:
         raise BadInput(f"{name!r} is too small ({img.shape[-1]}x{img.shape[-2]} pixels; at least 8x8)")
@@ -87,10 +88,10 @@ async def get_image(session: Session, request: Request) -> Response:
 async def put_points(session: Session, request: Request) -> Response:
     data = await body_json(request)
     pa, pb = previews.checked_pair(session, data)
-    settings = morph_settings(data.get("settings"))
+    settings, _ = morph_settings(data.get("settings"))
     with session.lock:
         session.points["a"], session.points["b"] = pa, pb
-    return JSONResponse({"count": pa.shape[0], "alignment": previews.proposal(pa, pb, settings["align"])})
+    return JSONResponse({"count": pa.shape[0], "alignment": previews.proposal(pa, pb, settings.align)})
 
 
 async def import_points(session: Session, request: Request) -> Response:
@@ -120,8 +121,10 @@ def _endpoint(session: Session, handler: Handler) -> Callable[[Request], Awaitab
     async def endpoint(request: Request) -> Response:
         try:
             return await handler(session, request)
-        except (ValueError, TypeError) as exc:  # BadInput, and the library's own argument errors
+        except (InputError, InputTypeError) as exc:  # BadInput, and the library's own argument errors
             return error_response(str(exc), 400)
+        except FlowBlewUp as exc:  # the page's settings make the flow blow up: say so, it is not a bug
+            return error_response(str(exc), 422)
         except Superseded:
             return error_response("superseded by a newer request", 409)
         except RuntimeError as exc:  # e.g. MP4 without imageio-ffmpeg

@@ -25,6 +25,7 @@ from torch import Tensor
 from torchfluidwarp.apps.cli_args import fail
 from torchfluidwarp.apps.studio.app import StudioConfig, create_app, loopback_hosts
 from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points
 
 __all__ = ["add_arguments", "run", "main", "serve_in_thread", "free_port", "DEFAULT_PORT"]
@@ -95,7 +96,7 @@ def _load(args: argparse.Namespace) -> tuple[dict[str, tuple[Tensor, str]], dict
         if path is None:
             continue
         if key not in images:
-            raise ValueError(f"--points-{key} needs image {key.upper()}")
+            raise InputError(f"--points-{key} needs image {key.upper()}")
         image = images[key][0]
         points[key] = check_points(f"--points-{key} {path!r}", read_points(path), (image.shape[-2], image.shape[-1]))[0]
     if "a" in points and "b" in points:
@@ -109,17 +110,17 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         if not 0 <= args.port <= 65535:
-            raise ValueError(f"--port must be in 0..65535, got {args.port}")
+            raise InputError(f"--port must be in 0..65535, got {args.port}")
         images, points = _load(args)
         save_dir = None
         if args.save_dir is not None:
             save_dir = Path(args.save_dir).expanduser().resolve()
             if save_dir.exists() and not save_dir.is_dir():
-                raise ValueError(f"--save-dir {args.save_dir!r} is not a folder")
+                raise InputError(f"--save-dir {args.save_dir!r} is not a folder")
             save_dir.mkdir(parents=True, exist_ok=True)
         port = args.port or free_port(args.host)
         _check_port(args.host, port)
-    except (ValueError, OSError) as exc:
+    except (InputError, OSError) as exc:
         return fail("studio", exc)
     if args.host not in _LOOPBACK:
         print(

@@ -1,0 +1,306 @@
+"""A morph's settings, typed: one frozen dataclass per method, and small ones for the timing, the blending and the
+point matching.
+
+* :class:`NaturalSettings` (``method="natural"``, the default) and :class:`PaperSettings` (``method="paper"``):
+  the fluid, the fit, the pre-alignment and how image B is pulled back. Each field has one meaning and one unit;
+  the defaults differ by method and live on the classes.
+* :class:`Timing`: how the shape and the colour progress over the morph's time ``t`` in ``[0, 1]``.
+* :class:`Blending`: how each frame puts the two warped images together: the hand-over at an image's edge, and an
+  optional region with a background.
+* :class:`Matching`: how the points are found when none are given.
+
+Every field is checked when the object is built; an error names the class, the field and the value received.
+
+Example:
+    >>> PaperSettings(grid=32, smoothness=2.0).method
+    'paper'
+    >>> NaturalSettings(steps=0)
+    Traceback (most recent call last):
+    ...
+    torchfluidwarp.errors.InputError: NaturalSettings.steps must be >= 1, got 0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar, Literal
+
+from torch import Tensor, nn
+
+from torchfluidwarp._checks import (
+    check_fraction,
+    check_instance,
+    check_int,
+    check_positive,
+    check_size,
+    describe,
+)
+from torchfluidwarp.control.alignment import AlignKind
+from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.correspond import MatchMode
+from torchfluidwarp.errors import InputError, InputTypeError
+from torchfluidwarp.morph.regions import Background
+from torchfluidwarp.morph.timing import Schedule, schedule
+
+__all__ = [
+    "Method",
+    "InverseMethod",
+    "NaturalSettings",
+    "PaperSettings",
+    "MorphSettings",
+    "METHODS",
+    "Timing",
+    "Blending",
+    "Matching",
+    "FEATHER",
+    "MAX_MARGIN",
+]
+
+Method = Literal["natural", "paper"]
+InverseMethod = Literal["flow", "paper"]
+
+FEATHER = 64.0
+"""Output pixels: the cross-dissolve hands a frame over to the other image within this distance inside an
+image's edge (:class:`Blending`), so neither image's edge, nor the edge pixels that sampling smears beyond it,
+shows as a line."""
+
+MAX_MARGIN = 10.0
+"""The largest :attr:`PaperSettings.margin`: a box ten times the points' extent on each side already holds a fluid
+21 times wider than the points."""
+
+
+def _choice(name: str, value: object, options: tuple[object, ...]) -> None:
+    if not any(value is option or (isinstance(value, str) and value == option) for option in options):
+        names = [repr(option) for option in options]
+        listed = f"{', '.join(names[:-1])} or {names[-1]}"
+        raise InputError(f"{name} must be {listed}, got {value!r}")
+
+
+def _set(obj: object, name: str, value: object) -> None:
+    """Store a field's normalised value on a frozen dataclass (only from ``__post_init__``)."""
+    object.__setattr__(obj, name, value)
+
+
+def _check_flow(obj: NaturalSettings | PaperSettings) -> None:
+    """The fields both methods share: the fluid, the fit's stopping rules, the pre-alignment, the inverse."""
+    cls = type(obj).__name__
+    if not isinstance(obj.grid, FluidGrid):
+        _set(obj, "grid", FluidGrid(*check_size(f"{cls}.grid", obj.grid, minimum=2)))
+    check_int(f"{cls}.steps", obj.steps)
+    if isinstance(obj.viscosity, (int, float)):
+        _set(obj, "viscosity", check_positive(f"{cls}.viscosity", obj.viscosity, allow_zero=True))
+    else:
+        check_instance(f"{cls}.viscosity", obj.viscosity, (float, Tensor, nn.Module))
+    keep = check_fraction(f"{cls}.compressible", obj.compressible)
+    _set(obj, "compressible", obj.compressible if isinstance(obj.compressible, bool) else keep)
+    check_int(f"{cls}.max_iter", obj.max_iter)
+    _set(obj, "tolerance", check_positive(f"{cls}.tolerance", obj.tolerance, allow_zero=True))
+    _choice(f"{cls}.align", obj.align, ("similarity", "affine", "none", None))
+    _choice(f"{cls}.inverse", obj.inverse, ("flow", "paper"))
+
+
+@dataclass(frozen=True)
+class NaturalSettings:
+    """The natural morph (the default): straight paths at constant speed, the rest of the picture as a thin-plate
+    spline between the points says, in a compressible, inviscid fluid over the whole picture.
+
+    Each marked point travels on a straight line at constant speed. The fluid covers the picture and a margin of
+    :data:`~torchfluidwarp.morph.fit.PAD` around it (its walls lie outside the picture); one kick at step 0
+    (:class:`~torchfluidwarp.warp.landmarks.LandmarkForces`) sets it moving, after which every particle coasts on
+    a straight line (Burgers' equation), and ``max_iter`` L-BFGS iterations correct the kicks so that the points
+    stay on their paths at every step. Needs at least 3 points, not all on one line.
+
+    Attributes:
+        grid: fluid cells ``(h, w)`` (an int: square) over the picture and its margin: 80 x 80 cells are about
+            8 pixels each of a 512-pixel picture.
+        steps: fluid steps ``T`` of the roll-out (time steps).
+        viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
+            ``(1, 1, h, w)`` or module (see :class:`~torchfluidwarp.warp.layer.FluidWarp`).
+        compressible: the fraction of the flow's divergent part kept, in ``[0, 1]``: ``True`` (1, the default)
+            skips the pressure projection, so regions change size as the marks say; ``False`` (0) keeps every area.
+        straightness: the weight on the fit's corrections to the points' straight-line velocities, in pixels^2 of
+            point error per (pixel per time step)^2 of velocity correction, the same whatever the image or grid
+            size; 0 lets the fit bend the paths as it likes to reach the points.
+        max_iter: L-BFGS iterations of the fit (it starts on the straight paths, so few are needed).
+        tolerance: pixels; the fit stops once every point is this close to its path at every step.
+        align: the global pre-alignment from the points: ``"similarity"``, ``"affine"`` or ``None`` (``"none"``).
+            Marks that do not agree on a pose (:data:`~torchfluidwarp.morph.fit.MIN_POSE_FIT`) are morphed without
+            it, with a warning.
+        inverse: how image B is pulled back: ``"flow"`` (along the same fitted velocities, no second fit) or
+            ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
+    """
+
+    method: ClassVar[Method] = "natural"
+
+    grid: FluidGrid | int | tuple[int, int] = (80, 80)
+    steps: int = 10
+    viscosity: float | Tensor | nn.Module = 0.0
+    compressible: bool | float = True
+    straightness: float = 3.0
+    max_iter: int = 30
+    tolerance: float = 0.05
+    align: AlignKind | None = "similarity"
+    inverse: InverseMethod = "flow"
+
+    def __post_init__(self) -> None:
+        _check_flow(self)
+        _set(self, "straightness", check_positive("NaturalSettings.straightness", self.straightness, allow_zero=True))
+
+
+@dataclass(frozen=True)
+class PaperSettings:
+    """The paper's keyframe fit: a :class:`~torchfluidwarp.warp.forces.ControlGrid` of forces, fitted so that the
+    points reach their targets at the last step, in an incompressible fluid (every region keeps its area) over a
+    box around the points.
+
+    Attributes:
+        grid: fluid cells ``(h, w)`` (an int: square) over the fluid's box.
+        steps: fluid steps ``T`` of the roll-out (time steps).
+        control: ``(K_y, K_x)`` control points per step of the fitted force grid (an int: square).
+        viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
+            ``(1, 1, h, w)`` or module (see :class:`~torchfluidwarp.warp.layer.FluidWarp`).
+        compressible: the fraction of the flow's divergent part kept, in ``[0, 1]``: ``False`` (0, the default,
+            the paper's incompressible fluid) keeps every area; ``True`` (1) skips the pressure projection.
+        smoothness: the weight on the flow's
+            :func:`~torchfluidwarp.control.keyframes.velocity_gradient_energy`, in fluid cells^2 per pixel^2 of
+            point error (it is scaled by the square of the pixels per fluid cell, so it means the same at any
+            image size); it keeps the flow calm and the maps fold-free.
+        max_iter: L-BFGS iterations of the fit (it starts from rest).
+        tolerance: pixels; the fit stops once every point is this close to its target at the last step.
+        margin: the fluid fills a box around the points (A's and their targets) grown by this fraction of its
+            size on each side, at most :data:`MAX_MARGIN`; the rest of the picture follows the pre-alignment only.
+            ``None``: the box is the picture.
+        align: the global pre-alignment from the points: ``"similarity"``, ``"affine"`` or ``None`` (``"none"``).
+        inverse: how image B is pulled back: ``"flow"`` (along the same fitted velocities) or ``"paper"`` (the
+            paper's stepwise chain of one-step fits).
+    """
+
+    method: ClassVar[Method] = "paper"
+
+    grid: FluidGrid | int | tuple[int, int] = (64, 64)
+    steps: int = 10
+    control: int | tuple[int, int] = (8, 8)
+    viscosity: float | Tensor | nn.Module = 0.0
+    compressible: bool | float = False
+    smoothness: float = 5.0
+    max_iter: int = 100
+    tolerance: float = 0.05
+    margin: float | None = 0.5
+    align: AlignKind | None = "similarity"
+    inverse: InverseMethod = "flow"
+
+    def __post_init__(self) -> None:
+        _check_flow(self)
+        _set(self, "control", check_size("PaperSettings.control", self.control, minimum=1))
+        _set(self, "smoothness", check_positive("PaperSettings.smoothness", self.smoothness, allow_zero=True))
+        if self.margin is not None:
+            margin = check_positive("PaperSettings.margin", self.margin, allow_zero=True)
+            if margin > MAX_MARGIN:
+                raise InputError(
+                    f"PaperSettings.margin must be <= {MAX_MARGIN} (a fraction of the points' extent), got {margin!r}"
+                )
+            _set(self, "margin", margin)
+
+
+MorphSettings = NaturalSettings | PaperSettings
+"""The settings of either method; :func:`~torchfluidwarp.morph.morph` picks the method by the class."""
+
+METHODS: dict[str, type[NaturalSettings] | type[PaperSettings]] = {"natural": NaturalSettings, "paper": PaperSettings}
+"""The settings class of each method's name (what the command line and the studio build from ``--method``)."""
+
+
+def _frozen_schedule(name: str, value: object) -> Schedule:
+    """A schedule checked by :func:`~torchfluidwarp.morph.timing.schedule`, control points as a tuple of pairs."""
+    schedule(name, value)
+    if isinstance(value, str):
+        return value  # type: ignore[return-value]
+    return tuple((float(t), float(v)) for t, v in value)  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How a morph progresses over its time ``t`` in ``[0, 1]`` (:mod:`~torchfluidwarp.morph.timing`).
+
+    Each is a schedule, ``t`` to a progress in ``[0, 1]``: a name (``"linear"``, the paper's; ``"smooth"``,
+    ``"ease-in"``, ``"ease-out"``) or control points ``[(t, progress), ...]`` from ``(0, 0)`` to ``(1, 1)``
+    (kept as a tuple of pairs). ``Timing(motion="ease-out", blend="ease-in")`` lets the shape lead the colour.
+
+    Attributes:
+        motion: the shape's schedule: how far along the flow (and the pre-alignment) each frame is; the frame at
+            ``t`` shows the fluid at ``motion(t) T`` time steps.
+        blend: the colour's schedule: the cross-dissolve's weight of image B at ``t``.
+    """
+
+    motion: Schedule = "linear"
+    blend: Schedule = "linear"
+
+    def __post_init__(self) -> None:
+        _set(self, "motion", _frozen_schedule("Timing.motion", self.motion))
+        _set(self, "blend", _frozen_schedule("Timing.blend", self.blend))
+
+
+@dataclass(frozen=True, eq=False)
+class Blending:
+    """How each frame puts image A warped forward and image B pulled back together.
+
+    Attributes:
+        feather: output pixels over which a frame hands over to the other image inside an image's edge (where
+            one image is read beyond its edge, the other shows instead of its edge pixels smeared into streaks);
+            0 hands over at the edge itself.
+        region: limit the morph to a region: ``"points"`` (each image's points' convex hull, grown by
+            ``region_margin``, with a soft edge; :func:`~torchfluidwarp.morph.regions.hull_mask`) or soft masks
+            ``(mask_a, mask_b)``, ``(H_a, W_a)`` and ``(H_b, W_b)`` in ``[0, 1]``. Each frame carries A's mask
+            along A's map and B's along B's; the morph shows inside, ``background`` outside, blended over the
+            masks' soft edges. ``None``: the whole frame.
+        region_margin: how far ``region="points"`` reaches beyond the points' hull, as a fraction of their extent.
+        background: what a region morph shows outside the region: ``"a"`` (A's picture throughout), ``"b"``, or
+            ``"blend"`` (A and B cross-dissolved in place, with the colour's schedule).
+    """
+
+    feather: float = FEATHER
+    region: Literal["points"] | tuple[Tensor, Tensor] | None = None
+    region_margin: float = 0.25
+    background: Background = "blend"
+
+    def __post_init__(self) -> None:
+        _set(self, "feather", check_positive("Blending.feather", self.feather, allow_zero=True))
+        _set(self, "region_margin", check_positive("Blending.region_margin", self.region_margin, allow_zero=True))
+        _choice("Blending.background", self.background, ("a", "b", "blend"))
+        region = self.region
+        if isinstance(region, str):
+            if region != "points":
+                raise InputError(
+                    f"Blending.region must be 'points', a pair of masks (mask_a, mask_b) or None, got {region!r}"
+                )
+        elif isinstance(region, Sequence) and len(region) == 2 and all(isinstance(m, Tensor) for m in region):
+            _set(self, "region", tuple(region))
+        elif region is not None:
+            raise InputTypeError(
+                f"Blending.region must be 'points', a pair of masks (mask_a, mask_b) or None, got {describe(region)}"
+            )
+
+
+@dataclass(frozen=True)
+class Matching:
+    """How :func:`~torchfluidwarp.morph.morph` finds the points when none are given
+    (:func:`~torchfluidwarp.correspond.auto.auto_points`).
+
+    Attributes:
+        mode: ``"auto"`` (faces when both images show one and the faces extra is installed, else matched
+            features), ``"faces"``, ``"features"`` or ``"pixels"``.
+        face_index: which face in A and in B (0 = the largest; ``None``: the largest, with a warning if several).
+    """
+
+    mode: MatchMode = "auto"
+    face_index: tuple[int | None, int | None] = field(default=(None, None))
+
+    def __post_init__(self) -> None:
+        _choice("Matching.mode", self.mode, ("auto", "faces", "features", "pixels"))
+        pair = self.face_index
+        if not isinstance(pair, Sequence) or len(pair) != 2:
+            raise InputTypeError(f"Matching.face_index must be a pair (index in A, index in B), got {describe(pair)}")
+        for i in pair:
+            if i is not None:
+                check_int("Matching.face_index", i, minimum=0)
+        _set(self, "face_index", tuple(pair))
