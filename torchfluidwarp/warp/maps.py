@@ -31,7 +31,7 @@ from torchfluidwarp._checks import (
 )
 from torchfluidwarp.core.grid import normalized_affine, rescale_points, scale_factor
 from torchfluidwarp.core.sampling import sample
-from torchfluidwarp.core.staggered import MAX_STRAIN_PER_SUBSTEP, MAX_SUBSTEPS, StaggeredGrid
+from torchfluidwarp.core.staggered import MAX_STRAIN_PER_SUBSTEP, MAX_SUBSTEPS, StaggeredGrid, channel_first
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.warp.frames import identity_map, sample_map
 
@@ -133,11 +133,11 @@ def _displacement(
     raster = working_raster(size, grid.grid.shape, oversample)
     like = velocity
     c = scale_factor(raster, grid.grid.shape, device=like.device, dtype=like.dtype)
-    pix = identity_map(raster, device=like.device, dtype=like.dtype).reshape(1, -1, 2)
+    pix = channel_first(identity_map(raster, device=like.device, dtype=like.dtype).reshape(1, -1, 2))
     cells = rescale_points(pix, c).expand(velocity.shape[0], -1, -1)  # (B, N, 2) raster centres in cells
     back = grid.backtrace(grid.extend(velocity), cells, dt)
     per_pixel = scale_factor(size, grid.grid.shape, device=like.device, dtype=like.dtype)
-    disp = ((cells - back) / per_pixel).view(-1, *raster, 2).permute(0, 3, 1, 2)
+    disp = ((cells - back) / per_pixel).transpose(1, 2).reshape(-1, 2, *raster)  # a view: channel-first memory
     return upsample_raster(disp, size)
 
 
