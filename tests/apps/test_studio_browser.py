@@ -1,12 +1,14 @@
 """The studio's page in a real browser (Playwright driving the system Chromium).
 
 Needs ``/usr/bin/chromium`` (``apt-get install -y chromium``); Playwright's own browser download is not used.
-Small images (64 x 64), grid 16 and 4 steps keep the fits short. The last test refreshes the screenshots in
-``docs/_static``.
+Small images (64 x 64), grid 16 and 4 steps keep the fits short. The screenshot test writes into a temporary
+folder, so a test run leaves the checkout as it found it; with ``TORCHFLUIDWARP_REFRESH_SCREENSHOTS=1`` it
+refreshes the README's screenshots in ``docs/_static`` instead.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -235,7 +237,9 @@ def test_animate_brush_preview(browser, studio, tmp_path):
 
 @pytest.mark.slow
 def test_screenshots(browser, tmp_path):
-    """Both modes on the bundled samples (downscaled so the fit is quick), saved into docs/_static."""
+    """Both modes on the bundled samples (downscaled so the fit is quick), saved into a temporary folder (or into
+    docs/_static with TORCHFLUIDWARP_REFRESH_SCREENSHOTS=1)."""
+    shots = DOCS_STATIC if os.environ.get("TORCHFLUIDWARP_REFRESH_SCREENSHOTS") == "1" else tmp_path
     from torchfluidwarp.data import load_sample, load_sample_points
 
     size = 192
@@ -262,8 +266,8 @@ def test_screenshots(browser, tmp_path):
                 "s.dispatchEvent(new Event('input')); }"
             )
             page.wait_for_timeout(500)
-            DOCS_STATIC.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(DOCS_STATIC / "studio_morph.png"))
+            shots.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(shots / "studio_morph.png"))
 
             page.click("#tab-animate")
             set_value(page, "#a-grid", "24")
@@ -283,11 +287,11 @@ def test_screenshots(browser, tmp_path):
             page.mouse.up()
             page.wait_for_function("() => window.studio.animPreviews >= 1", timeout=WAIT_MS)
             page.wait_for_timeout(1500)
-            page.screenshot(path=str(DOCS_STATIC / "studio_animate.png"))
+            page.screenshot(path=str(shots / "studio_animate.png"))
         finally:
             context.close()
     for name in ("studio_morph.png", "studio_animate.png"):
-        assert Image.open(DOCS_STATIC / name).size[0] >= 1000
+        assert Image.open(shots / name).size[0] >= 1000
 
 
 def test_newest_preview_survives_an_out_of_order_ticket(browser, tmp_path):
