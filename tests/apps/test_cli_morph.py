@@ -112,3 +112,26 @@ def test_an_option_of_the_other_method_exits_2_naming_it(pair, tmp_path, capsys,
     argv = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "-o", str(tmp_path / "m.gif")]
     assert main([*argv, *options, "--quiet"]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_printed_time_covers_the_whole_job_not_only_the_fit(pair, tmp_path, capsys, monkeypatch):
+    import re
+    import time
+
+    from torchfluidwarp.apps import cli_morph
+
+    a, b, pa, pb = pair
+    written = cli_morph.write_result
+
+    def slow_write(result, args):  # the frames are rendered as the file is written: make that part long
+        time.sleep(0.6)
+        return written(result, args)
+
+    monkeypatch.setattr(cli_morph, "write_result", slow_write)
+    args = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "-o", str(tmp_path / "m.gif")]
+    assert main([*args, "--frames", "3", *[f for f in FAST if f != "--quiet"]]) == 0
+    err = capsys.readouterr().err
+    found = re.search(r"mean point error [0-9.]+ px \(max [0-9.]+\), ([0-9.]+) s \(fit ([0-9.]+) s, frames", err)
+    assert found, err
+    total, fit = float(found.group(1)), float(found.group(2))
+    assert total >= fit + 0.55  # the write's 0.6 s is in the total, not in the fit
