@@ -26,6 +26,7 @@ from torchfluidwarp._checks import check_int, check_memory, check_size
 from torchfluidwarp.augment.settings import FluidWarpSettings
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale, rescale_points, scale_factor
 from torchfluidwarp.core.simulator import FluidSimulator
+from torchfluidwarp.core.staggered import StaggeredGrid
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.warp.forces import gaussian_bumps
 from torchfluidwarp.warp.maps import iter_backward_maps, working_raster
@@ -159,7 +160,7 @@ def raster_map(velocities: Tensor, size: tuple[int, int], dt: float) -> Tensor:
     itself when smaller), and the map is composed on it step by step
     (:func:`~torchfluidwarp.warp.maps.iter_backward_maps`).
     """
-    raster = working_raster(size, (velocities.shape[-2] - 1, velocities.shape[-1] - 1))
+    raster = working_raster(size, StaggeredGrid.of(velocities).grid.shape)
     back = next(iter_backward_maps(velocities, raster, dt, times=[velocities.shape[1]]))  # raster pixels
     if raster == tuple(size):
         return back

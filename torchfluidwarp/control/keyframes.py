@@ -35,6 +35,7 @@ from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, startable_
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.core.staggered import StaggeredGrid
 from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.warp.forces import ControlGrid
 from torchfluidwarp.warp.layer import FluidWarp
@@ -182,9 +183,9 @@ def velocity_gradient_energy(velocities: Tensor) -> Tensor:
     Large where the flow shears or spins; :func:`fit_keyframes` can penalise it (``smoothness``) so that the
     fitted flow moves the points without the vortices that stretch the picture into sub-pixel spirals.
     """
-    h, w = velocities.shape[-2] - 1, velocities.shape[-1] - 1
-    u = velocities[:, :, 0, :h, :]  # (B, T, h, w + 1), walls included (they are zero)
-    v = velocities[:, :, 1, :, :w]  # (B, T, h + 1, w)
+    grid = StaggeredGrid.of(velocities)
+    h, w = grid.h, grid.w
+    u, v = grid.split(velocities.flatten(0, 1))  # (B T, h, w + 1), (B T, h + 1, w): walls included (they are zero)
     terms = [u.diff(dim=-1), u.diff(dim=-2), v.diff(dim=-1), v.diff(dim=-2)]
     return torch.stack([(d**2).sum() for d in terms]).sum() / (h * w)
 

@@ -218,7 +218,7 @@ class _Maps:
             raise InputTypeError(f"config must be a MapConfig, got {type(config).__name__}")
         self.T = velocities.shape[1]
         self.times = _frame_times(self.T, times)
-        grid = (velocities.shape[-2] - 1, velocities.shape[-1] - 1)
+        grid = StaggeredGrid.of(velocities).grid.shape
         config.check_memory(
             velocities, size if held == "size" else working_raster(size, grid, config.oversample), len(self.times)
         )
