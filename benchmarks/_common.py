@@ -119,17 +119,6 @@ def peak_mib(base_kib: float | None = None) -> float:
 # ----------------------------------------------------------------------------------------------- command line
 
 
-def add_threads_argument(parser: argparse.ArgumentParser, default: int | None = 1) -> None:
-    """The benchmarks' ``--threads``: torch CPU threads, default 1 (``None``: torch's own)."""
-    parser.add_argument(
-        "--threads",
-        type=int,
-        default=default,
-        help=f"torch CPU threads (default {default or 'torch'}'s: on a small shared machine, multi-threaded kernels "
-        "stall for a scheduler slice whenever another process holds a core)",
-    )
-
-
 def parser(doc: str | None, quick: str | None = None, threads: int | None = 1) -> argparse.ArgumentParser:
     """An argument parser with the options every script shares: ``--json PATH``, ``--threads`` (unless
     ``threads`` is ``False``) and, given its help text, ``--quick`` (a smoke run, not for figures)."""
@@ -138,7 +127,13 @@ def parser(doc: str | None, quick: str | None = None, threads: int | None = 1) -
     )
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
     if threads is not False:
-        add_threads_argument(p, threads)
+        p.add_argument(
+            "--threads",
+            type=int,
+            default=threads,
+            help=f"torch CPU threads (default {threads or 'torch'}; "
+            "on a small shared machine, multi-threaded kernels stall while another process holds a core)",
+        )
     if quick:
         p.add_argument("--quick", action="store_true", help=f"smoke run, not for figures: {quick}")
     return p

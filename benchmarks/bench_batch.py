@@ -1,21 +1,9 @@
 """Benchmark of batch morphing (#21): pairs per minute of ``morph --pairs`` with 1 and 2 processes, and whether
 fitting independent problems together is faster than one after another.
 
-1. **Joint against sequential fits.** ``fit_keyframes`` fits ``B`` problems together when given ``(B, M, 2)``
-   points: one L-BFGS over all their parameters, so each evaluation runs the ``B`` fluids as one batch. On the
-   paper's set-up (``bench_keyframes.py``'s flow instances: 64 x 64 fluid, 10 steps, 14 points, control 5 x 5,
-   float32, tolerance 0.05 px) the first ``--joint`` instances are fitted one after another and then together;
-   interleaved repeats, medians of the total wall time.
-2. **Throughput.** ``--pairs`` pairs made from the bundled astronaut and cat (resized to ``--size``, their 23
-   points jittered by up to 2 px with a per-pair seed, so that every pair is its own problem) are morphed
-   by ``torchfluidwarp morph --pairs`` with the default method and ``--frames``, into GIFs: once in one process
-   (torch's default threads), once under ``torchrun --nproc-per-node 2`` (one thread per process, torchrun's
-   default). Each run starts from an empty output folder; wall time of the whole command, start-up included.
-
-Usage::
-
-    python benchmarks/bench_batch.py                   # 8 pairs of 256 x 256, 30 frames; 4 joint problems
-    python benchmarks/bench_batch.py --pairs 4 --size 128 --frames 10 --joint 2   # a quick look
+(1) ``fit_keyframes`` on ``--joint`` of ``bench_keyframes.py``'s flow instances, one after another against
+together (``(B, M, 2)`` points); (2) ``torchfluidwarp morph --pairs`` on ``--pairs`` jittered copies of the bundled
+pair, in one process and under ``torchrun --nproc-per-node 2``. Figures: docs/benchmarks.md ("Batch throughput").
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """Automatic correspondences (issue #22): held-out error of matched features on known maps, and face landmarks
 against hand marks.
 
-Features: B is the bundled astronaut (512x512) read through a known map ``phi`` (``B(y) = A(phi(y))``), so a match
-``(a, b)`` is right when ``a = phi(b)``; the error of each match is ``|phi(b) - a|`` in A's pixels, and no match
-was told the map. Faces: :func:`torchfluidwarp.correspond.detect_face_points` on the astronaut against her 23
-hand-marked points (``torchfluidwarp.data``), for the features both mark (needs ``pip install
-"torchfluidwarp[faces]"``; skipped with a note without it).
-
-Run from the repository root::
-
-    python benchmarks/bench_correspond.py
+B is the bundled astronaut read through a known map ``phi``, so a match ``(a, b)`` errs by ``|phi(b) - a|``;
+``detect_face_points`` is scored against her 23 hand marks (needs ``torchfluidwarp[faces]``). Figures:
+docs/benchmarks.md, "Automatic correspondences".
 """
 
 from __future__ import annotations
@@ -23,7 +17,7 @@ from _common import describe_load, machine, machine_load, table
 
 from torchfluidwarp.correspond import match_features
 from torchfluidwarp.data import POINT_LABELS, load_sample, load_sample_points
-from torchfluidwarp.warp.maps import identity_map, warp_image
+from torchfluidwarp.warp import identity_map, warp_image
 
 # the known maps are those of the tests (tests/correspond/test_features.py), so one definition serves both
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "correspond"))

@@ -1,26 +1,15 @@
 """Benchmark of the GPU path against the CPU of the same machine, in one run (issue #20).
 
-Every device in ``--devices`` (default: ``cpu``, and ``cuda`` when available) runs the same measurements, float32,
-inputs made on the CPU and moved to it; each table has one column per device and speed-up rows over ``cpu``:
-
-1. **Frames**: ``FluidWarp`` on a 64x64 fluid, 60 steps, stirred by ``_common.make_brushes``, warping an RGB
-   image of 600x600 and 1920x1080, without grad: ``forward``, ``iter_frames`` (as shipped and with
-   ``prefetch=False``), the fluid step and the backward map per frame, and the floor, ``grid_sample`` of the image
-   through a smooth grid (identity plus a gentle sine) once per frame; each path's ratio to the floor.
-2. **Keyframe fit**: ``_common.flow_instance(0)`` (14 points, 64x64 fluid, 10 steps, 500 controls, 0.05 px).
-3. **Morph**: the bundled astronaut -> cat pair at 1024x1024, 30 frames, ``morph()``'s defaults: the call, the
-   frames streamed through ``result.iter_frames()``, and both.
-
-On CUDA every clock reading is synchronised. Each measurement is warmed up once per device, then runs
-``--repeats`` times interleaved over the devices; figures are medians; the peak of
-``torch.cuda.max_memory_allocated`` is shown. A failure on one device prints its traceback and drops that device
-from that measurement only. ``--json`` is written after every measurement.
+Every device in ``--devices``, float32: (1) ``FluidWarp`` frames at 600x600 and 1920x1080 (``forward``,
+``iter_frames``, the fluid step, the backward map) against the floor, one
+``grid_sample`` a frame; (2) the paper's keyframe fit; (3) a 30-frame 1024x1024 morph. Medians of ``--repeats``
+interleaved over the devices, speed-ups over ``cpu``, peak GPU memory. Figures: docs/benchmarks.md, "The GPU
+(H100) against the CPU of the same machine".
 """
 
 from __future__ import annotations
 
 import gc
-import inspect
 import math
 import statistics
 import sys
@@ -37,6 +26,7 @@ from _common import (
     FRAME,
     finish,
     flow_instance,
+    load_pair,
     log,
     make_brushes,
     make_image,
@@ -48,11 +38,8 @@ from _common import (
 
 from torchfluidwarp import FluidWarp, fit_keyframes, morph
 from torchfluidwarp.core import graphs
-from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.warp import iter_backward_maps
 
-# iter_frames' prefetch worker may be removed (issue 30): then the serial loop is the only one
-PREFETCH = "prefetch" in inspect.signature(FluidWarp.iter_frames).parameters
 FULL = dict(frame_sizes=((600, 600), (1080, 1920)), frame_steps=60, fit_grid=(64, 64), fit_steps=10, morph_size=1024,
             morph_frames=30)  # fmt: skip
 QUICK = dict(frame_sizes=((64, 64), (96, 128)), frame_steps=8, fit_grid=(32, 32), fit_steps=5, morph_size=128,
@@ -115,7 +102,6 @@ def frames_once(d: torch.device, s: dict[str, Any]) -> dict[str, float]:
         "forward": lambda: warp(image, brushes),
         "iter_frames": lambda: sum(1 for _ in warp.iter_frames(image, brushes)),
         "floor": lambda: [F.grid_sample(image, s["grid"], "bilinear", "border", False) for _ in range(T)],
-        "serial": lambda: sum(1 for _ in warp.iter_frames(image, brushes, **({"prefetch": False} if PREFETCH else {}))),
         "rollout": lambda: s.__setitem__("vel", warp.rollout(brushes, size).velocities),
         "maps": lambda: sum(1 for _ in iter_backward_maps(s["vel"], size, warp.dt)),
     }  # fmt: skip
@@ -129,19 +115,16 @@ def frames_once(d: torch.device, s: dict[str, Any]) -> dict[str, float]:
 
 
 def frames_rows(s: dict[str, float], T: int) -> dict[str, str]:
-    r = {
+    return {
         "forward fps": f"{T / s['forward']:.1f}",
         "iter_frames fps": f"{T / s['iter_frames']:.1f}",
         "floor (grid_sample) fps": f"{T / s['floor']:.1f}",
         "floor ms/frame": f"{s['floor'] / T * 1e3:.3f}",
         "forward / floor": f"{s['forward'] / s['floor']:.2f}x",
         "iter_frames / floor": f"{s['iter_frames'] / s['floor']:.2f}x",
-        "iter_frames(prefetch=False) fps": f"{T / s['serial']:.1f}",
-        "iter_frames(prefetch=False) / floor": f"{s['serial'] / s['floor']:.2f}x",
         "of a frame: fluid step ms": f"{s['rollout'] / T * 1e3:.3f}",
         "of a frame: backward map ms": f"{s['maps'] / T * 1e3:.3f}",
     }
-    return r
 
 
 def fit_once(d: torch.device, s: dict[str, Any], max_iter: int = 200) -> dict[str, Any]:
@@ -158,16 +141,6 @@ def fit_rows(s: dict[str, float], _: int) -> dict[str, str]:
             "roll-outs of the quasi-Newton start": f"{s['forwards']:g}", "L-BFGS evaluations": f"{s['evals']:g}",
             "ms per L-BFGS evaluation": f"{ms:.2f}", "mean final error px": f"{s['mean']:.4f}",
             "max final error px": f"{s['max']:.4f}", "reached (share of repeats)": f"{s['reached']:g}"}  # fmt: skip
-
-
-def load_pair(size: int) -> tuple[torch.Tensor, ...]:
-    """The bundled pair resized to ``size`` x ``size`` and its points, scaled with pixel centres at integers."""
-    a, b = load_sample("astronaut"), load_sample("cat")
-    pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
-    H, W = a.shape[-2:]
-    a, b = (F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False, antialias=True) for x in (a, b))
-    scale = torch.tensor([size / W, size / H])
-    return a, b, (pa + 0.5) * scale - 0.5, (pb + 0.5) * scale - 0.5
 
 
 def morph_once(d: torch.device, s: dict[str, Any], frames: int | None = None) -> dict:
@@ -251,9 +224,8 @@ def main(argv: list[str] | None = None) -> int:
         inst = flow_instance(0, 14, cfg["fit_grid"], cfg["fit_steps"])
 
         def fit_setup(d: torch.device) -> dict[str, Any]:
-            s = dict(
-                points=[x.to(d) for x in inst.tensors(torch.float32)], grid=cfg["fit_grid"], steps=cfg["fit_steps"]
-            )
+            s = dict(points=[x.to(d) for x in inst.tensors(torch.float32)], grid=cfg["fit_grid"],
+                     steps=cfg["fit_steps"])  # fmt: skip
             fit_once(d, s, max_iter=3)
             return s
 

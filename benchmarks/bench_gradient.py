@@ -1,30 +1,10 @@
 """Benchmark of one keyframe gradient: what it costs over a forward, and where that goes (issue #20).
 
-One gradient of the keyframe objective costs 2.6-3.3x a forward, where the adjoint's theory says about 2x. At the
-forces that :func:`fit_keyframes` (``method="lbfgs"``) fits to the paper's problem (``_common.flow_instance(0)``:
-14 points in a 64x64-pixel frame, a 64x64 fluid, 10 steps, ``control=(5, 5)``, tolerance 0.05 px), float32,
-``--threads`` torch threads, medians of ``--repeats`` interleaved repeats, everything through the public API:
-
-1. *Whole objective*: ``keyframe_loss(fit.warp.carry_points(source, fit.forces), ...)``, one forward without
-   grad, the same forward building autograd's graph, the backward alone; the gradient over the forward (target:
-   at most 2x).
-2. *Per stage*, summed over the 10 steps, each alone on the inputs it sees in the fitted roll-out (recorded by
-   re-running the simulator's step modules, and checked against the roll-out): the force (``ControlGrid`` and
-   ``faces_from_cells``), the self-advection (``advect_velocity``), the projection (``project``), carrying the
-   points (``advect_points``, in fluid cells). Forward without grad against forward + backward of
-   ``sum(output * R)`` for a fixed random ``R``, the steps' losses backpropagated at once.
-3. *Kernels*: ``--profiled`` gradients and forwards under ``torch.profiler``, each in its own session,
-   interleaved, after one thrown away; self CPU time per group (``grid_sample``'s reads, its backward kernel,
-   matrix products and convolutions, the rest) and ``aten`` calls. The profiler inflates small operators: read
-   the shares.
-4. *grid_sample's kernels alone*, on the three grids the self-advection of the middle step reads with (every
-   face, the midpoints, the feet; caught from ``advect_velocity``'s calls): the read against its backward kernel
-   asked for both gradients, the image's alone and the grid's alone. It bounds what any rewrite around the kernel
-   could win.
-
-Three trials that did not make the gradient or the fit faster (a hand-written adjoint of the self-advection,
-L-BFGS preconditioned by the linearised problem, ``torch.compile``) were removed from this script; their figures
-are in ``docs/benchmarks.md`` and their code in the history.
+At the forces ``fit_keyframes`` fits to ``_common.flow_instance(0)`` (float32): (1) the whole objective, gradient
+over forward (target <= 2x); (2) per stage over the 10 steps (force, ``advect_velocity``, ``project``,
+``advect_points``); (3) kernel groups under ``torch.profiler``; (4) ``grid_sample``'s kernels alone. Figures, and
+those of the trials removed from this script: docs/benchmarks.md, "Why the fit's 0.25 s and the gradient's 2x
+are blocked here".
 """
 
 from __future__ import annotations

@@ -1,23 +1,10 @@
-"""Benchmark of keyframe control: the paper's morphing set-up, fitted with :func:`fit_keyframes`.
+"""Benchmark of keyframe control: the paper's morphing set-up, fitted with ``fit_keyframes``.
 
-The set-up (from the issue): a 64x64 fluid, 10 steps, the paper's 500 control parameters (``control=(5, 5)``),
-14 points in a 64x64-pixel frame, targets 5 to 10 px away. Targets: a mean final error below 0.05 px and the
-whole fit under 3 s (the issue quotes 5 minutes for the paper); issue #20: a median fit of 0.25 s. The fit stops
-once every point is within ``--tolerance`` px.
-
-Instances (``_common.flow_instance``): *flow* instances, one per seed, whose targets a brush-driven flow of the
-library's own ``FluidWarp`` reaches, and one *random* instance (seed 1000) whose targets lie in random directions
-and may be unreachable (reported, no target).
-
-1. Each instance fitted in float64 and float32 with ``method="auto"`` (the quasi-Newton start, then L-BFGS if it
-   stalls) and ``"lbfgs"``, ``--repeats`` times interleaved: errors, roll-outs, evaluations, wall and CPU time.
-2. One gradient (forward + backward of the objective) over one no-grad forward, at the forces fitted to the
-   first flow instance, per dtype and control size; interleaved repeats, medians.
-3. The first flow instance fitted with each of ``--controls`` (float64, L-BFGS): does the time per evaluation
-   grow with the parameter count?
-4. Peak memory of a fit, per dtype, each in a fresh process (``VmHWM`` reset at a baseline after imports, a tiny
-   warm-up fit and the inputs), with the warm-up's wall time (the first call of a process).
-5. The first fit (float32) of each of 5 fresh processes against the same fit warm (target: at most 1.2x).
+64x64 fluid, 10 steps, control 5x5 (500 parameters), 14 points, targets 5-10 px away (``_common.flow_instance``
+seeds, and one random instance, seed 1000). Targets: mean error < 0.05 px and fit < 3 s; issue #20: median 0.25
+s. Reports the fits (float64 and float32, ``method="auto"`` and ``"lbfgs"``), a gradient over a forward, the time
+per evaluation against ``--controls``, the peak memory of a fit and the first fit of a fresh process against a
+warm one (target <= 1.2x). Set-up and figures: docs/benchmarks.md, "Keyframe control".
 """
 
 from __future__ import annotations

@@ -1,18 +1,8 @@
 """The layout change costs no speed: the main paths timed side by side on the old flat layout and on this checkout.
 
-Checks out ``--base`` (default ``2e9f7a8``, the last commit of the flat layout) into a temporary git worktree and
-times the same workloads through the public top-level API, which both layouts share, in fresh subprocesses that
-alternate between the two trees (old, new, old, new, ...), so that a busy machine slows both alike. Prints the
-median seconds of each workload per tree and their ratio (new / old); within noise means a ratio near 1.
-
-Run from the repository root (one torch benchmark at a time on a small machine)::
-
-    python benchmarks/bench_layout.py --repeats 5
-
-Workloads (2 torch threads, float32 unless said): ``FluidSimulator`` 60 steps at 64^2; ``FluidWarp`` forward of a
-256x256 RGB image over 20 steps; ``fit_keyframes`` of the paper's set-up (64^2, 10 steps, 14 points);
-``fit_images`` on 64x64 images (2 levels); ``morph`` of the bundled pair at 128x128, 10 frames; the tensor-level
-augmentation on 8 images of 64x64.
+Checks out ``--base`` into a temporary git worktree and times the same public top-level calls in fresh
+subprocesses alternating between the two trees; prints medians and new / old. Workloads and figures:
+docs/benchmarks.md, "Package layout: no cost".
 """
 
 from __future__ import annotations

@@ -1,26 +1,10 @@
 """Benchmark of morphing: the time of a whole morph and its folds, the fluid morph against thin-plate splines.
 
-The pair is the bundled astronaut and cat, 512 x 512, with their 23 points (``--pair faces``: two real human
-faces, 41 landmarks each, from ``face_pair.py``; the middle frames are then written as ``morph_faces_mid_*.png``).
-Float32 on the CPU, one process, so every figure comes from the same run:
-
-1. **Fluid morphs**: plain :func:`torchfluidwarp.morph.morph` calls with ``NaturalSettings`` (the default) and
-   ``PaperSettings`` (the paper's incompressible keyframe fit), each with ``inverse="flow"`` and ``"paper"``,
-   the rest at their defaults. For each: the wall time of the whole ``N``-frame morph (call and all frames) and
-   its split as ``result.seconds`` reports it (fit, inverse, render), medians over ``--repeats`` repeats
-   interleaved over the configurations; the fit's evaluations; the peak RSS growth; the point error in the fluid
-   box's frame (``result.fit.error``) and in the frames' pixels (``result.error``, i.e. B's pixels).
-2. **Thin-plate-spline morphs** on the same pair: frame ``k`` (``u = k / (N - 1)``) warps A from ``a`` and B from
-   ``b`` to ``p_k = (1 - u) a + u b``, cross-dissolved, rendered by kornia's ``warp_image_tps`` in its normalised
-   ``align_corners=False`` frame with ``padding_mode="border"``: ``kornia``, kornia's documented composition
-   (``get_tps_transform(p_k, a)``, kernel centres at the source points); ``standard``, the textbook spline with
-   centres at ``p_k``, solved in float64 here (:func:`standard_tps`).
-3. **Folds**: the fraction of pixels, over all frames, where the Jacobian determinant of A's backward maps
-   (``result.maps``; the splines' maps from ``warp_points_tps``) is ``<= 0``, also counted only where the map's
-   source lies inside the image; the same for B's maps.
-
-``--images DIR`` writes the middle frames of the natural morphs (``morph_mid_fluid_flow.png``,
-``morph_mid_fluid_paper.png``) and of the kornia spline (``morph_mid_tps.png``).
+The bundled pair at 512 x 512 (``--pair faces``: ``face_pair.py``), float32 on CPU: ``morph()`` with
+``NaturalSettings`` and ``PaperSettings``, each with ``inverse="flow"`` and ``"paper"`` (time, its split, peak RSS,
+point errors), against kornia's thin-plate spline (``kornia``) and the textbook one (``standard``); folded pixels of
+A's and B's backward maps. ``--images DIR`` writes middle frames. Figures: docs/benchmarks.md, "Time of a whole
+30-frame 512 x 512 morph, and folds".
 """
 
 from __future__ import annotations

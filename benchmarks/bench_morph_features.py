@@ -1,19 +1,8 @@
 """Benchmark of #23's sequences and averages at 512 x 512: the time of a 5-image sequence and of a 10-image average.
 
-The images are the bundled astronaut and cat (512 x 512, 23 corresponding points each,
-:func:`torchfluidwarp.data.load_sample_points`) and copies of them under mild known affine maps (about a degree of
-rotation, a few percent of zoom out, a few pixels of shift: a crop-and-zoom of the photo), their points moved by the
-same map, so every image has the same 23 points in the same order:
-
-* **sequence**: astronaut -> cat -> astronaut' -> cat' -> astronaut'' (:func:`torchfluidwarp.morph.morph_sequence`,
-  default settings, ``--frames`` frames in all, streamed with ``iter_frames``): fit time (the segments' fits and
-  roll-outs, in the call) and total time with every frame rendered;
-* **average**: five copies of the astronaut and five of the cat (:func:`torchfluidwarp.morph.average`, default
-  settings): total time, the fraction of folded map pixels and the mean point error.
-
-Float32 on CPU, one process, one run each (the figures are seconds, not milliseconds)::
-
-    python benchmarks/bench_morph_features.py [--frames 60] [--threads N] [--quick] [--json PATH]
+The bundled astronaut and cat and copies under mild known affine maps: ``morph_sequence`` over five images (fit
+and total time) and ``average`` of ten (time, folded fraction, point error). Figures: docs/benchmarks.md, "Morph
+features".
 """
 
 from __future__ import annotations

@@ -1,64 +1,10 @@
 """Morph quality on real photographs of faces, with held-out landmarks: the fluid morph against the classical ones.
 
-The pairs (:func:`load_pairs`):
-
-* **faces**: ten 512 x 512 face crops from photographs on PyPI (``morph_quality_data.py``), each with 68
-  iBUG-like landmarks and 12 extra points (forehead, temples, cheeks) from mediapipe's face mesh. Landmark ``i``
-  of the 68 is *marked* (given to the morph) when ``i % 3 != 2`` (46 points) and *held out* otherwise (22); the
-  12 extra points are always held out (34 held out in all). The faces alternate between a **tune** half and a
-  **report** half (``morph_quality_data.SPLIT_FACES``) and a pair belongs to a half when both its faces do:
-  10 unordered pairs each, and no report face is seen while tuning.
-* **bundled**: the library's astronaut -> cat pair (:mod:`torchfluidwarp.data`), 23 points, held out when
-  ``i % 3 == 2`` (7), marked otherwise (16). Its own row; not part of either half's medians.
-
-The methods, on the same crops and the same marked points, ``N`` frames (``--frames``, default 21), frame ``k`` at
-``s = k / (N - 1)``; each returns ``frames (N, C, H, W)`` and backward maps ``maps``, ``maps_b`` ``(N, H, W, 2)``
-(output pixel -> A's / B's pixel, ``(x, y)``, pixel centres at integers):
-
-* ``fluid``: :func:`torchfluidwarp.morph.morph` with the settings of ``--settings JSON`` (``"method"``, ``"natural"``
-  or ``"paper"``, and that class's fields; default ``{}``: ``NaturalSettings()``); ``--config NAME=JSON`` adds
-  more fluid rows.
-* ``tps``: the textbook thin-plate spline to the average shape ``S_s = (1 - s) a + s b``: A's map interpolates
-  ``S_s -> a`` (kernel centres at ``S_s``, with the affine part, solved in float64), B's ``S_s -> b``;
-  cross-dissolve ``(1 - s) A + s B``.
-* ``delaunay``: face_morpher's piecewise-affine morph: a Delaunay triangulation of ``S_s`` plus 8 border points
-  (corners and edge midpoints of the image's outer edges, mapped to themselves), each triangle mapped affinely
-  onto A's and B's; the same cross-dissolve.
-
-The metrics (:func:`evaluate`, the same for every method) are the library's, :mod:`torchfluidwarp.metrics`, so
-that what users see and what this benchmark measures cannot drift apart. A point's position in a frame is where
-that frame shows it: the ``y`` with ``maps[k](y) = p``, by Newton's method on the bilinearly read map
-(:func:`~torchfluidwarp.metrics.locate`) from the pixel whose map value is nearest ``p``; a point that does not
-converge to within 0.1 px is "not located" and left out (the JSON counts them).
-
-* **held-out end error**: mean over the held-out points of ``|y - b|``, ``y`` where A's point shows in the last
-  frame (inverse of ``maps[-1]`` at ``a``), ``b`` B's point (the last frame is B); px
-  (:func:`~torchfluidwarp.metrics.end_error`).
-* **held-out ghosting** at the middle frame ``N // 2``: median over the held-out points of the distance between
-  where A's point and where B's point show in it (inverses of ``maps[mid]`` at ``a`` and ``maps_b[mid]`` at
-  ``b``; :func:`~torchfluidwarp.metrics.ghosting`); px. **marked ghosting**: the same for the marked points.
-  **marked end error**: the held-out end error's figure for the marked points.
-* **folds**: pixels whose Jacobian determinant (:func:`torchfluidwarp.warp.layer.jacobian_determinant`) is ``<= 0``,
-  over all frames of ``maps`` and ``maps_b`` (:func:`~torchfluidwarp.metrics.folded_pixels`): a count and its
-  fraction of ``2 N H W``.
-* **seam figure**: the 99.9th percentile over the interior pixels of the middle frame's backward map's second
-  derivative, ``sqrt(sum_c (d_xx m_c)^2 + 2 (d_xy m_c)^2 + (d_yy m_c)^2)`` by central second differences, for
-  ``maps[mid]`` and ``maps_b[mid]``, the larger of the two; px/px^2. Zero for an affine map; a seam where the
-  warp's stretch jumps (a triangle's edge, a fluid box's wall) raises it
-  (:func:`~torchfluidwarp.metrics.seam_figure`).
-* **time**: wall seconds of the method's call (for the fluid, the :func:`morph` call).
-
-The script prints the machine, torch's threads and its command line, a per-pair table and the medians over each
-half (Markdown), with the ratio of each median to the thin-plate spline's. ``--json PATH`` writes everything,
-per-point distances included; ``--sheets DIR`` writes a contact sheet per pair (rows: the methods in the table's
-order, labelled; columns: ``s`` = 0, 1/4, 1/2, 3/4, 1). The metrics are tested in ``tests/metrics``.
-
-Python use (from the repository root)::
-
-    import sys; sys.path.insert(0, "benchmarks")
-    from bench_morph_quality import load_pairs, run_method, evaluate, summarize
-    rows = [evaluate(run_method("fluid", p, 21, {"straightness": 1.0}), p) for p in load_pairs("tune", bundled=False)]
-    summarize(rows)  # medians
+Ten face crops (``morph_quality_data.py``) in a tune and a report half, and the bundled pair; the fluid
+``morph()`` (``--settings``, more rows with ``--config``) against a thin-plate spline (``tps``) and a Delaunay
+piecewise-affine morph (``delaunay``) to the average shape; the metrics are the library's
+(``torchfluidwarp.metrics``). Definitions: benchmarks/README.md; figures: docs/benchmarks.md, "Quality on real
+photographs". Importable for tuning: ``load_pairs``, ``run_method``, ``evaluate``, ``summarize``.
 """
 
 from __future__ import annotations
@@ -93,8 +39,6 @@ SPLITS: tuple[str, ...] = ("tune", "report")
 BASELINES: tuple[str, ...] = ("tps", "delaunay")
 SHEET_AT = (0.0, 0.25, 0.5, 0.75, 1.0)
 SHEET_PX = 256
-
-# ----------------------------------------------------------------------------------------------- pairs
 
 
 @dataclass(frozen=True)
@@ -135,10 +79,7 @@ def bundled_pair() -> Pair:
 
 
 def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
-    """The face pairs of a half (``"tune"``, ``"report"``) or of both (``"all"``), then the bundled pair.
-
-    Face pairs are named ``"<face a>_<face b>"``; the bundled one ``"astronaut_cat"``.
-    """
+    """The face pairs (``"<face a>_<face b>"``) of a half or of both (``"all"``), then ``"astronaut_cat"``."""
     if split not in ("tune", "report", "all"):
         raise ValueError(f"split must be 'tune', 'report' or 'all', got {split!r}")
     plan = split_pairs(split)
@@ -153,9 +94,6 @@ def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
     if bundled:
         pairs.append(bundled_pair())
     return pairs
-
-
-# ----------------------------------------------------------------------------------------------- methods
 
 
 @dataclass
@@ -182,16 +120,8 @@ def _tps_kernel(d2: Tensor) -> Tensor:
 
 
 def tps_fit(centres: Tensor, values: Tensor) -> tuple[Tensor, Tensor]:
-    """The interpolating thin-plate spline ``f(centres_i) = values_i`` (Bookstein 1989).
-
-    Args:
-        centres: ``(M, 2)`` float64 kernel centres ``(x, y)``.
-        values: ``(M, D)`` float64 values there (``D = 4``: two maps' ``(x, y)`` at once).
-
-    Returns:
-        ``(w, affine)``: ``(M, D)`` kernel weights and ``(3, D)`` affine part, ``f(p) = sum_i w_i U(|p - c_i|) +
-        affine[0] + p @ affine[1:]``; the solution of the ``(M + 3)`` system ``[[K, P], [P^T, 0]]``.
-    """
+    """The thin-plate spline ``f(centres_i) = values_i`` (Bookstein 1989), float64 ``(M, 2)`` and ``(M, D)``:
+    ``(w (M, D), affine (3, D))``, ``f(p) = sum_i w_i U(|p - c_i|) + affine[0] + p @ affine[1:]``."""
     M = centres.shape[0]
     P = torch.cat([torch.ones(M, 1, dtype=centres.dtype), centres], dim=1)  # (M, 3)
     L = torch.zeros(M + 3, M + 3, dtype=centres.dtype)
@@ -288,30 +218,16 @@ def run_method(name: str, pair: Pair, frames: int = 21, spec: dict[str, Any] | N
     return MethodResult(out, maps, maps_b, seconds, info, raw=res)
 
 
-# ----------------------------------------------------------------------------------------------- metrics
-
-
 def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
-    v = d[ok]
-    nan = float("nan")
-    return {
-        "mean": float(v.mean()) if v.numel() else nan,
-        "median": float(v.median()) if v.numel() else nan,
-        "max": float(v.max()) if v.numel() else nan,
-        "located": int(ok.sum()),
-        "of": int(ok.numel()),
-        "per_point": [round(float(x), 3) if bool(o) else None for x, o in zip(d, ok)],
-    }
+    v = d[ok] if ok.any() else torch.full((1,), float("nan"))
+    per_point = [round(float(x), 3) if bool(o) else None for x, o in zip(d, ok)]
+    return dict(mean=float(v.mean()), median=float(v.median()), max=float(v.max()), located=int(ok.sum()),
+                of=int(ok.numel()), per_point=per_point)  # fmt: skip
 
 
 def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
-    """The metrics of a morph of ``pair``: anything with ``frames`` ``(N, C, H, W)``, ``maps`` and ``maps_b``
-    ``(N, H, W, 2)`` (a :class:`MethodResult` or a :class:`~torchfluidwarp.morph.morphing.MorphResult`).
-
-    Returns a dict: ``held_end_px``, ``held_ghost_px``, ``marked_ghost_px``, ``marked_end_px`` (the headline
-    figures: mean, median, median, mean; px), ``folded``, ``folded_fraction``, ``seam``, ``seconds`` (wall time
-    when ``result.seconds`` is a number, the ``"total"`` of a dict), and the details under ``"points"``.
-    """
+    """The metrics (see benchmarks/README.md) of a morph of ``pair``: anything with ``maps`` and ``maps_b``
+    ``(N, H, W, 2)`` (a :class:`MethodResult` or a ``MorphResult``); px, the details under ``"points"``."""
     maps, maps_b = result.maps.detach().cpu().float(), result.maps_b.detach().cpu().float()
     n, H, W = maps.shape[:3]
     mid = n // 2
@@ -324,23 +240,13 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     seconds = getattr(result, "seconds", None)
     if isinstance(seconds, dict):
         seconds = seconds.get("total")
-    return {
-        "pair": pair.name,
-        "split": pair.split,
-        "frames": n,
-        "held_end_px": points["held_end"]["mean"],
-        "held_ghost_px": points["held_ghost"]["median"],
-        "marked_ghost_px": points["marked_ghost"]["median"],
-        "marked_end_px": points["marked_end"]["mean"],
-        "folded": folded_a + folded_b,
-        "folded_a": folded_a,
-        "folded_b": folded_b,
-        "folded_fraction": (folded_a + folded_b) / (2 * n * H * W),
-        "seam": max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
-        "seconds": None if seconds is None else float(seconds),
-        "not_located": sum(p["of"] - p["located"] for p in points.values()),
-        "points": points,
-    }
+    return dict(pair=pair.name, split=pair.split, frames=n, held_end_px=points["held_end"]["mean"],
+                held_ghost_px=points["held_ghost"]["median"], marked_ghost_px=points["marked_ghost"]["median"],
+                marked_end_px=points["marked_end"]["mean"], folded=folded_a + folded_b, folded_a=folded_a,
+                folded_b=folded_b, folded_fraction=(folded_a + folded_b) / (2 * n * H * W),
+                seam=max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
+                seconds=None if seconds is None else float(seconds),
+                not_located=sum(p["of"] - p["located"] for p in points.values()), points=points)  # fmt: skip
 
 
 HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "marked_end_px", "seam", "seconds")
@@ -356,9 +262,6 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     out["folded_fraction_max"] = max((r["folded_fraction"] for r in rows), default=float("nan"))
     out["folded_max"] = max((r["folded"] for r in rows), default=0)
     return out
-
-
-# ----------------------------------------------------------------------------------------------- output
 
 
 def _f(x: float | None, digits: int = 2) -> str:
@@ -417,9 +320,6 @@ def write_sheet(path: Path, pair: str, rows: dict[str, list[Tensor]]) -> None:
     tmp = path.with_suffix(".tmp.png")
     sheet.save(tmp)
     os.replace(tmp, path)
-
-
-# ----------------------------------------------------------------------------------------------- main
 
 
 def _config(text: str) -> tuple[str, dict[str, Any]]:

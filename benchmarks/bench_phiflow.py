@@ -1,47 +1,12 @@
 """Benchmark: the paper's keyframe fit, torchfluidwarp against PhiFlow 3.4 (torch backend), timed in one run.
 
-The set-up is the one of ``bench_keyframes.py`` (the paper's morphing fit): a 64x64 fluid over a 64x64-pixel
-frame in a closed box (solid walls), 10 steps with ``dt = 1``, no viscosity, 14 points whose targets lie 5 to
-10 px away, forces parametrised by a 5x5x2 control grid per step (500 parameters), the objective
-``1/2 sum_i ||p_i(T) - q_i||^2`` (px^2), and L-BFGS with a strong-Wolfe line search, started from zero forces.
-The instance is ``_common.flow_instance`` (``--seed``, default 0: the "flow seed 0" instance of that
-benchmark), whose targets are where a random brush-driven flow carries the sources, so they are reachable. That
-flow is torchfluidwarp's own: its targets are reachable exactly by torchfluidwarp's discretisation and only
-approximately by PhiFlow's, though both use the same scheme (below) and the brushes are not the control grid.
-
-Both fits stop once every point is within ``--tolerance`` px (0.05; this implies a mean error below it), or
-after ``--max-iter`` L-BFGS iterations, or after ``--time-cap-s`` of wall time.
-
-* **torchfluidwarp**: ``fit_keyframes(source, target, image_size=(64, 64), grid=(64, 64), steps=10,
-  control=(5, 5), tolerance=0.05, dtype=float64, method="lbfgs")`` (L-BFGS alone, as PhiFlow's fit). Its
-  gradient is autograd through the solver, with the
-  pressure solve's implicit adjoint.
-* **PhiFlow 3.4**, torch backend (``phi.torch.flow``), float64, eager. Per step:
-  ``v + dt * resample(f, to=v)``; ``advect.semi_lagrangian(v, v, dt)``; ``fluid.make_incompressible(v)``
-  with ``Solve(rel_tol=1e-9, abs_tol=1e-9)``, whose method is PhiFlow's default ``'auto'`` (``--phiflow-solve``
-  picks another method; ``--phiflow-tol 0`` keeps PhiFlow's own tolerance, 1e-12 in float64, with which its
-  closed-box direct solve fails its own residual check and raises ``Diverged``); then the points with
-  ``advect.points``. ``v`` is a ``StaggeredGrid`` with ``extrapolation.ZERO`` (solid walls). PhiFlow 3.4 ships
-  ``euler`` and ``rk4`` integrators; both advections get a midpoint (RK2) integrator written with PhiFlow's
-  ``sample`` in the same pluggable slot, because torchfluidwarp traces back and carries points with the
-  midpoint rule. The forces are the control grid upsampled to the cell centres *bicubically*
-  (``F.interpolate(..., mode="bicubic", align_corners=True)``, as torchfluidwarp's ``ControlGrid`` does), wrapped
-  in a ``CenteredGrid`` and resampled (linearly) to the faces, which averages the two cells of each face as
-  torchfluidwarp does. The gradient is plain torch autograd through PhiFlow's torch graph (the control is a
-  torch leaf tensor; PhiFlow's linear solves attach their own implicit gradient solve). The L-BFGS loop is a
-  copy of ``fit_keyframes``'s: the same ``torch.optim.LBFGS`` settings, stopping rule and best-iterate restore.
-  That copy is also run on torchfluidwarp's simulator, to show that it behaves as ``fit_keyframes``.
-
-Reported: wall and CPU time of each fit (medians over repeats), evaluations (objective + gradient), time per
-evaluation, final mean and max error, and the ratio PhiFlow / torchfluidwarp; the paper's 5 minutes, as the
-issue quotes it (not measured), as a reference row. Before the fits: one objective-and-gradient evaluation of
-each library at zero forces (warm-up, timed separately, and the cosine between the two gradients: the same
-objective should give nearly the same gradient), and one evaluation of PhiFlow inside a ``math.SolveTape`` that
-records which pressure solver PhiFlow actually ran in the closed box (the tape may disable optimisations, so it
-is kept out of the timed fits). After the fits: each library's fitted control replayed in the other library.
-
-Needs ``pip install "phiflow>=3.4,<3.5"`` (or ``pip install -e ".[bench]"``). Run from the repository root:
-``python benchmarks/bench_phiflow.py --help``.
+The set-up of ``bench_keyframes.py`` (``_common.flow_instance(--seed)``, 64x64 closed box, 10 steps, control 5x5,
+float64, L-BFGS from zero forces until every point is within ``--tolerance`` px), fitted by ``fit_keyframes(...,
+method="lbfgs")``, by this script's copy of its L-BFGS loop around torchfluidwarp, and by the same loop around the
+same scheme written in PhiFlow (midpoint advection, ``make_incompressible``, ``advect.points``). Also: the gradients
+at zero forces compared, PhiFlow's pressure solver as ``math.SolveTape`` records it, each fitted control replayed
+in the other library. Needs ``pip install "phiflow>=3.4,<3.5"``. Set-up and figures: docs/benchmarks.md,
+"Keyframe fit against PhiFlow 3.4".
 """
 
 from __future__ import annotations
@@ -68,9 +33,6 @@ from torchfluidwarp.warp import FluidWarp
 
 CONTROL = (5, 5)
 DT = 1.0
-
-
-# ----------------------------------------------------------------------------------------------- the fit loop
 
 
 @dataclass
@@ -113,16 +75,8 @@ def lbfgs_fit(
     starts after the optimiser is built and stops after the final forward, as ``KeyframeFit.seconds`` does.
     ``errors`` raised by the simulator stop the fit instead of the run.
     """
-    optimizer = torch.optim.LBFGS(
-        params,
-        lr=1.0,
-        max_iter=max_iter,
-        max_eval=max_iter * 2,
-        history_size=20,
-        tolerance_grad=1e-12,
-        tolerance_change=1e-14,
-        line_search_fn="strong_wolfe",
-    )
+    settings = dict(lr=1.0, max_iter=max_iter, max_eval=max_iter * 2, history_size=20, tolerance_grad=1e-12)
+    optimizer = torch.optim.LBFGS(params, **settings, tolerance_change=1e-14, line_search_fn="strong_wolfe")
     history: list[float] = []
     best_loss, best_state = math.inf, None
     start, cpu0 = time.perf_counter(), time.process_time()
@@ -159,20 +113,8 @@ def lbfgs_fit(
                 p.copy_(v)
     with torch.no_grad():
         err = (endpoints() - target).norm(dim=-1)
-    return FitRun(
-        library=library,
-        seconds=time.perf_counter() - start,
-        cpu_seconds=time.process_time() - cpu0,
-        evaluations=len(history),
-        mean_error=float(err.mean()),
-        max_error=float(err.max()),
-        reached=bool(err.max() <= tolerance),
-        stopped=stopped,
-        final_loss=best_loss,
-    )
-
-
-# ----------------------------------------------------------------------------------------------- the simulators
+    return FitRun(library, time.perf_counter() - start, time.process_time() - cpu0, len(history), float(err.mean()),
+                  float(err.max()), bool(err.max() <= tolerance), stopped, best_loss)  # fmt: skip
 
 
 def upsample(control: Tensor, grid: tuple[int, int]) -> Tensor:
@@ -307,9 +249,6 @@ def gradient_at(endpoints: Callable[[Tensor], Tensor], control: Tensor, target: 
     return c.grad, time.perf_counter() - t0
 
 
-# ----------------------------------------------------------------------------------------------- report
-
-
 def summary(runs: list[FitRun], label: str) -> dict[str, Any]:
     med = lambda key: statistics.median(getattr(r, key) for r in runs)  # noqa: E731
     return dict(
@@ -348,9 +287,6 @@ def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], titl
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-# ----------------------------------------------------------------------------------------------- main
 
 
 def solver_lines(solver: dict[str, Any], steps: int, ours_iters: list[int]) -> list[str]:
@@ -485,18 +421,10 @@ def main(argv: list[str] | None = None) -> int:
     paper = dict(label="paper (as quoted in the issue, not measured)", repeats="-", seconds=PAPER_SECONDS)
     table_rows = [{**paper, "cpu": "-", "evals": "-", "ms": "-", "mean": "-", "max": "-", "reached": "-",
                    "stopped": "-", "ratio": f"{PAPER_SECONDS / base['seconds']:.0f}x"}]  # fmt: skip
-    for r in rows.values():
-        table_rows.append(
-            {
-                **r,
-                "cpu": f"{r['cpu_seconds']:.2f}",
-                "evals": f"{r['evaluations']:g}",
-                "ms": f"{r['ms_per_evaluation']:.1f}",
-                "mean": f"{r['mean_error']:.4f}",
-                "max": f"{r['max_error']:.4f}",
-                "ratio": f"{r['seconds'] / base['seconds']:.1f}x",
-            }
-        )
+    table_rows += [{**r, "cpu": f"{r['cpu_seconds']:.2f}", "evals": f"{r['evaluations']:g}",
+                    "ms": f"{r['ms_per_evaluation']:.1f}", "mean": f"{r['mean_error']:.4f}",
+                    "max": f"{r['max_error']:.4f}", "ratio": f"{r['seconds'] / base['seconds']:.1f}x"}
+                   for r in rows.values()]  # fmt: skip
     print(f"\nKeyframe fit, {inst.name}: wall time of the fit (median over repeats), CPU time of this process, "
           "evaluations (objective + gradient), final errors (px)\n")  # fmt: skip
     spec = "fit {label} | repeats {repeats} | fit s (median) {seconds:.2f} | CPU s {cpu} | evals {evals} | ms/eval "

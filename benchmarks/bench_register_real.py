@@ -1,19 +1,8 @@
 """Fluid image registration on a real pair: scikit-image's stereo motorcycle, scored against its disparity map.
 
-The pair (``skimage.data.stereo_motorcycle``, from the Middlebury 2014 stereo data set, shipped inside the
-scikit-image wheel; ``pip install scikit-image``) is two photographs of the same scene from two cameras side by
-side, with the true disparity ``d`` of every pixel: the left image's pixel ``(x, y)`` shows in the right image
-at ``(x - d, y)``. :func:`torchfluidwarp.control.images.fit_images` warps the right image onto the left one, so
-the true backward map is ``g(x, y) = (x - d, y)``, and the fitted map can be scored pixel by pixel.
-
-A closed fluid cannot shift a whole picture, and every pixel here moves left by at least 7 px (the median is
-reported). As the morph does with its pre-alignment, the global part is taken out first: the right image is
-cropped ``round(median d)`` pixels further left than the left image, and the fluid fits the rest. The script
-reports, at the working resolution: ``1 - NCC`` before and after, the mean and median absolute error of the
-map's x component against the residual disparity over the valid pixels (and of its y component against 0),
-the same for the identity map (before), the smallest Jacobian determinant, the evaluations and the time.
-
-Usage: ``python benchmarks/bench_register_real.py [--scale 0.5] [--threads 1] [--json PATH]``
+``fit_images`` warps the right view onto the left one after the median disparity is cropped away; the fitted map
+is scored against the true one pixel by pixel. Details: benchmarks/README.md; figures: docs/benchmarks.md,
+"Registration on a real pair".
 """
 
 from __future__ import annotations

@@ -1,25 +1,8 @@
 """Benchmark of memory at scale (#21): peak RSS of the command line as the frame count and the image size grow.
 
-Each configuration runs in a fresh Python process that resets its peak (``_common.reset_peak``, after importing
-torch), runs ``torchfluidwarp.apps.cli.main`` with the arguments shown and reports its ``VmHWM`` (peak resident
-memory of that process alone) and wall time:
-
-1. ``torchfluidwarp demo --frames 30`` and ``--frames N`` (``--long``, default 3000): the bundled 512 x 512
-   morph. Target: peak RSS within 10% of each other (frames are streamed to the GIF, so memory does not grow
-   with ``N``). Frames per second is ``N`` over the wall time, and the marginal rate
-   ``(N - 30) / (t_N - t_30)`` (the fit's cost taken out).
-2. A 6000 x 6000 pair, ``--frames 3``: the bundled astronaut and cat upscaled (bicubic) with their points, as
-   PNGs in a temporary folder. Target: peak RSS under 3 GB. ``--max-memory`` is raised to 64 GiB so that the
-   library's own estimate (which counts ``min(frames, 8)`` frames) does not refuse it; the CLI renders
-   one frame at a time at this size. With ``--profile`` the render of that morph is also run under
-   ``torch.profiler`` (``profile_memory=True``) in the same kind of fresh process, and the operators that
-   allocate most are listed.
-
-Usage::
-
-    python benchmarks/bench_scale.py                 # 30 vs 3000 frames, and 6000 x 6000
-    python benchmarks/bench_scale.py --long 600      # a shorter long run
-    python benchmarks/bench_scale.py --skip-large --profile
+Each configuration in a fresh process (``VmHWM`` reset after importing torch): ``torchfluidwarp demo --frames 30``
+against ``--frames --long`` (target: within 10%), and a 6000 x 6000 pair, ``--frames 3`` (target: under 3 GB;
+``--profile`` lists the operators that allocate most). Figures: docs/benchmarks.md, "Scale".
 """
 
 from __future__ import annotations

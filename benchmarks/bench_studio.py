@@ -1,9 +1,7 @@
 """Studio preview latency: 512x512 pair, 20 points, warm (after the first fit), request to frame returned.
 
-Usage: ``python benchmarks/bench_studio.py [PREVIEW_SIZE]`` (default 320, the studio's own preview size).
-Like ``torchfluidwarp studio``, it runs torch with one thread.
-It drives the studio's JSON API in-process (Starlette's test client): one cold preview, then six warm ones,
-each after moving one of B's points by up to 4 px, as a user dragging a point would.
+Usage: ``python benchmarks/bench_studio.py [PREVIEW_SIZE]`` (default 320). One thread, the studio's JSON API
+in-process: one cold preview, then six warm ones after moving one of B's points. Figures: docs/benchmarks.md.
 """
 
 from __future__ import annotations

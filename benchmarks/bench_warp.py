@@ -1,22 +1,9 @@
 """Benchmark of the warp layer as a real-time animation loop: frames per second and where each frame's time goes.
 
-Three oscillating ``Brushes`` (``_common.make_brushes``) stir a 64x64 fluid that warps an RGB float32 image,
-without grad. One frame is one fluid step, one advance of the backward map, and one resampling of the image.
-
-* **end to end**: :meth:`FluidWarp.iter_frames` consumed frame by frame, as shipped (the next sampling grid is
-  prefetched in a worker thread for large frames) and with ``prefetch=False``; fps = ``T`` new frames over the
-  loop's wall time.
-* **the split**, ms per frame: (a) the fluid step (:meth:`FluidWarp.rollout` / ``T``); (b) the map advance (each
-  ``next`` of :func:`iter_backward_maps`), of which the back-trace alone (:meth:`StaggeredGrid.backtrace` of the
-  maps' working raster, ``TRACE_OVERSAMPLE`` points per cell, one step's velocity), the rest being the
-  composition and the resize; (c) the resampling: one unchecked ``core.sampling.sample`` of the image through
-  each map, as ``iter_frames`` runs it, and the public :func:`warp_image`, which checks its inputs every call.
-* **the floor** (issue #20): torch's ``grid_sample`` alone, once per frame on the last frame's grid, against
-  :meth:`FluidWarp.forward` and ``iter_frames`` in the same repeats (target: at most 2.5x at 600x600).
-
-Target: at least 60 frames per second end to end at 600x600. Each repeat runs every measurement for every
-thread count in turn; figures are medians. A last, untimed pass under ``torch.profiler`` lists the operators of
-one loop per size.
+A 64x64 fluid stirred by ``_common.make_brushes`` warps an RGB float32 image without grad: ``iter_frames`` end to
+end (target: >= 60 fps at 600x600), the split of a frame (fluid step, map advance and its back-trace,
+resampling), and ``forward`` and ``iter_frames`` against the floor, one ``grid_sample`` a frame (issue #20:
+<= 2.5x). Details: benchmarks/README.md; figures: docs/benchmarks.md, "Warp layer".
 """
 
 from __future__ import annotations

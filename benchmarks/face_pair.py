@@ -1,17 +1,8 @@
 """A pair of real photographs of human faces for ``bench_morph.py --pair faces``, with their landmarks.
 
-This machine reaches only package registries, so the photograph comes from one: ``insightface`` 2.1's wheel on
-PyPI ships a group photo, ``insightface/data/images/t1.jpg`` (1280 x 886), as sample data. It is fetched once with
-``pip download insightface==2.1 --no-deps`` through pip's configured index (``morph_quality_data.py``, which
-checks the SHA-256 of the wheel and of the photo) into ``$TORCHFLUIDWARP_BENCH_CACHE`` (default
-``~/.cache/torchfluidwarp-bench``) and never redistributed by this repository. Two faces are cropped from it, each
-a square twice the side of the face box that mediapipe's face detector found, and resized to 512 x 512
-(antialiased bilinear).
-
-The landmarks in ``data/face_pair_landmarks.json`` (pixels of the 512 x 512 crops, pixel centres at integers)
-are 41 points of mediapipe 0.10.14's 468-point face mesh (jaw line, brows, eye corners and lids, nose, lips),
-detected once on each crop and not edited by hand; the detection code (``--detect``, and ``--show``) is in the
-history: ``git show 7d1a1c6:benchmarks/face_pair.py``.
+Two faces cropped from ``insightface`` 2.1's sample photo (fetched by ``morph_quality_data.py``, never
+redistributed) and 41 mediapipe face-mesh landmarks each, ``data/face_pair_landmarks.json``; see
+benchmarks/README.md. The detection code is in the history: ``git show 7d1a1c6:benchmarks/face_pair.py``.
 """
 
 from __future__ import annotations

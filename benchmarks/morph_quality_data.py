@@ -1,28 +1,11 @@
 """Real photographs of faces with held-out landmarks, for ``bench_morph_quality.py``.
 
-This machine reaches only package registries, so the photographs come from packages on PyPI, fetched with
-``pip download --no-deps`` through pip's configured index into ``$TORCHFLUIDWARP_BENCH_CACHE`` (default
-``~/.cache/torchfluidwarp-bench``), checked by SHA-256 (the archive and the photo inside it) and never
-redistributed by this repository:
-
-* ``insightface`` 2.1's wheel: ``insightface/data/images/t1.jpg`` (1280 x 886), a group photo of six people;
-  faces ``t1-1`` to ``t1-6``, left to right.
-* ``face_recognition`` 1.3.0's sdist: ``tests/test_images/biden.jpg``, ``obama.jpg``, ``obama2.jpg`` and
-  ``obama3.jpg``, one person each; faces ``biden``, ``obama``, ``obama2`` and ``obama3``.
-
-and two photos already on the machine: ``astronaut``, the library's bundled ``astronaut.png`` (scikit-image's,
-512 x 512), and ``hopper``, matplotlib's ``mpl-data/sample_data/grace_hopper.jpg`` (512 x 600). ``t1-2`` and
-``t1-5`` are detected but not used (see :data:`DETECTED`); the ten faces used are split into a tune and a report
-half (:data:`SPLIT_FACES`).
-
-Each face is a square crop, twice the side of the box that mediapipe's face detector found (shifted to lie inside
-the photo), resized to 512 x 512 (antialiased bilinear). On each crop mediapipe 0.10.14's 468-point face mesh gave
-68 points laid out like iBUG's 300-W set (jaw 17, brows 10, nose 9, eyes 12, mouth 20) and 12 more on the
-forehead, temples and cheeks, where iBUG has none. The landmarks (pixels of the crops, pixel centres at integers),
-the crop boxes and the mesh indices are committed in ``data/morph_quality_landmarks.json``, so only the photos are
-fetched at run time. They were written once by this module's ``--detect`` and not edited by hand; that code (and
-``--show``, which drew the crops with their landmarks) is in the history: ``git show
-7d1a1c6:benchmarks/morph_quality_data.py``.
+The photos come from PyPI packages (``insightface`` 2.1's wheel: faces ``t1-1`` to ``t1-6``; ``face_recognition``
+1.3.0's sdist: ``biden``, ``obama``, ``obama2``, ``obama3``), fetched with ``pip download --no-deps`` into
+``$TORCHFLUIDWARP_BENCH_CACHE`` (default ``~/.cache/torchfluidwarp-bench``) and checked by SHA-256, plus the
+bundled ``astronaut`` and matplotlib's ``hopper``. Each face is a square crop around mediapipe's face box,
+resized to 512 x 512, with 68 iBUG-like and 12 extra landmarks committed in ``data/morph_quality_landmarks.json``;
+the detection code is in the history: ``git show 7d1a1c6:benchmarks/morph_quality_data.py``.
 """
 
 from __future__ import annotations

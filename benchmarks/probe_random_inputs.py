@@ -1,30 +1,9 @@
 """Robustness probe: the fits and the morph on random problems, hard and unreasonable ones included.
 
-Not a timing benchmark. Each case draws a random problem from ``--seed`` and runs it; the script prints one line
-per case and a count of outcomes, so that a crash, a hang, a non-finite result or a silent fold shows up as a
-category rather than somewhere in a log. What it draws:
-
-* ``fit``: :func:`fit_keyframes` with ``method="auto"`` and ``"lbfgs"`` on the same problem: image and fluid
-  sizes, steps, control grids, 1-19 points, 1-2 problems per batch, displacements up to 30% of the picture,
-  viscosity, ``compressible``, float32 / float64, sometimes two keyframes. Flags ``EXC`` (an exception),
-  ``NAN``, and ``WORSE`` (auto's worst error 1.5x L-BFGS' and 0.05 px above it). Both methods get
-  ``max_iter=200``; many problems are unreachable, so most are not met.
-* ``morph``: :func:`morph` on random pictures with 3-29 marks moved a little, a lot, rotated, scaled, or listed
-  in a shuffled order; random method, pre-alignment, region, ``compressible``, inverse, grid, steps and dtype.
-  Flags ``EXC``, ``REFUSED`` (an ``InputError`` or ``InputTypeError``: read its message), ``BLEWUP`` (a
-  ``FlowBlewUp``), ``NONFINITE``, ``RANGE`` (outside ``[0, 1]``), ``SHAPE``, ``FIRST`` (the first frame is not
-  A) and ``SLOW`` (over 20 s).
-* ``images``: :func:`fit_images` between smooth pictures, noise, constants, shifted and unrelated blobs, with
-  random losses, levels, grids, steps, iterations, viscosity, regularisation, dtype and landmarks. Flags
-  ``EXC``, ``REFUSED``, ``BLEWUP``, ``NONFINITE``, ``WORSE`` (the loss rose) and ``FOLD`` (the fitted map folds;
-  the fit warns about it too). Any other exception, a plain ``ValueError`` included, counts as ``EXC``: a
-  library error that is not the caller's fault.
-
-Usage::
-
-    python benchmarks/probe_random_inputs.py fit --seed 0 --cases 40
-    python benchmarks/probe_random_inputs.py morph --seed 1 --cases 40
-    python benchmarks/probe_random_inputs.py images --seed 1 --cases 30
+Not a timing benchmark: each case draws a random problem from ``--seed``, runs ``fit_keyframes`` (``fit``:
+``auto`` against ``lbfgs``), ``morph`` or ``fit_images`` on it, prints a line and counts the outcomes by flag
+(``EXC``, ``REFUSED``, ``BLEWUP``, ``NAN``/``NONFINITE``, ``RANGE``, ``SHAPE``, ``FIRST``, ``SLOW``, ``WORSE``,
+``FOLD``; see benchmarks/README.md). Figures: docs/benchmarks.md, "Hard and unreasonable problems".
 """
 
 from __future__ import annotations
