@@ -1,8 +1,9 @@
-"""The layout change costs no speed: the main paths timed side by side on the old flat layout and on this checkout.
+"""A/B of a change to the package's shape: the main public paths timed on ``--base`` and on this checkout.
 
 Checks out ``--base`` into a temporary git worktree and times the same public top-level calls in fresh
-subprocesses alternating between the two trees; prints medians and new / old. Workloads and figures:
-docs/benchmarks.md, "Package layout: no cost".
+subprocesses alternating between the two trees; prints medians and new / old. The workloads use only arguments
+that every version since the flat layout accepts. Figures: docs/benchmarks.md, "Package layout: no cost"
+(issue #18) and "One shape: no cost" (issue #30).
 """
 
 from __future__ import annotations
@@ -43,6 +44,11 @@ warp = tfw.FluidWarp(64, 20)
 image = torch.rand(1, 3, 256, 256, generator=g)
 wf = 0.05 * torch.randn(1, 20, 2, 64, 64, generator=g)
 out["FluidWarp 256^2 x 20 steps"] = timed(lambda: warp(image, wf))
+warp10 = tfw.FluidWarp(64, 10)
+image600 = torch.rand(1, 3, 600, 600, generator=g)
+wf10 = 0.2 * torch.randn(1, 10, 2, 64, 64, generator=g)
+with torch.no_grad():
+    out["FluidWarp 600^2 x 10 steps"] = timed(lambda: warp10(image600, wf10))
 src = torch.rand(14, 2, generator=g) * 40 + 12
 tgt = src + torch.randn(14, 2, generator=g) * 3
 out["fit_keyframes paper set-up"] = timed(
