@@ -56,7 +56,11 @@ def test_gif_is_transparent_where_alpha_is_below_half(tmp_path, rgba_morph):
     assert np.all(got[..., 3][alpha >= 128] == 255)
     opaque = alpha >= 128
     colour_error = np.abs(got[..., :3].astype(int) - expect[..., :3].astype(int))[opaque]
-    assert np.median(colour_error) <= 8  # 255 quantized colours of random noise
+    # a transparent GIF shares one fixed palette over all frames (a 6 x 7 x 6 colour cube, dithered) so that it
+    # reads back as one array (test_morph_pictures.py): on uniform noise the nearest of its levels is off by up to
+    # half a step (25.5 of 255 in red and blue, 21.25 in green), a quarter step (about 12) on the median
+    assert np.median(colour_error) <= 13  # was 8 with a palette per frame, which imageio cannot stack (#31)
+    assert np.array_equal(iio.imread(out, index=None)[..., :3], got[..., :3])  # every frame in one mode
     assert encode_animation(frames, "gif") == out.read_bytes()
 
 

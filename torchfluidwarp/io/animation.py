@@ -71,7 +71,9 @@ def write_animation(
     * ``*.gif``: an animated GIF (Pillow's encoder). Each frame is shown for ``1 / fps`` seconds, rounded to
       the GIF's 10 ms steps; every frame is kept, repeated ones included, each with its own palette.
       RGBA frames give a transparent GIF: pixels with alpha below 0.5 (127 of 255) are transparent, the others
-      opaque (a GIF has no partial transparency); each frame replaces the one before (disposal 2).
+      opaque (a GIF has no partial transparency); each frame replaces the one before (disposal 2). All its frames
+      share one fixed, dithered palette (a colour cube), so that every frame decodes in the first frame's mode
+      and ``imageio.v3.imread(path, index=None)`` reads the file back as one array.
     * ``*.mp4``: H.264 through imageio-ffmpeg (needs the ``[video]`` extra). Odd sizes are
       padded by one edge row/column, as yuv420p needs even sizes.
     * ``*.webp``: an animated WebP (Pillow, where built with WebP: ``PIL.features.check("webp")``), lossy colour
@@ -272,39 +274,64 @@ def _write_pngs(folder: Path, frames: Iterator[np.ndarray]) -> None:
             os.replace(folder / f"frame_{t:04d}.png", folder / f"frame_{t:0{digits}d}.png")
 
 
+def _cube_palette() -> Image.Image:
+    """The fixed palette of transparent GIFs: a 6 x 7 x 6 colour cube (252 colours, green finest: the eye's most
+    sensitive channel) and 3 more greys, 255 colours in all; index :data:`TRANSPARENT` is left for transparency."""
+    levels = {n: [round(255 * i / (n - 1)) for i in range(n)] for n in (6, 7)}
+    colours = [(r, g, b) for r in levels[6] for g in levels[7] for b in levels[6]]
+    colours += [(64, 64, 64), (128, 128, 128), (192, 192, 192), (0, 0, 0)]  # the last: the transparent index
+    palette = Image.new("P", (1, 1))
+    palette.putpalette([v for c in colours for v in c])
+    return palette
+
+
 def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int) -> None:
     """Encode ``(H, W, C)`` uint8 frames as an animated GIF into a binary file object, one frame at a time.
 
-    Each frame is quantized on its own (median cut, 256 colours, no dithering) and written whole with its
-    own colour table, so nothing is held but the frame at hand and no frame is merged with the one before it
-    (Pillow's multi-frame writer keeps every frame until the end, and drops repeated ones). An RGBA frame is
-    quantized to 255 colours and its pixels with alpha below 128 take the transparent index :data:`TRANSPARENT`.
+    Every frame of a file has one mode, that of the first frame: opaque colour, or colour with transparency.
+
+    * Opaque frames (grey or RGB) are quantized each on its own (median cut, 256 colours, no dithering) and
+      written whole with their own colour table, so nothing is held but the frame at hand and no frame is merged
+      with the one before it (Pillow's multi-frame writer keeps every frame until the end, and drops repeated
+      ones).
+    * RGBA frames all use one global palette, :func:`_cube_palette` (dithered), with index :data:`TRANSPARENT`
+      where ``alpha < 128`` in every frame, and each replaces the one before (disposal 2). A streamed file cannot
+      choose one palette for frames it has not seen, and a frame with its own colour table is decoded by Pillow
+      (hence imageio) in another mode than the first frame of a transparent GIF, so that
+      ``imageio.v3.imread(path, index=None)`` could not stack the frames.
     """
     delay_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
+    cube: Image.Image | None = None
     for k, frame in enumerate(frames):
         rgb = _rgb(frame)
         if k == 0:
             h, w = rgb.shape[:2]
-            fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
+            if frame.shape[-1] == 4:
+                cube = _cube_palette()
+                table = bytes(cube.getpalette() or [])[:768].ljust(768, b"\0")
+                fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0xF7, 0, 0) + table)  # a 256-colour global table
+            else:
+                fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
             fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
-        extra: dict[str, Any] = {}
-        if frame.shape[-1] == 4:
-            quantized, extra = _transparent(rgb, frame[..., 3]), {"transparency": TRANSPARENT, "disposal": 2}
+        extra: dict[str, Any] = {"include_color_table": True}
+        if cube is not None:
+            quantized = _transparent(rgb, frame[..., 3], cube)
+            extra = {"include_color_table": False, "transparency": TRANSPARENT, "disposal": 2}
         else:
             quantized = Image.fromarray(rgb).quantize(colors=256)
-        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, include_color_table=True, **extra):
+        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, **extra):
             fp.write(part)
     fp.write(b";")
 
 
-def _transparent(rgb: np.ndarray, alpha: np.ndarray) -> Image.Image:
-    """A palette image of ``rgb`` in 255 colours, with index :data:`TRANSPARENT` where ``alpha < 128``."""
-    quantized = Image.fromarray(rgb).quantize(colors=TRANSPARENT)
+def _transparent(rgb: np.ndarray, alpha: np.ndarray, palette: Image.Image) -> Image.Image:
+    """A palette image of ``rgb`` in ``palette``'s colours (dithered), with index :data:`TRANSPARENT` where
+    ``alpha < 128``."""
+    quantized = Image.fromarray(rgb).quantize(palette=palette, dither=Image.Dither.FLOYDSTEINBERG)
     indices = np.asarray(quantized).copy()
     indices[alpha < 128] = TRANSPARENT
-    palette = (quantized.getpalette() or [])[: 3 * TRANSPARENT]
     out = Image.fromarray(indices, "P")
-    out.putpalette(palette + [0] * (768 - len(palette)))
+    out.putpalette(palette.getpalette() or [])
     return out
 
 

@@ -11,8 +11,8 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_tensor
+from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit
-from torchfluidwarp.core.grid import rescale_points, scale_factor
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.metrics.maps import folded_pixels, seam_figure
 from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
@@ -24,6 +24,7 @@ class Morph(Protocol):
 
     fit: KeyframeFit
     error: Tensor  # (M,) pixels of the last frame
+    canvas_from_b: Tensor  # (3, 3) B's pixels to the frames' (canvas) pixels
 
     def __len__(self) -> int: ...
 
@@ -71,15 +72,6 @@ def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
         "of": int(ok.numel()),
         "per_point": [float(x) if bool(o) else None for x, o in zip(d, ok)],
     }
-
-
-def _to_frame(points: Tensor, image: Tensor, size: tuple[int, int]) -> Tensor:
-    """Points ``(K, 2)`` in the pixels of ``image`` ``(..., H_b, W_b)`` brought to a frame of ``size`` (pixel
-    centres stay at integers), as the morph resizes B to A's size."""
-    own = (image.shape[-2], image.shape[-1])
-    if own == size:
-        return points.double()
-    return rescale_points(points.double(), scale_factor(own, size, device=points.device, dtype=torch.float64))
 
 
 def morph_report(
@@ -145,9 +137,10 @@ def morph_report(
         pairs["held_out"] = held_out
     figures: dict[str, Any] = {}
     for name, (pa, pb) in pairs.items():
-        pa, pb = pa.detach().cpu().double(), _to_frame(pb.detach().cpu(), image_b, size)
+        pa, pb = pa.detach().cpu().double(), pb.detach().cpu().double()  # maps_b read B's own pixels
+        placed = apply_alignment(result.canvas_from_b.cpu(), pb)  # B's points where the last frame shows them
         figures[name] = {
-            "end": _stats(*end_error(kept[n - 1][0], pa, pb)),
+            "end": _stats(*end_error(kept[n - 1][0], pa, placed)),
             "ghost": _stats(*ghosting(*kept[mid], pa, pb)),
         }
     err = result.error.detach().reshape(-1).double().cpu()  # the last frame's pixels (MorphResult.error)

@@ -44,7 +44,7 @@ from torchfluidwarp.morph.settings import (
 )
 from torchfluidwarp.morph.timing import schedule
 
-__all__ = ["morph", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
+__all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
 
 
 def _as_image(name: str, image: Tensor) -> Tensor:
@@ -65,22 +65,85 @@ def _as_points(name: str, points: object, image: Tensor) -> Tensor:
     return p[0].detach().to(image.device)
 
 
-def _region_masks(
-    blending: Blending, pa: Tensor, pb: Tensor, a: Tensor, size_b: tuple[int, int]
-) -> tuple[Tensor, Tensor] | None:
-    """The region's soft masks ``(1, 1, H, W)`` over A and over B (resized to A's size), or ``None``."""
+def _region_masks(blending: Blending, pa: Tensor, pb: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor] | None:
+    """The region's soft masks ``(1, 1, H_a, W_a)`` over A and ``(1, 1, H_b, W_b)`` over B, each in its own
+    picture's pixels (the frames read them through each picture's map), or ``None``."""
     region = blending.region
     if region is None:
         return None
-    size = (a.shape[-2], a.shape[-1])
+    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
     if isinstance(region, str):  # "points", checked by Blending
         margin = blending.region_margin
-        masks = hull_mask(pa, size, margin), hull_mask(pb, size, margin)  # pb is already in A's size
+        masks = hull_mask(pa, size_a, margin), hull_mask(pb, size_b, margin)
     else:
-        ma = check_tensor("Blending.region[0] (mask_a)", region[0], shape=[*size])
+        ma = check_tensor("Blending.region[0] (mask_a)", region[0], shape=[*size_a])
         mb = check_tensor("Blending.region[1] (mask_b)", region[1], shape=[*size_b])
-        masks = ma, resize_image(mb[None, None].to(a.dtype), size)[0, 0]
+        masks = ma, mb
     return tuple(m.to(a)[None, None].clamp(0, 1) for m in masks)  # type: ignore[return-value]
+
+
+def match_channels(image_a: Tensor, image_b: Tensor) -> tuple[Tensor, Tensor]:
+    """Bring two images ``(1, C, H, W)`` to the richer colour model of the two, without dropping anything.
+
+    Colour if either has colour (grey is repeated to RGB), alpha if either has alpha (an opaque alpha is added
+    to the other); grey with alpha (``C = 2``) becomes RGBA, as :func:`~torchfluidwarp.io.read_image` reads it.
+    ``C`` = 1 grey, 2 grey + alpha, 3 RGB, 4 RGBA; images with the same ``C`` are returned as they are.
+
+    Raises:
+        ValueError: different channel counts of which one is not 1 to 4.
+    """
+    ca, cb = image_a.shape[1], image_b.shape[1]
+    if ca == cb:
+        return image_a, image_b
+    if not (1 <= ca <= 4 and 1 <= cb <= 4):
+        raise InputError(
+            f"image_a has {ca} channels but image_b has {cb}: different channel counts are matched only for "
+            "grey (1), grey + alpha (2), RGB (3) and RGBA (4)"
+        )
+    colour = max(ca, cb) >= 3
+    alpha = ca in (2, 4) or cb in (2, 4)
+    channels = 4 if alpha else 3 if colour else 1
+
+    def convert(image: Tensor) -> Tensor:
+        c = image.shape[1]
+        if c == channels:
+            return image
+        grey = c in (1, 2)
+        rgb = image[:, :1].expand(-1, 3, -1, -1) if grey else image[:, :3]
+        if channels == 3:
+            return rgb.contiguous()
+        own = c in (2, 4)
+        opacity = image[:, c - 1 :] if own else torch.ones_like(image[:, :1])
+        return torch.cat([rgb, opacity], 1)
+
+    return convert(image_a), convert(image_b)
+
+
+def placement(size: tuple[int, int], canvas: tuple[int, int]) -> tuple[Tensor, float]:
+    """Where a picture of ``size`` ``(H, W)`` lies on the output ``canvas`` ``(H_c, W_c)``: the ``(3, 3)`` float64
+    transform from its pixels to the canvas's, and its scale.
+
+    One scale factor for both axes (nothing is stretched), the smallest that covers the canvas, and centred: what
+    overflows the canvas is cropped. Pixel centres at integers, so a picture of the canvas's size is placed by
+    the identity: ``y = s (x + 0.5) + (W_c - s W) / 2 - 0.5``.
+    """
+    (H, W), (Hc, Wc) = size, canvas
+    s = max(Hc / H, Wc / W)
+    out = torch.eye(3, dtype=torch.float64)
+    out[0, 0] = out[1, 1] = s
+    out[0, 2] = 0.5 * s + 0.5 * (Wc - s * W) - 0.5
+    out[1, 2] = 0.5 * s + 0.5 * (Hc - s * H) - 0.5
+    return out, s
+
+
+def _at_scale(image: Tensor, scale: float) -> Tensor:
+    """``image`` as it is read on the canvas: shrunk (antialiased, one factor for both axes up to the rounding of
+    its size) when the canvas shows it smaller, so that the frames' bilinear reads do not alias; the renderer
+    reads it in the original picture's pixels (:func:`~torchfluidwarp.morph.render.read`)."""
+    if scale >= 1:
+        return image
+    H, W = image.shape[-2:]
+    return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale))))
 
 
 def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid: object, itemsize: int) -> float:
@@ -94,6 +157,9 @@ def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid:
 
 def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Tensor, Tensor]:
     """Bring ``image_b`` ``(1, C, H_b, W_b)`` to image A's size, scaling ``points_b`` ``(M, 2)`` to match.
+
+    This stretches B when the aspect ratios differ; :func:`morph` does not use it (it places each picture on the
+    canvas with one scale factor, :func:`placement`, and reads B at its own resolution).
 
     Pixel centres stay at integers: ``x' = (x + 0.5) W_a / W_b - 0.5``. Channel counts are matched too
     (grey to RGB, alpha dropped) so the two can be blended.
@@ -156,8 +222,13 @@ def morph(
       area) over a box around the points.
 
     Args:
-        image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]``; it sets the output size.
-        image_b: target image; resized to A's size if needed (its points are scaled to match).
+        image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]``; it sets the output size unless
+            ``Blending(size=...)`` does.
+        image_b: ``(C_b, H_b, W_b)`` or ``(1, C_b, H_b, W_b)`` target image, of any size and aspect ratio. Neither
+            picture is stretched: each is placed on the output canvas by one scale factor for both axes, the
+            smallest that covers it, centred (:func:`placement`), and read at its own resolution (a copy shrunk,
+            antialiased, when the canvas shows it smaller). Grey, grey + alpha, RGB and RGBA mix: the frames take
+            the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
             integers); the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
             from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says.
@@ -177,14 +248,17 @@ def morph(
             :data:`torchfluidwarp._checks.MAX_BYTES` (8 GiB). A larger request is refused before any work.
 
     Returns:
-        a :class:`~torchfluidwarp.morph.result.MorphResult`: the fit, rendered on demand. ``result.frame(t)``
+        a :class:`~torchfluidwarp.morph.result.MorphResult`: the fit, rendered on demand, on the canvas
+        (A's size by default): frame 0 is A and the last frame B, each placed on it. ``result.frame(t)``
         renders any ``t`` in ``[0, 1]``; ``result.iter_frames()`` streams the ``frames`` in bounded memory;
         ``result.frames`` (and ``maps`` ...) renders all of them at once. ``result.error`` is each point's
-        distance to B's in the last frame's pixels; ``result.fit`` is in the fluid box's frame.
+        distance to B's in the last frame's pixels; ``result.canvas_from_b`` places B's pixels on the canvas;
+        ``result.fit`` is in the fluid box's frame.
 
     Raises:
         ImportError: ``Matching("faces")`` without the faces extra (``pip install "torchfluidwarp[faces]"``).
-        ValueError: different point counts, points outside their image, repeated points, non-finite values,
+        ValueError: different point counts, points outside their image (each in its own picture's pixels), repeated
+            points, non-finite values, channel counts that cannot be matched,
             ``frames < 2``, fewer than 3 points or points on one line for the natural method.
         TypeError: settings objects of the wrong class, e.g. ``settings="paper"``.
 
@@ -230,31 +304,36 @@ def morph(
         )
     steps = settings.steps
     shape, colour = schedule("motion", timing.motion), schedule("blend", timing.blend)
-    estimate = _memory((a.shape[-2], a.shape[-1]), a.shape[1], 1, steps, settings.grid, a.element_size())  # streamed
+    a, b = match_channels(a, b)
+    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
+    size = size_a if blending.size is None else blending.size  # the canvas (H, W)
+    H, W = size
+    estimate = _memory(size, a.shape[1], 1, steps, settings.grid, a.element_size())  # streamed
     check_memory(
         f"morph(frames={n}, steps={steps}, grid={settings.grid})", estimate, max_memory, "morph(max_memory=...)"
     )
     check_marks(pa, pb)
-    image_b_size = (b.shape[-2], b.shape[-1])
-    b, pb = resize_pair(a, b, pb)
-    H, W = a.shape[-2:]
-    size = (H, W)
-    M = pose(pa, pb, settings.align)
-    center = pa.double().mean(0)
+    # each picture keeps its aspect ratio: placed on the canvas by one scale factor; the morph works in the
+    # canvas's pixels and reads each picture through its placement, at (up to antialiasing) its own resolution
+    (place_a, scale_a), (place_b, scale_b) = placement(size_a, size), placement(size_b, size)
+    place_a, place_b = place_a.to(a.device), place_b.to(a.device)
+    pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
+    M = pose(pa_c, pb_c, settings.align)  # canvas to canvas: A's place to B's
+    center = pa_c.mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
-    target = apply_alignment(torch.linalg.inv(M), pb.double())
+    target = apply_alignment(torch.linalg.inv(M), pb_c)
     if isinstance(settings, NaturalSettings):
-        fit, box = fit_natural(pa, target, size, settings, warm_start, progress)
+        fit, box = fit_natural(pa_c, target, size, settings, warm_start, progress)
     else:
         if settings.margin is None:
             box = (0, 0, W, H)
             target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
         else:
-            box = region_of_interest(torch.cat([pa.double(), target]), settings.margin)
+            box = region_of_interest(torch.cat([pa_c, target]), settings.margin)
         offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)
         roi = (box[3] - box[1], box[2] - box[0])
         start = None if warm_start is None else warm_start.forces
-        fit = fit_paper(pa.double() - offset, target - offset, roi, settings, start, progress)
+        fit = fit_paper(pa_c - offset, target - offset, roi, settings, start, progress)
     roi = (box[3] - box[1], box[2] - box[0])  # (H, W) of the fluid's box, pixels
     offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)
     t_fit = time.perf_counter()
@@ -263,20 +342,21 @@ def morph(
         velocities = fit.warp.rollout(fit.forces, roi).velocities.to(a.dtype)
         flows = None if settings.inverse == "flow" else paper_flows(fit, roi, settings)
     scene = Scene(
-        a, b, velocities, fit.warp.dt, steps, M, center, box, roi, settings.inverse, shape, colour,
-        blending.feather, flows,
-        masks=_region_masks(blending, pa, pb, a, image_b_size),
+        _at_scale(a, scale_a), _at_scale(b, scale_b), velocities, fit.warp.dt, steps, M, center, box, roi,
+        settings.inverse, shape, colour, blending.feather, flows,
+        masks=_region_masks(blending, pa, pb, a, b),
         background=blending.background,
+        canvas=size, size_a=size_a, size_b=size_b, place_a=place_a, place_b=place_b,
     )  # fmt: skip
     t_inv = time.perf_counter()
 
-    # A's points in the frames' pixels: the fit's paths (box pixels) moved to A's pixels, then pre-aligned
+    # A's points in the frames' pixels: the fit's paths (box pixels) moved to the canvas, then pre-aligned
     trajectories = torch.stack(
         [
             apply_alignment(interpolate_alignment(M, t / steps, center), fit.trajectories[0, t] + offset)
             for t in range(steps + 1)
         ]
     )  # (T + 1, M, 2)
-    error = (trajectories[-1] - pb.to(trajectories.dtype)).norm(dim=-1)  # (M,) pixels of the last frame
+    error = (trajectories[-1] - pb_c.to(trajectories.dtype)).norm(dim=-1)  # (M,) pixels of the last frame
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
     return MorphResult(scene, fit, M, trajectories, error, n, out_dtype, seconds, max_memory)

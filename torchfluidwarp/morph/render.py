@@ -46,6 +46,7 @@ def _dissolve(
     w: float,
     size: tuple[int, int],
     feather: float = FEATHER,
+    size_b: tuple[int, int] | None = None,
 ) -> Tensor:
     """Cross-dissolve ``(1 - w) fa + w fb``, except near and beyond an image's edge.
 
@@ -58,6 +59,17 @@ def _dissolve(
     den = (1 - w) * ca + w * cb
     weight = torch.where(den > 0, w * cb / den.clamp(min=1e-12), torch.full_like(den, w))
     return torch.lerp(fa, fb, weight)
+
+
+def read(image: Tensor, coords: Tensor, size: tuple[int, int]) -> Tensor:
+    """Read ``image`` ``(1, C, h, w)`` (bilinear) at ``coords`` ``(1, H', W', 2)`` given in the pixels of a picture of
+    ``size`` ``(H, W)``, of which ``image`` is a resized copy (or the picture itself): a morph's maps stay in each
+    picture's own pixels while it reads a copy shrunk to the canvas's scale (``(x + 0.5) w / W - 0.5``)."""
+    h, w = image.shape[-2:]
+    if (h, w) != tuple(size):
+        factor = coords.new_tensor([w / size[1], h / size[0]])
+        coords = (coords + 0.5) * factor - 0.5
+    return sample_map(image, coords, "bilinear")
 
 
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
@@ -96,9 +108,12 @@ def _paper_inverse(flows: list[tuple[Tensor, float]], times: list[float], size: 
 
 @dataclass
 class Scene:
-    """Everything a fitted morph needs to render any frame: the two images ``(1, C, H, W)`` (computed dtype),
-    the fitted velocities ``(1, T, 2, h + 1, w + 1)`` on the fluid's box ``roi`` (pixels, top-left at ``box``),
-    the pre-alignment ``M`` ``(3, 3)`` about ``center`` and the rendering settings of :func:`morph`."""
+    """Everything a fitted morph needs to render any frame: the two images ``(1, C, h, w)`` (computed dtype; each
+    the picture of ``size_a`` or ``size_b``, or a copy shrunk to the scale the canvas shows it at), the fitted
+    velocities ``(1, T, 2, h + 1, w + 1)`` on the fluid's box ``roi`` (canvas pixels, top-left at ``box``), the
+    pre-alignment ``M`` ``(3, 3)`` (canvas to canvas) about ``center``, each picture's placement on the canvas
+    (``(3, 3)`` from its pixels to the canvas's, one scale factor for both axes) and the rendering settings of
+    :func:`morph`."""
 
     a: Tensor
     b: Tensor
@@ -114,12 +129,41 @@ class Scene:
     blend: Callable[[float], float]  # the colour's schedule: t -> the weight of image B
     feather: float
     flows: list[tuple[Tensor, float]] | None = None  # inverse="paper": the small flows of fit.paper_flows
-    masks: tuple[Tensor, Tensor] | None = None  # a region: soft masks (1, 1, H, W) over A and over (resized) B
+    masks: tuple[Tensor, Tensor] | None = None  # a region: soft masks (1, 1, H, W) over A and over B, own pixels
     background: str = "blend"  # outside the region: "a", "b" or "blend" (see morph.regions)
+    canvas: tuple[int, int] | None = None  # the frames' (H, W); default A's size
+    size_a: tuple[int, int] | None = None  # A's (H, W), of which `a` may be a shrunk copy; default a's size
+    size_b: tuple[int, int] | None = None
+    place_a: Tensor | None = None  # (3, 3) float64, A's pixels to the canvas's; default the identity
+    place_b: Tensor | None = None
+
+    def __post_init__(self) -> None:
+        eye = torch.eye(3, dtype=torch.float64, device=self.a.device)
+        self.size_a = self.size_a or (self.a.shape[-2], self.a.shape[-1])
+        self.size_b = self.size_b or (self.b.shape[-2], self.b.shape[-1])
+        self.canvas = self.canvas or self.size_a
+        self.place_a = eye if self.place_a is None else self.place_a
+        self.place_b = eye if self.place_b is None else self.place_b
 
     @property
     def size(self) -> tuple[int, int]:
-        return (self.a.shape[-2], self.a.shape[-1])
+        """The frames' ``(H, W)``: the canvas."""
+        assert self.canvas is not None
+        return self.canvas
+
+    def placed(self, which: str, rows: tuple[int, int]) -> Tensor:
+        """Rows ``[r0, r1)`` of picture ``which`` (``"a"`` or ``"b"``) placed on the canvas, ``(1, C, n, W)``: what
+        the first (``"a"``) and the last frame show, and a region's background."""
+        image, size, place = (
+            (self.a, self.size_a, self.place_a) if which == "a" else (self.b, self.size_b, self.place_b)
+        )
+        assert size is not None and place is not None
+        H, W = self.size
+        if (H, W) == tuple(size) == tuple(image.shape[-2:]) and bool((place == torch.eye(3).to(place)).all()):
+            return image[:, :, rows[0] : rows[1]]  # the picture itself: no resampling
+        ident = identity_map((rows[1] - rows[0], W), device=image.device, dtype=torch.float64)
+        ident = ident + ident.new_tensor([0.0, float(rows[0])])
+        return read(image, apply_alignment(torch.linalg.inv(place), ident).to(image.dtype), size)
 
 
 @dataclass
@@ -131,7 +175,7 @@ class MorphFrames:
         forward: ``(n, C, H, W)`` image A warped forward (pre-alignment included).
         backward: ``(n, C, H, W)`` image B pulled back along the flow.
         maps_a: ``(n, H, W, 2)`` where each output pixel reads image A (A's pixels).
-        maps_b: ``(n, H, W, 2)`` where each output pixel reads image B (B's pixels, after resizing to A's size).
+        maps_b: ``(n, H, W, 2)`` where each output pixel reads image B (B's own pixels).
         folded: the number of pixels of ``maps_a`` and ``maps_b`` whose Jacobian determinant is ``<= 0``.
     """
 
@@ -158,28 +202,38 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     """One band of rows ``[r0, r1)`` of a frame whose pre-alignment is undone by ``unalign`` ``(3, 3)``, whose
     maps ``g_s`` and ``K_s`` minus the identity are ``g`` and ``k`` ``(1, 2, h_r, w_r)`` (box pixels, on rasters
     over the box, or on the box's pixels) and whose colour weight is ``w``: the frame, A and B warped
-    ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` and the folded pixel count, over the rows ``r0 - 1`` to ``r1``
-    (one more row each side, where the picture has one, for the Jacobian's central differences)."""
+    ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` (each in its own picture's pixels) and the folded pixel count,
+    over the rows ``r0 - 1`` to ``r1`` (one more row each side, where the picture has one, for the Jacobian's
+    central differences)."""
     a, b = scene.a, scene.b
     H, W = scene.size
+    assert scene.place_a is not None and scene.place_b is not None and scene.size_a and scene.size_b
     lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
     offset = a.new_tensor([scene.box[0], scene.box[1]])
     ident = identity_map((hi - lo, W), device=a.device, dtype=torch.float64)
     ident = ident + ident.new_tensor([0.0, float(lo)])
     z = apply_alignment(unalign, ident).to(a.dtype) - offset  # (1, n, W, 2) in the box
+    # canvas pixels to each picture's own: A's placement undone, and B's after the pre-alignment
+    to_a = torch.linalg.inv(scene.place_a)
+    to_b = torch.linalg.solve(scene.place_b, scene.M.to(scene.place_b))
     map_a = z + read_displacement(g, scene.roi, z) + offset
-    map_b = apply_alignment(scene.M, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
-    fa, fb = sample_map(a, map_a, "bilinear"), sample_map(b, map_b, "bilinear")
+    if not bool((to_a == torch.eye(3).to(to_a)).all()):
+        map_a = apply_alignment(to_a, map_a.double()).to(a.dtype)
+    map_b = apply_alignment(to_b, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
+    fa, fb = read(a, map_a, scene.size_a), read(b, map_b, scene.size_b)
     det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, n, W) each
-    frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, (H, W), scene.feather)
+    frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, scene.size_a, scene.feather, scene.size_b)
     mine = slice(rows[0] - lo, rows[1] - lo)  # the band's own rows
-    a_rows, b_rows = a[:, :, rows[0] : rows[1]], b[:, :, rows[0] : rows[1]]
     frame, fa, fb, map_a, map_b = frame[:, :, mine], fa[:, :, mine], fb[:, :, mine], map_a[:, mine], map_b[:, mine]
     if scene.masks is not None:  # the region, carried by each image's map, shows the morph; the rest the background
-        ma = sample_map(scene.masks[0], map_a, "bilinear")
-        mb = sample_map(scene.masks[1], map_b, "bilinear")
-        background = {"a": a_rows, "b": b_rows}.get(scene.background)
-        background = torch.lerp(a_rows, b_rows, w) if background is None else background
+        ma = read(scene.masks[0], map_a, scene.size_a)
+        mb = read(scene.masks[1], map_b, scene.size_b)
+        if scene.background == "a":
+            background = scene.placed("a", rows)
+        elif scene.background == "b":
+            background = scene.placed("b", rows)
+        else:
+            background = torch.lerp(scene.placed("a", rows), scene.placed("b", rows), w)
         frame = composite(frame, background, torch.lerp(ma, mb, w))
     folded = (det_a[:, mine] <= 0).sum() + (det_b[:, mine] <= 0).sum()
     return [frame, fa, fb, map_a, map_b, folded]
@@ -234,6 +288,7 @@ def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
                 rest[2][i, r0:r1], rest[3][i, r0:r1] = map_a[0], map_b[0]  # maps (n, H, W, 2)
             folded += int(count)
         if scene.masks is None and ts[i] in (0, 1):
-            # the endpoints are the inputs by definition; rendering them reproduces them to sampling round-off
-            frames[i] = (a if ts[i] == 0 else scene.b)[0]
+            # the endpoints are the inputs placed on the canvas by definition; rendering them reproduces them to
+            # sampling round-off (and, for the last, where the pre-alignment has carried A past B's edge)
+            frames[i] = scene.placed("a" if ts[i] == 0 else "b", (0, H))[0]
     return MorphFrames(frames, rest[0], rest[1], rest[2], rest[3], folded)

@@ -31,12 +31,15 @@ class MorphResult:
 
     Two frames of coordinates, each stated:
 
-    * **the frames' pixels** (image A's pixels, ``(x, y)``, pixel centres at integers; the last frame is image B
-      resized to A's size): :attr:`trajectories`, :attr:`points`, :attr:`error`, :attr:`maps` and the frames.
-      These are the morph's figures: the pre-alignment is in them.
+    * **the frames' pixels** (the canvas, ``(x, y)``, pixel centres at integers; image A's pixels unless
+      ``Blending(size=...)`` sets another size): :attr:`trajectories`, :attr:`points`, :attr:`error` and the
+      frames. These are the morph's figures: the pre-alignment is in them. Each picture lies on the canvas by one
+      scale factor for both axes, the smallest that covers it, centred (:attr:`canvas_from_a`,
+      :attr:`canvas_from_b`): neither is stretched, and each is read at its own resolution. Frame 0 is A so
+      placed, the last frame B so placed. :attr:`maps` are in A's own pixels and :attr:`maps_b` in B's.
     * **the fluid box's frame**: everything :attr:`fit` holds (its ``points``, ``trajectories``, ``error``,
       ``keyframe_errors``, ``warp`` and ``forces``) is in pixels of the fluid's box :attr:`box`, before the
-      pre-alignment: box pixel ``(0, 0)`` is pixel ``(box[0], box[1])`` of image A. So ``fit.error`` is
+      pre-alignment: box pixel ``(0, 0)`` is pixel ``(box[0], box[1])`` of the canvas. So ``fit.error`` is
       ``fit.keyframe_errors[-1]``'s, and ``fit.animate(image)`` replays the flow on a picture of the box's size
       ``(box[3] - box[1], box[2] - box[0])``. When the box is the picture (``PaperSettings(margin=None)``) and
       there is no pre-alignment (``align=None``), ``fit.animate(image_a)`` gives :attr:`forward_frames` at the
@@ -44,25 +47,28 @@ class MorphResult:
 
     Attributes:
         fit: the keyframe fit, in the fluid box's frame (see above): pass it as another morph's ``warm_start``.
-        alignment: ``(3, 3)`` pre-alignment ``M`` (A's pixels to B's pixels).
-        box: ``(x0, y0, x1, y1)`` the fluid's box in A's pixels (``x1``, ``y1`` exclusive); it may reach beyond
+        alignment: ``(3, 3)`` pre-alignment ``M`` in the canvas's pixels: from A's place on the canvas to B's
+            (B's pixels are ``canvas_from_b^-1 M`` of A's on the canvas).
+        box: ``(x0, y0, x1, y1)`` the fluid's box in the canvas's pixels (``x1``, ``y1`` exclusive); it may reach beyond
             the picture (the natural method's does, by :data:`~torchfluidwarp.morph.fit.PAD` on each side).
         trajectories: ``(T + 1, M, 2)`` A's points at each fluid step, in the frames' pixels (the fit's paths
-            moved to A's pixels and pre-aligned by ``M`` interpolated to that step).
+            moved to the canvas and pre-aligned by ``M`` interpolated to that step).
         points: ``(M, 2)`` A's points carried to the last frame (``trajectories[-1]``), the frames' pixels.
         error: ``(M,)`` pixels of the last frame: the distance from each of A's points carried to the last frame
-            to B's point (resized to A's size with B).
+            to B's point placed on the canvas (divide by B's scale, ``canvas_from_b[0, 0]``, for B's pixels).
         message: the fit's summary, with :attr:`error`'s mean and maximum.
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
             inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
-        frames: ``(N, C, H, W)`` the morph; frame 0 is image A, frame ``N - 1`` is image B. This and the
+        frames: ``(N, C, H, W)`` the morph on the canvas; frame 0 is image A, frame ``N - 1`` is image B, each
+            placed on the canvas. ``C`` is the richer colour model of the two (grey and RGB give RGB; alpha, RGBA
+            if either has it). This and the
             attributes below render all ``N`` frames once, on first access of any of them, and keep them.
         forward_frames: ``(N, C, H, W)`` image A warped forward (pre-alignment included).
         backward_frames: ``(N, C, H, W)`` image B pulled back along the flow.
         maps: ``(N, H, W, 2)`` backward coordinate maps of image A's whole warp (pre-alignment included), in
-            A's pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
+            A's own pixels: ``forward_frames[k] = warp_image(A, maps[k])``. Check them for folds with
             :func:`~torchfluidwarp.warp.frames.jacobian_determinant`.
-        maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's pixels, after resizing to A's size).
+        maps_b: ``(N, H, W, 2)`` where each frame reads image B (B's own pixels).
         folded: fraction of the pixels of ``maps`` and ``maps_b`` (all frames) whose Jacobian determinant is
             ``<= 0`` (0 for a fold-free morph; a ``RuntimeWarning`` gives their number when it is not).
     """
@@ -96,6 +102,21 @@ class MorphResult:
         return self._scene.box
 
     @property
+    def canvas_from_a(self) -> Tensor:
+        """``(3, 3)`` float64: image A's pixels to the frames' (one scale factor and a shift; the identity when
+        the canvas is A's size)."""
+        assert self._scene.place_a is not None
+        return self._scene.place_a
+
+    @property
+    def canvas_from_b(self) -> Tensor:
+        """``(3, 3)`` float64: image B's pixels to the frames' (one scale factor and a shift): where the last
+        frame shows each of B's pixels. ``apply_alignment(torch.linalg.inv(result.canvas_from_b), result.points)``
+        gives A's points carried to the last frame in B's own pixels."""
+        assert self._scene.place_b is not None
+        return self._scene.place_b
+
+    @property
     def points(self) -> Tensor:
         return self.trajectories[-1]
 
@@ -110,7 +131,7 @@ class MorphResult:
         return self._count
 
     def __repr__(self) -> str:
-        C, H, W = self._scene.a.shape[1:]
+        C, (H, W) = self._scene.a.shape[1], self._scene.size
         return f"MorphResult({self._count} frames of ({C}, {H}, {W}), {self._dtype}, rendered={self._all is not None})"
 
     @property
@@ -183,7 +204,7 @@ class MorphResult:
 
     def bytes_per_frame(self) -> int:
         """Bytes one rendered frame holds with its warped images and maps."""
-        C, H, W = self._scene.a.shape[1:]
+        C, (H, W) = self._scene.a.shape[1], self._scene.size
         return H * W * (3 * C + 2 * 2) * self._scene.a.element_size()
 
     def materialize(self) -> MorphResult:

@@ -256,14 +256,20 @@ class Blending:
         region_margin: how far ``region="points"`` reaches beyond the points' hull, as a fraction of their extent.
         background: what a region morph shows outside the region: ``"a"`` (A's picture throughout), ``"b"``, or
             ``"blend"`` (A and B cross-dissolved in place, with the colour's schedule).
+        size: the output canvas ``(H, W)`` in pixels (an int: square); ``None``: image A's size. Each picture is
+            placed on the canvas by one scale factor for both axes (never stretched), the smallest that covers the
+            canvas, centred: what overflows is cropped. Frame 0 is A so placed, the last frame B so placed.
     """
 
     feather: float = FEATHER
     region: Literal["points"] | tuple[Tensor, Tensor] | None = None
     region_margin: float = 0.25
     background: Background = "blend"
+    size: int | tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
+        if self.size is not None:
+            _set(self, "size", check_size("Blending.size", self.size, minimum=2))
         _set(self, "feather", check_positive("Blending.feather", self.feather, allow_zero=True))
         _set(self, "region_margin", check_positive("Blending.region_margin", self.region_margin, allow_zero=True))
         _choice("Blending.background", self.background, ("a", "b", "blend"))

@@ -1,0 +1,198 @@
+"""Pictures as people bring them (#31): any colour model and any aspect ratio, nothing stretched or dropped.
+
+The frames take the richer colour model of the two pictures, and each picture lies on the output canvas by one
+scale factor for both axes (the smallest that covers it, centred): frame 0 is A so placed, the last frame B.
+"""
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torchfluidwarp.control.alignment import apply_alignment
+from torchfluidwarp.io import resize_image, write_animation
+from torchfluidwarp.morph import Blending, NaturalSettings, morph
+from torchfluidwarp.warp import identity_map
+
+FAST = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=False)
+
+
+def _disc(size, centre, radius, band=1.5):
+    """``(H, W)`` a soft disc: 1 inside, 0 outside, a ramp of ``band`` pixels."""
+    H, W = size
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    r = ((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2).sqrt()
+    return ((radius - r) / band + 0.5).clamp(0, 1)
+
+
+def _marks(centre, radius):
+    """The disc's centre and four points on its rim: ``(5, 2)``."""
+    cx, cy = centre
+    return torch.tensor(
+        [[cx, cy], [cx + radius, cy], [cx, cy + radius], [cx - radius, cy], [cx, cy - radius * 0.8]],
+        dtype=torch.float32,
+    )
+
+
+def _picture(size, centre, radius, colour, gen):
+    """A disc of ``colour`` (a list of channel values) on a faint noisy ground."""
+    disc = _disc(size, centre, radius)
+    ground = 0.2 + 0.05 * torch.rand(len(colour), *size, generator=gen)
+    return torch.lerp(ground, torch.tensor(colour).view(-1, 1, 1).expand(-1, *size), disc)
+
+
+# ------------------------------------------------------------------ colour models
+
+S = (40, 48)
+CENTRE_A, CENTRE_B = (22.0, 20.0), (25.0, 19.0)
+R_A, R_B = 11.0, 12.0
+
+
+def _models(gen):
+    grey = lambda centre, r: _picture(S, centre, r, [0.9], gen)  # noqa: E731
+    rgb = lambda centre, r: _picture(S, centre, r, [0.9, 0.3, 0.1], gen)  # noqa: E731
+
+    def alpha(image, centre, r):
+        return torch.cat([image, _disc(S, centre, r + 4)[None]])  # opaque around the disc, transparent beyond
+
+    return {
+        "grey+rgb": (grey(CENTRE_A, R_A), rgb(CENTRE_B, R_B), 3),
+        "rgb+grey": (rgb(CENTRE_A, R_A), grey(CENTRE_B, R_B), 3),
+        "rgba+rgb": (alpha(rgb(CENTRE_A, R_A), CENTRE_A, R_A), rgb(CENTRE_B, R_B), 4),
+        "la+rgb": (alpha(grey(CENTRE_A, R_A), CENTRE_A, R_A), rgb(CENTRE_B, R_B), 4),
+    }
+
+
+def _as(image, channels):
+    """``image`` ``(C, H, W)`` in the model of ``channels`` (3 or 4), as the morph must convert it."""
+    c = image.shape[0]
+    rgb = image[:1].expand(3, -1, -1) if c in (1, 2) else image[:3]
+    if channels == 3:
+        return rgb
+    alpha = image[-1:] if c in (2, 4) else torch.ones_like(image[:1])
+    return torch.cat([rgb, alpha])
+
+
+@pytest.mark.parametrize("pair", ["grey+rgb", "rgb+grey", "rgba+rgb", "la+rgb"])
+def test_the_richer_colour_model_and_one_mode_in_every_frame(pair, gen, tmp_path):
+    a, b, channels = _models(gen)[pair]
+    r = morph(a, b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=5, **FAST)
+    frames = r.frames
+    assert frames.shape == (5, channels, *S)
+    # same size, so the placement is the identity: the ends are the pictures themselves, converted exactly
+    torch.testing.assert_close(frames[0], _as(a, channels), atol=1e-6, rtol=0)
+    torch.testing.assert_close(frames[-1], _as(b, channels), atol=1e-6, rtol=0)
+    assert (frames[1:-1].amin() >= -1e-6) and (frames[1:-1].amax() <= 1 + 1e-6)
+    if pair in ("grey+rgb", "rgb+grey"):  # the middle frame mixes a grey disc with a coloured one: colour
+        mid = frames[2][:, 18:22, 21:25]
+        assert float((mid[0] - mid[2]).abs().mean()) > 0.1
+
+    path = write_animation(tmp_path / "m.gif", frames)
+    back = iio.imread(path, index=None)  # one array: every frame decodes in one mode
+    assert back.shape == (5, *S, 3)
+    # against the frames as 8 bits: an opaque GIF quantizes each frame to its own 256 colours (median cut), which
+    # for these few flat colours is close to exact; a transparent GIF uses one fixed, dithered 6 x 7 x 6 colour
+    # cube, whose levels are 51 (red, blue) and 42.5 (green) apart, so single pixels are off by up to half a step
+    # and the dithering keeps the average over a few pixels within a few levels
+    expect = frames.clamp(0, 1).mul(255).round().permute(0, 2, 3, 1).numpy()
+    rgb = expect[..., :3] if channels >= 3 else np.repeat(expect, 3, -1)
+    shown = expect[..., 3] >= 128 if channels == 4 else np.ones(back.shape[:3], bool)
+    error = np.abs(back.astype(float) - rgb)[shown]
+    if channels == 4:
+        assert np.median(error) <= 26 and np.abs(_box(back) - _box(rgb))[_box(shown) == 1].mean() <= 8
+    else:
+        assert error.max() <= 12 and np.median(error) <= 3
+    if channels == 4:  # and it is transparent where the alpha is below a half, in the first and last frames
+        alpha = iio.imread(path, index=None, mode="RGBA")[..., 3]
+        assert np.array_equal(alpha[[0, -1]] == 255, shown[[0, -1]])
+
+
+def _box(x, k=4):
+    """Means over ``k`` x ``k`` blocks of ``(T, H, W, ...)``."""
+    x = np.asarray(x, dtype=float)
+    T, H, W = x.shape[:3]
+    x = x[:, : H - H % k, : W - W % k]
+    return x.reshape(T, H // k, k, W // k, k, *x.shape[3:]).mean((2, 4))
+
+
+def test_grey_with_alpha_as_two_channels_and_unmatched_channels(gen):
+    a, b, _ = _models(gen)["la+rgb"]
+    assert a.shape[0] == 2
+    r = morph(a, b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=3, **FAST)
+    assert r.frame(0.5).shape == (4, *S)
+    with pytest.raises(ValueError, match="image_a has 5 channels but image_b has 3"):
+        morph(torch.rand(5, *S), b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=3, **FAST)
+
+
+# ------------------------------------------------------------------ aspect ratios
+
+
+def _aspect(frame):
+    """Width over height of the bright disc in ``frame`` ``(C, H, W)``, from its second moments."""
+    w = (frame[0] > 0.55).float()
+    ys, xs = torch.meshgrid(torch.arange(w.shape[0]), torch.arange(w.shape[1]), indexing="ij")
+    n = w.sum()
+    cx, cy = (w * xs).sum() / n, (w * ys).sum() / n
+    vx, vy = (w * (xs - cx) ** 2).sum() / n, (w * (ys - cy) ** 2).sum() / n
+    return float((vx / vy).sqrt())
+
+
+CASES = {
+    # name: A's size and disc, B's size and disc; B at another resolution and aspect ratio
+    "tall B onto a square A": ((64, 64), (32.0, 30.0), 14.0, (160, 80), (40.0, 84.0), 20.0),
+    "square B onto a tall A": ((96, 64), (31.0, 50.0), 16.0, (48, 48), (23.0, 25.0), 9.0),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen):
+    size_a, centre_a, r_a, size_b, centre_b, r_b = CASES[case]
+    a = _picture(size_a, centre_a, r_a, [0.9, 0.9, 0.9], gen)
+    b = _picture(size_b, centre_b, r_b, [0.9, 0.9, 0.9], gen)
+    pa, pb = _marks(centre_a, r_a), _marks(centre_b, r_b)
+    r = morph(a, b, pa, pb, frames=5, **FAST)
+    H, W = size_a
+    assert r.frames.shape == (5, 3, H, W)  # the canvas is A's size
+    # B's placement: one scale factor, the smallest that covers the canvas, centred
+    s = max(H / size_b[0], W / size_b[1])
+    place = r.canvas_from_b
+    assert float(place[0, 0]) == pytest.approx(s) and float(place[1, 1]) == pytest.approx(s)
+    assert float(place[0, 1]) == 0 and float(place[1, 0]) == 0
+    # the last frame is B resized by that one factor (antialiased, as the library resizes) and cropped to the
+    # canvas, computed here independently of the renderer
+    h, w = round(size_b[0] * s), round(size_b[1] * s)
+    if s < 1:
+        scaled = resize_image(b[None], (h, w))[0]
+    else:
+        scaled = F.interpolate(b[None], size=(h, w), mode="bilinear", align_corners=False)[0]
+    top, left = (h - H) // 2, (w - W) // 2
+    torch.testing.assert_close(r.frames[-1], scaled[:, top : top + H, left : left + W], atol=1e-4, rtol=0)
+    torch.testing.assert_close(r.frames[0], a, atol=0, rtol=0)
+    # B's disc stays a disc (the old resize to A's size made it an ellipse of aspect 1.6 or 0.67)
+    assert _aspect(r.frames[-1]) == pytest.approx(1.0, abs=0.04)
+    assert _aspect(r.frame(0.5)) == pytest.approx(1.0, abs=0.06)
+    # B's marks are met in B's own pixels
+    in_b = apply_alignment(torch.linalg.inv(place), r.points.double())
+    assert float((in_b - pb.double()).norm(dim=-1).mean()) < 1.0
+    torch.testing.assert_close(r.error, (r.points - apply_alignment(place, pb.double())).norm(dim=-1))
+    # the last frame reads B in B's own pixels, through its placement alone
+    canvas = identity_map((H, W), dtype=torch.float64)[0]
+    want = apply_alignment(torch.linalg.inv(place), canvas)
+    torch.testing.assert_close(r.maps_b[-1].double(), want, atol=1e-3, rtol=0)
+
+
+def test_the_output_size_is_a_setting(gen):
+    a = _picture((40, 40), (20.0, 20.0), 10.0, [0.9, 0.9, 0.9], gen)
+    b = _picture((60, 30), (15.0, 30.0), 8.0, [0.9, 0.9, 0.9], gen)
+    pa, pb = _marks((20.0, 20.0), 10.0), _marks((15.0, 30.0), 8.0)
+    r = morph(a, b, pa, pb, frames=3, blending=Blending(size=(30, 50)), **FAST)
+    assert r.frames.shape == (3, 3, 30, 50)
+    assert float(r.canvas_from_a[0, 0]) == pytest.approx(
+        50 / 40
+    )  # A covers the wider canvas, its top and bottom cropped
+    assert _aspect(r.frames[0]) == pytest.approx(1.0, abs=0.04) and _aspect(r.frames[-1]) == pytest.approx(
+        1.0, abs=0.04
+    )
+    with pytest.raises(ValueError, match=r"Blending\.size"):
+        Blending(size=(0, 10))
