@@ -137,3 +137,26 @@ def test_importing_the_package_imports_neither_torchvision_nor_the_studio():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_importing_the_package_or_the_command_line_imports_no_torch():
+    # the names load on first use (PEP 562), so the command line checks its arguments before torch is imported
+    code = (
+        "import sys, torchfluidwarp, torchfluidwarp.apps.cli; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('torch', 'numpy', 'PIL')]; "
+        "print(bad); sys.exit(bool(bad))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_morph_stays_the_function_whichever_is_imported_first():
+    # ``morph`` is a function at the top level and a subpackage below it: importing the subpackage first must not
+    # put the module where the function is
+    code = (
+        "import torchfluidwarp as t; import torchfluidwarp.morph.settings; "
+        "assert callable(t.morph) and t.morph.__module__.startswith('torchfluidwarp.morph'), t.morph; "
+        "assert t.io.read_image and t.core.FluidGrid is t.FluidGrid"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr

@@ -173,7 +173,10 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     ("metrics/path.py", "path_distances", "tensor"): "per-frame distances gathered as floats, metadata",
     ("morph/sequence.py", "average", "tensor"): "per-image point errors gathered as floats, metadata",
     # mediapipe's landmarks arrive as Python floats on the host; the caller moves them to the image's device
-    ("correspond/faces.py", "_mesh_points", "tensor"): "mediapipe's landmarks, CPU by design",
+    ("correspond/faces.py", "_crop", "tensor"): "the crop's similarity for mediapipe's input, CPU by design",
+    ("correspond/faces.py", "_crop", "arange"): "the crop's sampling lattice for mediapipe's input, CPU by design",
+    ("correspond/faces.py", "_mesh_in_crop", "tensor"): "mediapipe's landmarks, CPU by design",
+    ("morph/morphing.py", "placement", "eye"): "a 3 x 3 placement on the host; morph moves it to the images' device",
     ("morph/result.py", "MorphResult.times", "tensor"): "the frames' times, metadata for the caller",
 }
 

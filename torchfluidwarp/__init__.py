@@ -29,17 +29,19 @@ integers (``align_corners=False``); fluid quantities in fluid cells and time ste
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 from typing import TYPE_CHECKING, Any
 
 from torchfluidwarp._version import __version__
-from torchfluidwarp.control import ImageFit, KeyframeFit, fit_images, fit_keyframes
-from torchfluidwarp.core import CGConfig, FluidGrid, FluidRollout, FluidSimulator
 from torchfluidwarp.errors import FlowBlewUp, InputError
-from torchfluidwarp.morph import MorphResult, morph
-from torchfluidwarp.warp import FluidWarp, jacobian_determinant, warp_image
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the names below are imported on first access (PEP 562): see _LAZY
     from torchfluidwarp.augment.transforms import RandomFluidWarp
+    from torchfluidwarp.control import ImageFit, KeyframeFit, fit_images, fit_keyframes
+    from torchfluidwarp.core import CGConfig, FluidGrid, FluidRollout, FluidSimulator
+    from torchfluidwarp.morph import MorphResult, morph
+    from torchfluidwarp.warp import FluidWarp, jacobian_determinant, warp_image
 
 __all__ = [
     "__version__",
@@ -61,17 +63,57 @@ __all__ = [
     "FlowBlewUp",
 ]
 
-# imported on first access, without a warning: importing torchfluidwarp never imports torchvision
-_LAZY = {"RandomFluidWarp": "torchfluidwarp.augment.transforms"}
+# Each name's home, imported on first access and without a warning: ``import torchfluidwarp`` imports neither
+# torch nor torchvision, so a program that only needs the command line's argument checks (or the errors, or
+# ``__version__``) starts in a fraction of a second; the first use of a name imports torch with its module.
+_LAZY = {
+    "FluidSimulator": "torchfluidwarp.core",
+    "FluidRollout": "torchfluidwarp.core",
+    "FluidGrid": "torchfluidwarp.core",
+    "CGConfig": "torchfluidwarp.core",
+    "FluidWarp": "torchfluidwarp.warp",
+    "warp_image": "torchfluidwarp.warp",
+    "jacobian_determinant": "torchfluidwarp.warp",
+    "fit_keyframes": "torchfluidwarp.control",
+    "KeyframeFit": "torchfluidwarp.control",
+    "fit_images": "torchfluidwarp.control",
+    "ImageFit": "torchfluidwarp.control",
+    "morph": "torchfluidwarp.morph",
+    "MorphResult": "torchfluidwarp.morph",
+    "RandomFluidWarp": "torchfluidwarp.augment.transforms",
+}
+# the subpackages, so that ``import torchfluidwarp; torchfluidwarp.io.read_image`` works as when they were
+# imported eagerly
+_SUBPACKAGES = frozenset({"core", "warp", "control", "correspond", "morph", "metrics", "augment", "io", "data", "apps"})
 
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value  # later lookups skip this hook
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    elif name in _SUBPACKAGES:
+        value = importlib.import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value  # later lookups skip this hook
+    return value
 
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
+
+
+class _TopLevel(types.ModuleType):
+    """The package's module type: a top-level name keeps its meaning when its subpackage is imported.
+
+    ``morph`` is a function here and a subpackage below. Importing ``torchfluidwarp.morph`` (by any path)
+    binds the subpackage to the package's attribute ``morph``; when the function was imported eagerly it
+    overwrote that binding. Imported lazily, it could come second, so the binding is dropped instead.
+    """
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _LAZY and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _TopLevel

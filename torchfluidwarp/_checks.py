@@ -5,14 +5,17 @@ nothing non-finite can travel on to ``grid_sample`` (whose CPU backward crashes 
 raises :class:`~torchfluidwarp.errors.InputError` (a ``ValueError``), a bad type
 :class:`~torchfluidwarp.errors.InputTypeError` (a ``TypeError``), each with the argument's name as its
 ``argument``.
-The dtype policy (:func:`compute_dtype`) and the memory limit (:data:`MAX_BYTES`, :func:`check_memory`)
-live here too.
+The dtype policy (:func:`compute_dtype`), the memory limit (:data:`MAX_BYTES`, :func:`check_memory`) and the
+library's one way to warn (:func:`warn`, pointing at the caller's line) live here too.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
+import sys
+import warnings
 from collections.abc import Sequence
 
 import torch
@@ -261,3 +264,28 @@ def check_memory(what: str, nbytes: float, limit: float | None, setting: str, *,
                 "ask for less, or raise the limit with {setting}", name, spelling=setting, otherwise="ask for less"
             ),
         )
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn(message: str | Warning, category: type[Warning] = UserWarning) -> None:
+    """``warnings.warn`` pointing at the line that called the library: the first frame outside torchfluidwarp.
+
+    A fixed ``stacklevel`` lands in library source whenever the warning is raised a call deeper than planned;
+    this walks out of the package instead, so ``file:line`` names the user's code and a filter by ``module``
+    matches the user's module. (Python 3.12's ``skip_file_prefixes`` does the same; this works on 3.10.)
+
+    Example:
+        >>> import warnings
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     warn("the marks cross")
+        >>> str(caught[0].message)
+        'the marks cross'
+    """
+    level, frame = 2, sys._getframe(1).f_back  # stacklevel 2 is warn's caller; look at the frames above it
+    caller = sys._getframe(1)
+    while frame is not None and os.path.abspath(caller.f_code.co_filename).startswith(_PACKAGE):
+        caller, frame, level = frame, frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from torchfluidwarp._checks import check_memory
-from torchfluidwarp.apps import cli, cli_morph, cli_sequence
+from torchfluidwarp.apps import animate, cli_morph, cli_sequence
 from torchfluidwarp.apps.cli import build_parser, main
 from torchfluidwarp.apps.cli_args import EXIT_BAD_INPUT, EXIT_BUG, EXIT_FLOW_BLEW_UP, fail, flags
 from torchfluidwarp.errors import FlowBlewUp, Hint, InputError, InputTypeError
@@ -75,7 +75,7 @@ BUGS = [RuntimeError("boom in the solver"), ValueError("plain value error"), Ind
 
 @pytest.mark.parametrize("bug", BUGS, ids=lambda e: type(e).__name__)
 def test_a_library_bug_in_animate_exits_1_with_its_traceback(photo, tmp_path, capsys, monkeypatch, bug):
-    monkeypatch.setattr(cli, "animate_frames", raiser(bug))
+    monkeypatch.setattr(animate, "animate_frames", raiser(bug))
     assert run_animate(photo, tmp_path) == EXIT_BUG
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and f"{type(bug).__name__}: {bug}" in err
@@ -111,7 +111,7 @@ def test_a_library_bug_in_average_exits_1_with_its_traceback(pair, tmp_path, cap
     ids=lambda e: type(e).__name__,
 )
 def test_an_input_error_exits_2_with_one_line(photo, tmp_path, capsys, monkeypatch, error):
-    monkeypatch.setattr(cli, "animate_frames", raiser(error))
+    monkeypatch.setattr(animate, "animate_frames", raiser(error))
     assert run_animate(photo, tmp_path) == EXIT_BAD_INPUT
     err = one_line(capsys.readouterr().err)
     assert err.startswith("torchfluidwarp animate: error: ")
@@ -152,7 +152,7 @@ def test_the_command_lines_own_errors_exit_2(photo, tmp_path, capsys):
 
 def test_a_flow_that_blew_up_exits_3_with_its_message(photo, tmp_path, capsys, monkeypatch):
     error = FlowBlewUp("the flow needs 9000 sub-steps in one step, above the limit of 4096", hint=SUBSTEPS_HINT)
-    monkeypatch.setattr(cli, "animate_frames", raiser(error))
+    monkeypatch.setattr(animate, "animate_frames", raiser(error))
     assert run_animate(photo, tmp_path) == EXIT_FLOW_BLEW_UP
     err = one_line(capsys.readouterr().err)
     assert "9000 sub-steps" in err and "reduce the forces, the initial velocity or dt" in err

@@ -231,7 +231,7 @@ def test_region_masks_and_a_transparent_gif(tmp_path):
 def test_an_existing_output_is_refused_before_the_points_are_searched_for(astronauts, tmp_path, capsys, monkeypatch):
     (a, b), _, _, _ = astronauts
     calls = []
-    monkeypatch.setattr("torchfluidwarp.apps.cli_morph.auto_points", lambda *x, **k: calls.append(1))
+    monkeypatch.setattr("torchfluidwarp.apps.cli_morph.find_points", lambda *x, **k: calls.append(1))
     out = tmp_path / "exists.gif"
     out.write_bytes(b"keep me")
     assert main(["morph", str(a), str(b), "-o", str(out), *FAST]) == 2

@@ -305,13 +305,11 @@ def test_main_parses_arguments(capsys):
         ("config_json", "torchfluidwarp.apps.animate"),
     ],
 )
-def test_names_moved_out_of_studio_app_still_resolve_with_a_warning(name, new):
+def test_names_moved_out_of_studio_app_live_in_one_home_only(name, new):
     import importlib
 
     import torchfluidwarp.apps.studio.app as app
 
-    with pytest.warns(DeprecationWarning, match=new):
-        value = getattr(app, name)
-    assert value is getattr(importlib.import_module(new), name)
-    with pytest.raises(AttributeError):
-        app.no_such_name  # noqa: B018
+    assert getattr(importlib.import_module(new), name) is not None
+    with pytest.raises(AttributeError):  # no deprecated alias left behind (#30: one home per name)
+        getattr(app, name)

@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from torchfluidwarp.correspond import FACE_MESH_INDICES, auto_points, border_points, detect_face_points
+from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice, auto_points, border_points, detect_face_points
 from torchfluidwarp.correspond.auto import usable_pairs
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.warp.frames import identity_map, warp_image
@@ -56,7 +56,8 @@ def test_two_faces_give_the_face_landmarks_and_the_border():
 def test_no_face_falls_back_to_matched_features():
     a = half(load_sample("cat"))
     b = warped(a)
-    pa, pb = auto_points(a, b, border=None, max_points=40)
+    with pytest.warns(MatchNotice, match=r"no face found in image_a \(256 x 256 pixels\); matched image features"):
+        pa, pb = auto_points(a, b, border=None, max_points=40)
     assert 20 <= len(pa) <= 40
     error = (shifted_and_scaled(pb) - pa).norm(dim=-1)
     assert float(error.median()) < 1.5
@@ -66,7 +67,8 @@ def test_without_mediapipe_auto_uses_features(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setitem(sys.modules, "mediapipe", None)
     a = half(load_sample("astronaut"))  # a face, but no detector
     b = a[..., 4:, 6:]  # b = a - (6, 4)
-    pa, pb = auto_points(a, b, border=2)
+    with pytest.warns(MatchNotice, match=r"no face detector \(.*pip install .*\); matched image features instead"):
+        pa, pb = auto_points(a, b, border=2)
     assert len(pa) > 20 + 4 and len(pa) != len(FACE_MESH_INDICES) + 4
     assert float((pa[:-4] - pb[:-4] - torch.tensor([6.0, 4.0])).norm(dim=-1).median()) < 0.5
     assert torch.equal(pb[-4:], border_points((252, 250), per_side=2))  # B's own frame

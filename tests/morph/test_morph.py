@@ -241,6 +241,7 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
         r = morph(a, b, POINTS_A, pb, frames=3, progress=False)
     crossing = [w for w in caught if "marks cross" in str(w.message)]
     assert len(crossing) == 1 and "0 and 4" in str(crossing[0].message)
+    assert crossing[0].filename == __file__  # the warning points at the caller's line, not the library's
     # the swapped points are the ones not reached
     err = r.error
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())

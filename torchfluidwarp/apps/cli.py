@@ -20,9 +20,15 @@ Exit status (:mod:`torchfluidwarp.errors` says whose fault each error is):
   :class:`~torchfluidwarp.errors.InputError` of the library (naming the option that set the argument at fault);
 * 3 when the flow blows up (:class:`~torchfluidwarp.errors.FlowBlewUp`), with its one line saying what to change;
 * 1 for anything else, a bug in torchfluidwarp: the traceback, then a line saying so;
-* 130 when interrupted.
+* 130 when interrupted (Ctrl-C), 143 when terminated (SIGTERM).
 
-Outputs are written atomically, so a failed or interrupted run leaves nothing half-written.
+Outputs are written atomically, so a failed, interrupted or terminated run leaves nothing half-written.
+
+The arguments are checked in two passes. :func:`main` first checks what it can without the library, which imports
+torch (seconds): the input files named on the command line exist, the output's suffix is one it can write and it
+does not exist without ``--overwrite``, ``--brush`` and ``--stiff`` hold the right count of numbers. Only then does
+it import the library, parse every option and run the command. This module imports neither torch nor the
+library's modules when it is imported.
 
 Example:
     >>> build_parser().parse_args(["animate", "cat.png", "-o", "cat.gif", "--grid", "32"]).grid
@@ -35,27 +41,29 @@ import argparse
 import dataclasses
 import itertools
 import sys
-from collections.abc import Mapping
-from typing import NoReturn
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
 from torchfluidwarp._version import __version__
-from torchfluidwarp.apps.animate import (
-    AnimationConfig,
-    animate_frames,
-    brush_from_values,
-    load_config,
-    region_from_values,
-)
 from torchfluidwarp.apps.cli_args import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_TERMINATED,
     FPS,
     NON_NEGATIVE,
     POSITIVE,
     PROG,
+    Clock,
+    Terminated,
+    add_limit_options,
     check_disk_space,
+    check_image_output,
     check_output,
+    check_work,
+    clock_of,
+    command_run,
     count,
     fail,
     flags,
@@ -63,10 +71,10 @@ from torchfluidwarp.apps.cli_args import (
     progress_bar,
     report,
 )
-from torchfluidwarp.apps.cli_morph import add_demo, add_morph
-from torchfluidwarp.apps.cli_sequence import add_average
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import read_image, write_animation
+
+if TYPE_CHECKING:
+    from torchfluidwarp.apps.animate import AnimationConfig
 
 __all__ = ["build_parser", "main"]
 
@@ -109,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     Each subparser stores its handler as ``handler`` (a function ``(argparse.Namespace) -> int`` returning the
     exit status), so a subcommand is added or replaced by one ``_add_*`` function and one ``_cmd_*`` function.
     """
+    from torchfluidwarp.apps.cli_morph import add_demo, add_morph  # these import the library (and torch)
+    from torchfluidwarp.apps.cli_sequence import add_average
+
     parser = _Parser(prog=PROG, description="Warp and morph images with a simulated 2-D incompressible fluid.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -128,20 +139,31 @@ def main(argv: list[str] | None = None) -> int:
 
     Returns:
         The exit status: 0 on success, 2 for bad input and 3 for a flow that blew up (a one-line message on
-        stderr), 1 for a bug (with its traceback), 130 when interrupted.
+        stderr), 1 for a bug (with its traceback), 130 when interrupted, 143 when terminated (SIGTERM).
     """
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # --help, --version and usage errors: return their status instead of exiting
-        return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_BAD_INPUT)
-    try:
-        return args.handler(args)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except Exception as exc:  # the one place that says whose fault an error is (cli_args.report)
-        return report(args.command, exc, _options(parser, args.command))
+    clock = Clock()  # the run's wall time, from here
+    argv = sys.argv[1:] if argv is None else list(argv)
+    early = _check_early(argv)  # before the library (and torch) is imported
+    if early is not None:
+        return early
+    with clock.part("start"):
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # --help, --version and usage errors: return their status instead of exiting
+            return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_BAD_INPUT)
+    args.clock = clock
+    with command_run(args.command):  # SIGTERM cleans up as Ctrl-C does; warnings are one line
+        try:
+            return args.handler(args)
+        except Terminated:
+            print(f"{PROG}: terminated", file=sys.stderr)
+            return EXIT_TERMINATED
+        except KeyboardInterrupt:
+            print(f"{PROG}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except Exception as exc:  # the one place that says whose fault an error is (cli_args.report)
+            return report(args.command, exc, _options(parser, args.command))
 
 
 def _options(parser: argparse.ArgumentParser, command: str) -> Mapping[str, argparse.Action]:
@@ -152,10 +174,146 @@ def _options(parser: argparse.ArgumentParser, command: str) -> Mapping[str, argp
     return {}
 
 
+# ---------------------------------------------------------------------------------------- the early checks
+
+_INPUTS = {
+    "animate": {"IMAGE": "image", "--config": "config"},
+    "morph": {"IMAGE": "image", "--points-a": "points", "--points-b": "points", "--points": "points"}
+    | {"--held-out-a": "points", "--held-out-b": "points", "--pairs": "pairs file"},
+    "average": {"IMAGE": "image", "--points": "points"},
+    "demo": {},
+}
+"""By command, what its files are: the positional ``IMAGE`` arguments and the options whose values are input files,
+as the library's read errors call them (``cannot read image 'a.png': no such file``)."""
+_LISTS = ("--points",)  # options with nargs="+"
+_OUTPUTS = ("-o", "--output", "--out")
+_NUMBERS = {"--brush": (7, 8), "--stiff": (4, 4)}  # animate's: how many comma-separated numbers each takes
+_VALUES = ("--frame", "--region")  # morph's and demo's other options with one value that the checks look at
+_FLAGS = ("--overwrite", "--no-limit")  # options without a value that the checks look at
+_CHANGING = ("--overwrite", "--pairs", "--frame", "--output")  # an abbreviation of these stops the early checks
+
+
+def _check_early(argv: Sequence[str]) -> int | None:
+    """Check what :func:`main` can without importing the library: the files named, the output and the numbers of
+    ``--brush`` and ``--stiff``. Returns the exit status of a refusal (its line printed), or ``None`` to go on.
+
+    Only what is certain is refused: the positional images before any option this does not know, the values of
+    the options in ``_INPUTS``, the output of ``-o``. After an option it does not know, no more positional
+    arguments are taken (an option's value could look like one). ``--help`` anywhere, ``--``, or an abbreviation
+    of an option that changes the checks leave it all to the full parser.
+    """
+    if not argv or argv[0] not in _INPUTS:
+        return None
+    command, rest = argv[0], list(argv[1:])
+    inputs = _INPUTS[command]
+    known = {
+        *inputs,
+        *_OUTPUTS,
+        *(_NUMBERS if command == "animate" else ()),
+        *(_VALUES if command in ("morph", "demo") else ()),
+    }
+    positional: list[str] = []
+    given: dict[str, list[str]] = {}
+    i, leading = 0, True
+    while i < len(rest):
+        token = rest[i]
+        i += 1
+        if token in ("--", "-h", "--help"):
+            return None
+        if not token.startswith("-") or _is_number(token):
+            if leading:
+                positional.append(token)
+            continue
+        name, value = token, None
+        if token.startswith("--") and "=" in token:
+            name, _, value = token.partition("=")
+        elif token.startswith("-o") and len(token) > 2 and not token.startswith("--"):
+            name, value = "-o", token[2:]
+        if name in _FLAGS:
+            given[name] = []
+            continue
+        if name not in known:
+            if _abbreviates(name, _CHANGING):
+                return None
+            leading = False  # what follows may be this option's values
+            continue
+        values = [] if value is None else [value]
+        while value is None and i < len(rest) and (not rest[i].startswith("-") or _is_number(rest[i])):
+            values.append(rest[i])
+            i += 1
+            if name not in _LISTS:
+                break
+        given.setdefault(name, []).extend(values)
+    try:
+        _check_files(command, positional, given)
+        _check_numbers(given)
+    except InputError as exc:
+        return fail(command, exc)
+    except argparse.ArgumentTypeError as exc:
+        print(f"{PROG} {command}: error: {exc} (see --help)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return None
+
+
+def _check_files(command: str, positional: list[str], given: dict[str, list[str]]) -> None:
+    inputs = _INPUTS[command]
+    if "IMAGE" in inputs and "--pairs" not in given:
+        named = [("IMAGE", path) for path in positional[: 1 if command == "animate" else None]]
+    else:
+        named = []
+    named += [(option, path) for option in inputs if option != "IMAGE" for path in given.get(option, [])]
+    for option, path in named:
+        target = Path(path)
+        if target.is_dir():
+            raise InputError(f"cannot read {inputs[option]} {path!r}: it is a folder, not a file")
+        if not target.is_file():
+            raise InputError(f"cannot read {inputs[option]} {path!r}: no such file")
+    outputs = [path for option in _OUTPUTS for path in given.get(option, [])]
+    if not outputs or "--pairs" in given:
+        return
+    overwrite = "--overwrite" in given
+    if command == "average" or "--frame" in given:
+        check_image_output(outputs[-1], overwrite)
+    else:
+        check_output(outputs[-1], overwrite)
+
+
+def _check_numbers(given: dict[str, list[str]]) -> None:
+    """``--brush`` and ``--stiff`` hold numbers, as many as they take (as ``numbers()`` parses them later)."""
+    for option, (least, most) in _NUMBERS.items():
+        for text in given.get(option, []):
+            try:
+                values = [float(v) for v in text.split(",")]
+            except ValueError:
+                raise argparse.ArgumentTypeError(
+                    f"argument {option}: expected comma-separated numbers, got {text!r}"
+                ) from None
+            if not least <= len(values) <= most:
+                wanted = f"{least} or {most}" if least < most else f"{most}"
+                raise argparse.ArgumentTypeError(
+                    f"argument {option}: {option[2:]} needs {wanted} values, got {len(values)} in {text!r}"
+                )
+
+
+def _abbreviates(name: str, options: Sequence[str]) -> bool:
+    """Whether ``name`` is a shortened ``--option`` (argparse accepts a unique prefix) of one of ``options``."""
+    return name.startswith("--") and len(name) > 2 and any(o.startswith(name) and o != name for o in options)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
 # ----------------------------------------------------------------------------------------------- animate
 
 
 def _add_animate(commands: argparse._SubParsersAction) -> None:
+    from torchfluidwarp.apps.animate import brush_from_values, region_from_values
+
     p = commands.add_parser(
         "animate",
         help="animate a photo with oscillating brushes (GIF, MP4 or PNG frames)",
@@ -213,6 +371,7 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
         "default 800); brush positions stay in the original's pixels",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    add_limit_options(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=_cmd_animate)
 
@@ -242,13 +401,20 @@ def _merge(config: AnimationConfig, args: argparse.Namespace) -> AnimationConfig
 
 def _cmd_animate(args: argparse.Namespace) -> int:
     """``animate``; its errors are reported by :func:`main` (one line for the user's, the traceback for a bug)."""
-    config = _merge(load_config(args.config) if args.config else AnimationConfig(), args)
-    if not config.brushes:
-        raise InputError('nothing to animate: give at least one --brush (or "brushes" in --config)')
-    check_output(args.output, args.overwrite)
-    frames = animate_frames(config, read_image(args.image), max_size=args.max_size)
+    from torchfluidwarp.apps import animate
+    from torchfluidwarp.io import read_image, write_animation
+
+    clock = clock_of(args)
+    with clock.part("load"):
+        config = _merge(animate.load_config(args.config) if args.config else animate.AnimationConfig(), args)
+        if not config.brushes:
+            raise InputError('nothing to animate: give at least one --brush (or "brushes" in --config)')
+        check_output(args.output, args.overwrite)
+        image = read_image(args.image)
+    frames = animate.animate_frames(config, image, max_size=args.max_size)
     first = next(frames)  # the (resized) photo: its size is known before the fluid runs
     check_disk_space(args.output, config.steps + 1, first.shape[-2], first.shape[-1], first.shape[0])
+    check_work(args, args.output, config.steps + 1, first.shape)
     stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
     path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
     print(path)  # even with --quiet: it is the command's result, for scripts

@@ -1,4 +1,9 @@
-"""What the command line's subcommands share: exit codes, the one-line error, argument types, the output check.
+"""What the command line's subcommands share: exit codes, the one-line error, argument types, the output check,
+the run's clock and the limits on its work.
+
+This module is imported before torch (:func:`torchfluidwarp.apps.cli.main` checks the arguments and files
+first, so that a missing file is reported at once): what it needs from the library or from Pillow and tqdm, its
+functions import when they are called.
 
 Argument types parse the text, then validate the value with :mod:`torchfluidwarp._checks` (the library's one
 validation layer), so a bad option reads ``argument --steps: the value must be >= 1, got 0``.
@@ -17,21 +22,22 @@ Example:
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib
 import importlib.util
 import shutil
+import signal
 import sys
+import threading
+import time
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from types import FrameType
 from typing import Any, TypeVar
 
-from PIL import Image
-from tqdm import tqdm
-
-from torchfluidwarp._checks import check_fraction, check_int, check_positive, format_bytes
 from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
-from torchfluidwarp.io import FFMPEG_HINT, check_fps
-from torchfluidwarp.morph.timing import schedule
 
 __all__ = [
     "PROG",
@@ -40,6 +46,8 @@ __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_FLOW_BLEW_UP",
     "EXIT_INTERRUPTED",
+    "EXIT_TERMINATED",
+    "Terminated",
     "USER_ERRORS",
     "fail",
     "report",
@@ -58,10 +66,18 @@ __all__ = [
     "check_disk_space",
     "output_bytes",
     "progress_bar",
+    "Clock",
+    "SECONDS_PER_MEGAPIXEL",
+    "MAX_MINUTES",
+    "add_limit_options",
+    "check_work",
+    "command_run",
 ]
 
 PROG = "torchfluidwarp"
 EXIT_OK, EXIT_BUG, EXIT_BAD_INPUT, EXIT_FLOW_BLEW_UP, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_TERMINATED = 128 + 15
+"""Exit status after SIGTERM (the shell's convention for a process ended by signal 15)."""
 
 USER_ERRORS = (InputError, InputTypeError, OSError)
 """The errors that are the user's to fix (exit 2, one line): the library's input errors and ``OSError`` on the
@@ -69,6 +85,22 @@ user's files (missing, unreadable, an existing output, a full disk). Not a plain
 from inside the library, those are bugs."""
 
 T = TypeVar("T")
+
+
+def _library(module: str, name: str) -> Callable[..., Any]:
+    """``module.name``, imported at its first call (the library's modules import torch)."""
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+    call.__name__ = name
+    return call
+
+
+check_int = _library("torchfluidwarp._checks", "check_int")
+check_positive = _library("torchfluidwarp._checks", "check_positive")
+check_fraction = _library("torchfluidwarp._checks", "check_fraction")
+check_fps = _library("torchfluidwarp.io", "check_fps")
 
 
 def first_line(message: object) -> str:
@@ -184,6 +216,8 @@ def timing(text: str) -> str | list[tuple[float, float]]:
             value = [(float(t), float(v)) for t, v in (pair.split(":") for pair in text.split(","))]
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an easing name or t:progress,... pairs, got {text!r}") from None
+    from torchfluidwarp.morph.timing import schedule
+
     try:
         schedule("the schedule", value)
     except (TypeError, ValueError) as exc:  # argparse makes these a usage error anyway: keep their message
@@ -221,6 +255,8 @@ def check_output(path: str, overwrite: bool) -> None:
             f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4, .webp or a folder ending in '/'"
         )
     if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        from torchfluidwarp.io import FFMPEG_HINT
+
         raise InputError(FFMPEG_HINT)
     exists = any(target.iterdir()) if target.is_dir() else target.exists() or target.is_symlink()
     if exists and not overwrite:
@@ -233,6 +269,8 @@ def check_image_output(path: str, overwrite: bool) -> None:
     Raises:
         InputError: a suffix no image format has, or an existing output without ``overwrite``.
     """
+    from PIL import Image
+
     target = Path(path)
     Image.init()
     if target.suffix.lower() not in Image.registered_extensions():
@@ -264,6 +302,8 @@ def check_disk_space(path: str, frames: int, height: int, width: int, channels: 
     Raises:
         InputError: the estimate (:func:`output_bytes`) is above the free space, with both in the message.
     """
+    from torchfluidwarp._checks import format_bytes
+
     need = output_bytes(path, frames, height, width, channels)
     folder = Path(path).absolute()
     while not folder.exists():
@@ -281,7 +321,167 @@ def check_disk_space(path: str, frames: int, height: int, width: int, channels: 
 
 def progress_bar(frames: Iterable[T], total: int, desc: str, quiet: bool) -> Iterator[T]:
     """``frames`` with a tqdm bar on stderr (none with ``quiet`` or when stderr is not a terminal)."""
+    from tqdm import tqdm
+
     with tqdm(total=total, unit="frame", desc=desc, leave=False, disable=quiet or not sys.stderr.isatty()) as bar:
         for frame in frames:
             yield frame
             bar.update()
+
+
+class Clock:
+    """The wall time of one run of a command, and its parts, for the line a command prints when it is done.
+
+    :func:`torchfluidwarp.apps.cli.main` starts it as the run starts, times its own ``start`` (importing the
+    library and parsing the arguments) and hands it to the command as ``args.clock``; the command times its
+    parts (``load``, ``points``, ``fit``, ``render and write``, ``report``). What no part covers (the checks in
+    between) is small, so the parts add up to the total.
+
+    Example:
+        >>> clock = Clock()
+        >>> with clock.part("load"):
+        ...     pass
+        >>> list(clock.parts)
+        ['load']
+    """
+
+    def __init__(self) -> None:
+        self.started = time.perf_counter()
+        self.parts: dict[str, float] = {}
+        """Seconds spent in each part, in the order the parts first ran."""
+
+    @contextlib.contextmanager
+    def part(self, name: str) -> Iterator[None]:
+        """Time the block as part ``name`` (added to what ``name`` already holds), even when it raises."""
+        begin = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.parts[name] = self.parts.get(name, 0.0) + time.perf_counter() - begin
+
+    def total(self) -> float:
+        """Seconds since the run started."""
+        return time.perf_counter() - self.started
+
+    def summary(self) -> str:
+        """``'12.3 s (start 2.0 s, load 0.1 s, fit 4.6 s, render and write 5.5 s)'``: the total, then the parts."""
+        parts = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in self.parts.items())
+        return f"{self.total():.1f} s" + (f" ({parts})" if parts else "")
+
+
+def clock_of(args: argparse.Namespace) -> Clock:
+    """The run's :class:`Clock` (``args.clock``, set by :func:`~torchfluidwarp.apps.cli.main`), or a new one
+    for a command called without it."""
+    clock = getattr(args, "clock", None)
+    return clock if isinstance(clock, Clock) else Clock()
+
+
+# ------------------------------------------------------------------------------------------ limits on work
+
+SECONDS_PER_MEGAPIXEL = {"gif": 0.2, "other": 0.05}
+"""The least time a frame takes to render and write, in seconds per megapixel of frame, by output format: a GIF's
+encoding alone (Pillow's palette quantisation) takes 0.67 s per megapixel on the 2-core machine of
+``docs/benchmarks.md``, a WebP's 0.10 and an MP4's 0.16, and rendering comes on top. The figures are a third of
+those or less, so that a run refused by :func:`check_work` would take longer than its estimate on any machine:
+the estimate says "at least"."""
+
+MAX_MINUTES = 10.0
+"""The longest projected render a command starts without ``--max-minutes`` or ``--no-limit``, in minutes."""
+
+
+def add_limit_options(p: argparse.ArgumentParser) -> None:
+    """``--max-minutes`` and ``--no-limit``: how long a run's frames may be projected to take (:func:`check_work`)."""
+    p.add_argument(
+        "--max-minutes",
+        metavar="MIN",
+        type=POSITIVE,
+        default=MAX_MINUTES,
+        help=f"refuse, before any work, frames projected to take longer than MIN minutes to render and write "
+        f"(default {MAX_MINUTES:g}; the projection is a lower bound from the frame size and count)",
+    )
+    p.add_argument("--no-limit", action="store_true", help="start however long the frames are projected to take")
+
+
+def _duration(seconds: float) -> str:
+    """``'45 s'``, ``'12 min'``, ``'16.2 h'``, ``'3.5 days'``."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 90 * 60:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 48 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
+def check_work(args: argparse.Namespace, path: str, frames: int, shape: Sequence[int]) -> None:
+    """Refuse, before any work, frames projected to take longer than ``--max-minutes`` to render and write.
+
+    The projection is ``frames`` times the megapixels of a frame of ``shape`` (``(..., C, H, W)``) times
+    :data:`SECONDS_PER_MEGAPIXEL` for the output's format (a lower bound). ``--no-limit`` skips the check; a
+    command without ``--max-minutes`` is checked against :data:`MAX_MINUTES`.
+
+    Raises:
+        InputError: the projection is above the limit; the message gives it, the output's size
+            (:func:`output_bytes`), and the flags that allow the run.
+    """
+    if getattr(args, "no_limit", False):
+        return
+    channels, height, width = (int(n) for n in shape[-3:])
+    limit = getattr(args, "max_minutes", None) or MAX_MINUTES
+    suffix = "" if _is_folder(path) else Path(path).suffix.lower()
+    rate = SECONDS_PER_MEGAPIXEL["gif" if suffix == ".gif" else "other"]
+    seconds = frames * height * width / 1e6 * rate
+    if seconds > limit * 60:
+        from torchfluidwarp._checks import format_bytes
+
+        size = format_bytes(output_bytes(path, frames, height, width, channels))
+        raise InputError(
+            f"{frames} frames of {width}x{height} would take at least {_duration(seconds)} to render and write "
+            f"(and about {size} at {path!r}), above the limit of {limit:g} min; ask for fewer or smaller frames, "
+            f"or allow it with --max-minutes {max(1, int(seconds / 60) + 1)} (or --no-limit)"
+        )
+
+
+# --------------------------------------------------------------------------------------------- the run
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a command: raised where the run is, like Ctrl-C's ``KeyboardInterrupt``, so that what
+    cleans up after an interrupt (the atomic outputs of :mod:`torchfluidwarp.io`) cleans up after it too."""
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    raise Terminated
+
+
+def _show_warning(command: str) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints the warning as the command's one line, without a source line."""
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: Any = None,
+        line: str | None = None,
+    ) -> None:
+        print(f"{PROG} {command}: warning: {first_line(message)}", file=sys.stderr if file is None else file)
+
+    return show
+
+
+@contextlib.contextmanager
+def command_run(command: str) -> Iterator[None]:
+    """The setting of one command's run: SIGTERM raises :class:`Terminated` (as SIGINT raises
+    ``KeyboardInterrupt``), and warnings print as one line, ``torchfluidwarp COMMAND: warning: ...``, without
+    the library's source line. Both are restored when the run ends; SIGTERM is left alone outside the main thread
+    (where no handler can be set)."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if main else None
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning(command)
+            yield
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)

@@ -5,7 +5,7 @@
 (:func:`~torchfluidwarp.apps.cli_morph_output.morph_settings`), and streams the frames to the output (written
 atomically; memory does not grow with ``--frames``); ``demo`` does the same with the bundled samples (astronaut
 into cat). Without point files the points are found from the pictures (``--match``: face landmarks, matched features or
-the pixels; :func:`torchfluidwarp.correspond.auto_points`), and ``--save-points`` writes them.
+the pixels; :func:`torchfluidwarp.correspond.find_points`), and ``--save-points`` writes them.
 ``torchfluidwarp morph A B C ... --points FA FB FC ...`` morphs through several images
 (:mod:`torchfluidwarp.apps.cli_sequence`), and ``torchfluidwarp morph --pairs pairs.csv --out DIR/`` morphs a
 list of pairs (:mod:`torchfluidwarp.apps.batch`). The timing, region and output options are in
@@ -20,12 +20,23 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
+import warnings
 
 from torch import Tensor
 
 from torchfluidwarp.apps.batch import morph_pairs
-from torchfluidwarp.apps.cli_args import EXIT_OK, FPS, NON_NEGATIVE, POSITIVE, PROG, count, fail
+from torchfluidwarp.apps.cli_args import (
+    EXIT_OK,
+    FPS,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROG,
+    add_limit_options,
+    check_work,
+    clock_of,
+    count,
+    fail,
+)
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
     check_result_output,
@@ -36,7 +47,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     write_result,
 )
 from torchfluidwarp.apps.cli_sequence import run_sequence
-from torchfluidwarp.correspond import auto_points
+from torchfluidwarp.correspond import MatchNotice, find_points
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
@@ -119,6 +130,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
     for flag, metavar, kind, text in _MORPH_TUNING:
         p.add_argument(flag, metavar=metavar, type=kind, default=None, help=text)
     add_result_options(p)
+    add_limit_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
 
@@ -206,33 +218,42 @@ def add_demo(commands: argparse._SubParsersAction) -> None:
 def _run_morph(
     command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
 ) -> int:
-    """Morph, write the animation (or ``--frame``) and the report; the output was checked by the caller."""
-    start = time.perf_counter()
-    held = _held_out(args)
+    """Morph, write the animation (or ``--frame``) and the report; the output was checked by the caller.
+
+    The line printed at the end gives the run's wall time (from :func:`~torchfluidwarp.apps.cli.main`'s start),
+    then its parts: ``start`` (the library's import and the arguments), ``load``, ``points``, ``fit`` (the call to
+    :func:`~torchfluidwarp.morph.morph`), ``render and write`` (the frames are rendered as they are written) and
+    ``report``.
+    """
+    clock = clock_of(args)
+    with clock.part("load"):  # the held-out points and --region's masks
+        held = _held_out(args)
+        timing, blending = result_options(args)
     progress = not args.quiet and sys.stderr.isatty()
-    timing, blending = result_options(args)
-    result = morph(
-        image_a,
-        image_b,
-        points_a,
-        points_b,
-        settings=morph_settings(args),
-        frames=args.frames,
-        timing=timing,
-        blending=blending,
-        progress=progress,
-        max_memory=max_memory(args),
-    )  # errors: see fail()
-    path = write_result(result, args)
+    with clock.part("fit"):
+        result = morph(
+            image_a,
+            image_b,
+            points_a,
+            points_b,
+            settings=morph_settings(args),
+            frames=args.frames,
+            timing=timing,
+            blending=blending,
+            progress=progress,
+            max_memory=max_memory(args),
+        )  # errors: see fail()
+    with clock.part("render and write"):
+        path = write_result(result, args)
     if args.report:
-        report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
-        print(f"report: {write_report(args.report, report)}", file=sys.stderr)
+        with clock.part("report"):
+            report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
+            print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
-        err, fit, total = result.error, result.seconds["total"], time.perf_counter() - start
-        # the whole job's time: the fit, then the frames, rendered as they are written, and the report
+        err = result.error
         print(
             f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
-            f"{total:.1f} s (fit {fit:.1f} s, frames and files {total - fit:.1f} s)",
+            f"{clock.summary()}",
             file=sys.stderr,
         )
     print(path)
@@ -302,17 +323,28 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         args.output = args.output or "morph.gif"
         if len(args.images) > 2:
             return run_sequence(args)
-        a, b = (read_image(path) for path in args.images)
+        clock = clock_of(args)
+        with clock.part("load"):
+            a, b = (read_image(path) for path in args.images)
         check_result_output(args, args.frames, a)  # before the points are searched for
+        check_work(args, args.output, 1 if args.frame is not None else args.frames, a.shape)
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
         if files:
             if args.save_points:
                 raise InputError("--save-points writes the points found: give no point files with it")
-            pa, pb = read_points(files[0]), read_points(files[1])
+            with clock.part("points"):
+                pa, pb = read_points(files[0]), read_points(files[1])
             check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
         else:
             face = args.face_index
-            pa, pb = auto_points(a, b, match=args.match, face_index=(face, face), names=tuple(args.images))
+            with clock.part("points"):  # the face model's log lines are kept off stderr by the library
+                with warnings.catch_warnings():  # the reason is printed below, in the command line's words
+                    warnings.simplefilter("ignore", MatchNotice)
+                    found = find_points(a, b, match=args.match, face_index=(face, face), names=tuple(args.images))
+            pa, pb = found.points_a, found.points_b
+            if found.reason.notable and not args.quiet:  # a fall-back, or one face chosen among several
+                words = {"match": "--match", "face_index": "--face-index I"}
+                print(f"{PROG} morph: {found.reason.explain(words)}", file=sys.stderr)
             if args.save_points:
                 for path, points in zip(args.save_points, (pa, pb)):
                     print(f"points: {write_points(path, points)}", file=sys.stderr)
@@ -324,15 +356,13 @@ def _cmd_morph(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     try:
         args.output = args.output or "morph.gif"
-        a = load_sample("astronaut")
+        clock = clock_of(args)
+        with clock.part("load"):
+            a, b = load_sample("astronaut"), load_sample("cat")
         check_result_output(args, args.frames, a)
-        return _run_morph(
-            "demo",
-            args,
-            a,
-            load_sample("cat"),
-            load_sample_points("astronaut"),
-            load_sample_points("cat"),
-        )
+        check_work(args, args.output, 1 if args.frame is not None else args.frames, a.shape)
+        with clock.part("points"):
+            pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
+        return _run_morph("demo", args, a, b, pa, pb)
     except OSError as exc:  # an output of the user's: one line
         return fail("demo", exc)  # every other error goes to cli.main, which says whose fault it is

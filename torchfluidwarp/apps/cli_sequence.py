@@ -17,7 +17,17 @@ import sys
 
 from torch import Tensor
 
-from torchfluidwarp.apps.cli_args import EXIT_OK, NON_NEGATIVE, POSITIVE, PROG, check_image_output, count, fail
+from torchfluidwarp.apps.cli_args import (
+    EXIT_OK,
+    NON_NEGATIVE,
+    POSITIVE,
+    PROG,
+    check_image_output,
+    check_work,
+    clock_of,
+    count,
+    fail,
+)
 from torchfluidwarp.apps.cli_morph_output import (
     check_result_output,
     max_memory,
@@ -57,36 +67,42 @@ def run_sequence(args: argparse.Namespace) -> int:
         )
     if args.save_points or args.held_out_a or args.held_out_b:
         raise InputError("--save-points and --held-out-a/-b apply to two images only")
-    pictures, points = _read_all(args.images, args.points)
+    clock = clock_of(args)
+    with clock.part("load"):
+        pictures, points = _read_all(args.images, args.points)
     if args.region not in (None, "points"):
         raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
     settings = morph_settings(args)
     timing, blending = result_options(args)
     check_result_output(args, args.frames, pictures[0])
+    check_work(args, args.output, 1 if args.frame is not None else args.frames, pictures[0].shape)
     progress = not args.quiet and sys.stderr.isatty()
-    sequence = morph_sequence(
-        pictures,
-        points,
-        settings=settings,
-        frames=args.frames,
-        timing=timing,
-        blending=blending,
-        progress=progress,
-        max_memory=max_memory(args),
-    )
-    path = write_result(sequence, args)
+    with clock.part("fit"):
+        sequence = morph_sequence(
+            pictures,
+            points,
+            settings=settings,
+            frames=args.frames,
+            timing=timing,
+            blending=blending,
+            progress=progress,
+            max_memory=max_memory(args),
+        )
+    with clock.part("render and write"):
+        path = write_result(sequence, args)
     if args.report:
-        reports = [
-            morph_report(segment, pictures[i], pictures[i + 1], points[i], points[i + 1])
-            for i, segment in enumerate(sequence.segments)
-        ]
-        print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
+        with clock.part("report"):
+            reports = [
+                morph_report(segment, pictures[i], pictures[i + 1], points[i], points[i + 1])
+                for i, segment in enumerate(sequence.segments)
+            ]
+            print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
     if not args.quiet:
         errors = [float(segment.error.mean()) for segment in sequence.segments]
         print(
             f"{PROG} morph: {len(errors)} segments, mean point error per segment "
             + ", ".join(f"{e:.2f}" for e in errors)
-            + " px",
+            + f" px, {clock.summary()}",
             file=sys.stderr,
         )
     print(path)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -39,6 +38,7 @@ from torchfluidwarp._checks import (
     check_tensor,
     compute_dtype,
     describe,
+    warn,
 )
 from torchfluidwarp.control.keyframes import check_fit_memory, check_points
 from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss, mse_loss, ncc_loss, ssim_loss
@@ -337,12 +337,11 @@ def fit_images(
         det = jacobian_determinant(coords).flatten(1)
         min_det, folded = det.amin(1), int((det <= 0).sum())
     if folded:
-        warnings.warn(
+        warn(
             f"fit_images: the fitted map folds on {folded} of {det.numel()} pixels (min det "
             f"{float(min_det.min()):.3g}): the flow crushes part of the source onto itself; raise regularization "
             "for a calmer flow, at some cost in the loss",
             RuntimeWarning,
-            stacklevel=2,
         )
     if not math.isfinite(final):
         raise InputError(

@@ -18,7 +18,6 @@ Where capture fails, the roll-out warns and runs step by step.
 from __future__ import annotations
 
 import threading
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Protocol
@@ -26,6 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 import torch
 from torch import Tensor
 
+from torchfluidwarp._checks import warn
 from torchfluidwarp.core.linalg import CGConfig
 
 if TYPE_CHECKING:
@@ -151,11 +151,10 @@ class StepGraphs:
             graphed = _GraphedStep(self.step, velocity, force, viscosity, side)
         except Exception as e:  # noqa: BLE001  (any failure to capture leaves the same roll-out, step by step)
             torch.cuda.set_stream(stream)  # a capture that fails while ending may leave its stream current
-            warnings.warn(
+            warn(
                 f"the fluid step could not be captured in a CUDA graph ({type(e).__name__}: {e}); the roll-out runs "
                 "step by step",
                 GraphCaptureWarning,
-                stacklevel=5,
             )
             return None
         self.captures += 1

@@ -10,7 +10,6 @@ Backward memory is therefore that of one operator application, whatever the numb
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -19,6 +18,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
+from torchfluidwarp._checks import warn
 from torchfluidwarp.errors import InputError
 
 __all__ = ["CGConfig", "CGInfo", "ConvergenceWarning", "ConvergenceError", "conjugate_gradient", "implicit_solve"]
@@ -161,7 +161,7 @@ def conjugate_gradient(
     if config.on_failure == "raise":
         raise ConvergenceError(message)
     if config.on_failure == "warn":
-        warnings.warn(message, ConvergenceWarning, stacklevel=3)
+        warn(message, ConvergenceWarning)
     return x, info
 
 

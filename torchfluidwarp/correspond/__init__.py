@@ -1,29 +1,54 @@
 """Correspondence: the points of a morph found from the two pictures, with no point files.
 
-* :func:`~torchfluidwarp.correspond.faces.detect_face_points`: 63 face landmarks from mediapipe's face mesh
-  (the optional ``faces`` extra: ``pip install "torchfluidwarp[faces]"``).
+* :func:`~torchfluidwarp.correspond.faces.find_faces`: every face in a photograph (whole portraits, any size,
+  grey or colour, tilted), with mediapipe's face detectors and face mesh (the optional ``faces`` extra:
+  ``pip install "torchfluidwarp[faces]"``); :func:`~torchfluidwarp.correspond.faces.detect_face_points`: the
+  63 landmarks of one of them.
 * :func:`~torchfluidwarp.correspond.features.match_features`: matched SIFT features (kornia; no weights),
   filtered by RANSAC and by their neighbours, thinned to a well-spread subset.
 * :func:`~torchfluidwarp.correspond.auto.auto_points`: faces when both images show one, features otherwise,
-  with :func:`~torchfluidwarp.correspond.auto.border_points` anchors.
+  with :func:`~torchfluidwarp.correspond.auto.border_points` anchors;
+  :func:`~torchfluidwarp.correspond.auto.find_points`: the same, with which matcher it used and why.
 * :func:`~torchfluidwarp.correspond.refine.refine_points`: the pixels add pairs to sparse ones, through a flow
   fitted to the images (:func:`~torchfluidwarp.control.images.fit_images`) with the pairs as anchors.
 
 Every point is ``(x, y)`` in pixels with pixel centres at integers, as everywhere in the library.
 """
 
-from torchfluidwarp.correspond.auto import MatchMode, auto_points, border_points
-from torchfluidwarp.correspond.faces import FACE_LANDMARKS, FACE_MESH_INDICES, detect_face_points
+from torchfluidwarp.correspond.auto import (
+    FoundPoints,
+    MatchMode,
+    MatchNotice,
+    Note,
+    auto_points,
+    border_points,
+    find_points,
+)
+from torchfluidwarp.correspond.faces import (
+    FACE_LANDMARKS,
+    FACE_MESH_INDICES,
+    Face,
+    NoFaceFound,
+    detect_face_points,
+    find_faces,
+)
 from torchfluidwarp.correspond.features import match_features
 from torchfluidwarp.correspond.refine import refine_points
 
 __all__ = [
     "FACE_LANDMARKS",
     "FACE_MESH_INDICES",
+    "Face",
+    "FoundPoints",
     "MatchMode",
+    "MatchNotice",
+    "NoFaceFound",
+    "Note",
     "auto_points",
     "border_points",
     "detect_face_points",
+    "find_faces",
+    "find_points",
     "match_features",
     "refine_points",
 ]

@@ -1,22 +1,133 @@
-"""Landmarks for a morph from the two pictures alone: faces when both show one, matched features otherwise."""
+"""Landmarks for a morph from the two pictures alone: faces when both show one, matched features otherwise.
+
+:func:`find_points` says which matcher it used and why (:attr:`FoundPoints.reason`, a :class:`Note` that a
+caller words in its own terms, as it does an :class:`~torchfluidwarp.errors.InputError`'s hint);
+:func:`auto_points` returns the points alone and warns (:class:`MatchNotice`) when the automatic mode fell back
+from faces or chose among several.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Literal
 
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_size
+from torchfluidwarp._checks import check_int, check_size, warn
 from torchfluidwarp.correspond._image import single_image
-from torchfluidwarp.correspond.faces import NoFaceFound, detect_face_points, load_mediapipe
+from torchfluidwarp.correspond.faces import (
+    FACE_MESH_INDICES,
+    INSTALL_HINT,
+    Chosen,
+    NoFaceFound,
+    choose_face,
+    find_faces,
+    listing,
+    load_mediapipe,
+)
 from torchfluidwarp.correspond.features import match_features
 from torchfluidwarp.correspond.refine import refine_points
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import Hint, InputError
 
-__all__ = ["MatchMode", "auto_points", "border_points", "usable_pairs"]
+__all__ = [
+    "FoundPoints",
+    "MatchMode",
+    "MatchNotice",
+    "Matcher",
+    "Note",
+    "ValueHint",
+    "auto_points",
+    "border_points",
+    "find_points",
+    "usable_pairs",
+]
 
 MatchMode = Literal["auto", "faces", "features", "pixels"]
+Matcher = Literal["faces", "features", "pixels"]
+
+
+@dataclass(frozen=True)
+class ValueHint(Hint):
+    """A :class:`~torchfluidwarp.errors.Hint` that names a setting with its value: ``match='features'`` for a
+    Python caller, ``--match features`` for the command line (a name that starts with ``-`` is a flag: its first
+    word, a space and the value).
+
+    Example:
+        >>> hint = ValueHint("use {setting} to skip the face search", "match", value="features")
+        >>> hint.render("match"), hint.render("--match")
+        ("use match='features' to skip the face search", 'use --match features to skip the face search')
+    """
+
+    value: str = ""
+
+    def render(self, name: str | None) -> str:
+        if name is None:
+            return self.otherwise
+        said = f"{name.split()[0]} {self.value}" if name.startswith("-") else f"{name}={self.value!r}"
+        return self.text.format(setting=said)
+
+
+def _skip_faces() -> ValueHint:
+    return ValueHint("use {setting} to skip the face search", "match", value="features")
+
+
+@dataclass(frozen=True)
+class Note:
+    """What :func:`find_points` did and why, with a hint that a caller says in its own terms.
+
+    Attributes:
+        message: what was used and why (``"no face found in a.jpg (817 x 1024 pixels); matched image features
+            instead"``).
+        hint: what to change, naming the setting (:class:`ValueHint`), or ``None``.
+        notable: whether the user may want to act on it: the automatic mode fell back from faces, or picked the
+            largest of several faces. :func:`auto_points` warns with the notable ones.
+    """
+
+    message: str
+    hint: Hint | None = None
+    notable: bool = False
+
+    def explain(self, names: Mapping[str, str]) -> str:
+        """The message and its hint with the settings called by the caller's ``names`` (``{"match": "--match"}``),
+        as :meth:`torchfluidwarp.errors.InputError.explain` does."""
+        if self.hint is None:
+            return self.message
+        advice = self.hint.render(names.get(self.hint.setting))
+        return f"{self.message}; {advice}" if advice else self.message
+
+    def __str__(self) -> str:
+        return self.explain({} if self.hint is None else {self.hint.setting: self.hint.spelling or self.hint.setting})
+
+
+class MatchNotice(UserWarning):
+    """:func:`auto_points` fell back from faces to features, or chose the largest of several faces.
+
+    Attributes:
+        note: the :class:`Note`, to word it in a caller's terms (:meth:`Note.explain`).
+    """
+
+    def __init__(self, note: Note) -> None:
+        super().__init__(str(note))
+        self.note = note
+
+
+@dataclass(frozen=True, eq=False)  # compared by identity: it holds tensors
+class FoundPoints:
+    """What :func:`find_points` found.
+
+    Attributes:
+        points_a, points_b: ``(M, 2)`` corresponding points, pixels ``(x, y)`` of each image (as
+            :func:`auto_points` returns them).
+        matcher: which matcher placed them: ``"faces"``, ``"features"`` or ``"pixels"``.
+        reason: which matcher and why, in words (:class:`Note`).
+    """
+
+    points_a: Tensor
+    points_b: Tensor
+    matcher: Matcher
+    reason: Note
 
 
 def border_points(
@@ -69,16 +180,123 @@ def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], si
     return keep
 
 
-def _faces_or_none(a: Tensor, b: Tensor, face_index: tuple[int | None, int | None], names: tuple[str, str]):
-    """Both images' face points, or None when mediapipe is missing or either image shows no face."""
-    try:
-        load_mediapipe()
-        return (
-            detect_face_points(a, face_index=face_index[0], name=names[0]),
-            detect_face_points(b, face_index=face_index[1], name=names[1]),
-        )
-    except (ImportError, NoFaceFound):
-        return None
+def _faces_note(chosen: tuple[Chosen, Chosen], names: tuple[str, str], face_index, asked: bool) -> Note:
+    """Which faces were matched, and the images that show several when the largest was taken by default."""
+    where = " and ".join(f"{name}'s ({c.face})" for name, c in zip(names, chosen))
+    message = f"matched the face landmarks of {where}" + (", as asked" if asked else "")
+    several = [
+        f"{name} shows {c.count} faces ({listing(c.others)}): used the largest"
+        for name, c, i in zip(names, chosen, face_index)
+        if i is None and c.count > 1
+    ]
+    if not several:
+        return Note(message)
+    hint = Hint("choose another with {setting}", "face_index", spelling="face_index=(i, j)")
+    return Note("; ".join([message, *several]), hint, notable=True)
+
+
+def find_points(
+    image_a: Tensor,
+    image_b: Tensor,
+    *,
+    match: MatchMode = "auto",
+    face_index: tuple[int | None, int | None] = (None, None),
+    names: tuple[str, str] = ("image_a", "image_b"),
+    border: int | None = 3,
+    max_points: int = 64,
+    pixels: int = 8,
+) -> FoundPoints:
+    """Corresponding points of two images, with which matcher found them and why.
+
+    The arguments, the points and the errors are those of :func:`auto_points`; this one also returns the
+    matcher and a :class:`Note` that says, in words a caller can put in its own terms (:meth:`Note.explain`),
+    why it was used: ``"no face found in a.jpg (817 x 1024 pixels); matched image features instead (41 pairs);
+    use match='features' to skip the face search"`` (the command line: ``use --match features``).
+
+    Returns:
+        a :class:`FoundPoints`.
+
+    Example:
+        >>> from torchfluidwarp.data import load_sample
+        >>> a = load_sample("cat")
+        >>> found = find_points(a, a[..., 8:, 4:], names=("cat.png", "crop.png"))
+        >>> found.matcher, found.reason.notable
+        ('features', True)
+        >>> print(found.reason.explain({"match": "--match"}))  # doctest: +ELLIPSIS
+        no face found in cat.png (512 x 512 pixels); matched image features instead (... pairs); use --match ...
+    """
+    a, b = single_image("image_a", image_a), single_image("image_b", image_b)
+    if match not in ("auto", "faces", "features", "pixels"):
+        raise InputError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}", argument="match")
+    fa, fb = (None if i is None else check_int("face_index", i, minimum=0) for i in face_index)
+    face_index = (fa, fb)
+    found: tuple[Tensor, Tensor] | None = None
+    matcher: Matcher = "features"
+    reason: Note | None = None
+    why_not_faces = ""  # the automatic mode's reason to match features
+    if match in ("auto", "faces"):
+        try:
+            load_mediapipe()
+        except ImportError:
+            if match == "faces":
+                raise
+            why_not_faces = f"no face detector ({INSTALL_HINT})"
+        else:
+            try:
+                chosen_a, chosen_b = (
+                    choose_face(find_faces(x), i, name, (x.shape[-2], x.shape[-1]))
+                    for x, i, name in zip((a, b), face_index, names)
+                )
+                chosen = (chosen_a, chosen_b)
+            except NoFaceFound as exc:
+                if match == "faces":
+                    raise NoFaceFound(
+                        exc.message,
+                        argument=exc.argument,
+                        hint=ValueHint("{setting} matches image features instead", "match", value="features"),
+                    ) from None
+                why_not_faces = exc.message
+            else:
+                found = (chosen_a.face.mesh[list(FACE_MESH_INDICES)], chosen_b.face.mesh[list(FACE_MESH_INDICES)])
+                matcher = "faces"
+                reason = _faces_note(chosen, names, face_index, asked=match == "faces")
+    elif match == "pixels":
+        none = a.new_zeros(0, 2)
+        n = check_int("pixels", pixels)
+        refined = refine_points(a, b, none, none, extra=n)
+        found = (refined[0], refined[1])
+        matcher = "pixels"
+        reason = Note(f"placed {len(found[0])} points on a {n} x {n} lattice through a flow fitted to the pixels")
+    if found is None:
+        found = match_features(a, b, max_points=max_points)
+        count = len(found[0])
+        if count < 3:
+            raise InputError(
+                (f"{why_not_faces}; " if why_not_faces else "")
+                + f"found {count} matching features between {names[0]} and {names[1]} (need 3 or more)",
+                argument="match",
+                hint=ValueHint(
+                    "give the points by hand, or let the pixels place them ({setting})",
+                    "match",
+                    value="pixels",
+                    otherwise="give the points by hand",
+                ),
+            )
+        if why_not_faces:
+            reason = Note(
+                f"{why_not_faces}; matched image features instead ({count} pairs)", _skip_faces(), notable=True
+            )
+        else:
+            reason = Note(f"matched image features ({count} pairs), as asked")
+    if reason is None:  # every branch above says why (or raised)
+        raise RuntimeError("find_points chose no matcher")
+    points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
+    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
+    if border is not None:
+        points_a = torch.cat([points_a, border_points(size_a, per_side=border, device=a.device, dtype=a.dtype)])
+        points_b = torch.cat([points_b, border_points(size_b, per_side=border, device=a.device, dtype=a.dtype)])
+    keep = usable_pairs(points_a, points_b, size_a, size_b)
+    return FoundPoints(points_a[keep], points_b[keep], matcher, reason)
 
 
 def auto_points(
@@ -100,12 +318,13 @@ def auto_points(
         match: ``"faces"``: the face landmarks of both (:func:`~torchfluidwarp.correspond.faces.detect_face_points`;
             needs the ``faces`` extra); ``"features"``: matched SIFT features
             (:func:`~torchfluidwarp.correspond.features.match_features`); ``"auto"``: faces when mediapipe is
-            installed and both images show a face, features otherwise; ``"pixels"``: a lattice of ``pixels x pixels``
-            points placed by a flow fitted to the images
+            installed and both images show a face (:func:`~torchfluidwarp.correspond.faces.find_faces`: whole
+            portraits, any size, grey or colour), features otherwise, with a :class:`MatchNotice` that says
+            so; ``"pixels"``: a lattice of ``pixels x pixels`` points placed by a flow fitted to the images
             (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors; slower: a coarse-to-fine
             image fit).
-        face_index: which face in A and in B (0 = largest; ``None``: the largest, with a warning when there
-            are several).
+        face_index: which face in A and in B (0 = largest; ``None``: the largest, with a :class:`MatchNotice`
+            that lists them when there are several).
         names: the images' names in messages (their file names, say).
         border: points per image edge for :func:`border_points` (3: corners and edge midpoints), appended to
             both lists; ``None`` for none.
@@ -118,9 +337,16 @@ def auto_points(
         Pairs that a morph cannot take are left out (:func:`usable_pairs`: a face point outside its
         image, a point within a pixel of an earlier one).
 
+    Warns:
+        MatchNotice: the automatic mode matched features because an image shows no face or the ``faces``
+            extra is missing, or took the largest of several faces; :func:`find_points` returns the same
+            :class:`Note` instead of warning.
+
     Raises:
         ImportError: ``match="faces"`` without mediapipe (the message says how to install it).
-        ValueError: ``match="faces"`` and no face in an image (the message names it); a bad argument;
+        NoFaceFound: ``match="faces"`` and no face in an image (a ``ValueError``; the message names it and its
+            size).
+        ValueError: ``face_index`` beyond the faces found (the message lists them); a bad argument;
             ``match="features"`` (or ``"auto"`` with no faces) and fewer than 3 matches.
 
     Example:
@@ -130,32 +356,16 @@ def auto_points(
         >>> bool((pa - pb)[:-8].sub(torch.tensor([4.0, 8.0])).norm(dim=-1).median() < 0.5)  # the last 8: border
         True
     """
-    a, b = single_image("image_a", image_a), single_image("image_b", image_b)
-    if match not in ("auto", "faces", "features", "pixels"):
-        raise InputError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}", argument="match")
-    found = None
-    if match == "faces":
-        found = (
-            detect_face_points(a, face_index=face_index[0], name=names[0]),
-            detect_face_points(b, face_index=face_index[1], name=names[1]),
-        )
-    elif match == "auto":
-        found = _faces_or_none(a, b, face_index, names)
-    elif match == "pixels":
-        none = a.new_zeros(0, 2)
-        found = refine_points(a, b, none, none, extra=check_int("pixels", pixels))[:2]
-    if found is None:
-        found = match_features(a, b, max_points=max_points)
-        if len(found[0]) < 3:
-            raise InputError(
-                f"found {len(found[0])} matching features between {names[0]} and {names[1]} (need 3 or more); "
-                "give the points by hand, or let the pixels place them (match='pixels')",
-                argument="match",
-            )
-    points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
-    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
-    if border is not None:
-        points_a = torch.cat([points_a, border_points(size_a, per_side=border, device=a.device, dtype=a.dtype)])
-        points_b = torch.cat([points_b, border_points(size_b, per_side=border, device=a.device, dtype=a.dtype)])
-    keep = usable_pairs(points_a, points_b, size_a, size_b)
-    return points_a[keep], points_b[keep]
+    found = find_points(
+        image_a,
+        image_b,
+        match=match,
+        face_index=face_index,
+        names=names,
+        border=border,
+        max_points=max_points,
+        pixels=pixels,
+    )
+    if found.reason.notable:
+        warn(MatchNotice(found.reason))
+    return found.points_a, found.points_b

@@ -24,7 +24,9 @@ class Morph(Protocol):
 
     fit: KeyframeFit
     error: Tensor  # (M,) pixels of the last frame
-    canvas_from_b: Tensor  # (3, 3) B's pixels to the frames' (canvas) pixels
+
+    @property
+    def canvas_from_b(self) -> Tensor: ...  # (3, 3) B's pixels to the frames' (canvas) pixels
 
     def __len__(self) -> int: ...
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 
 import torch
 from torch import Tensor, nn
 
+from torchfluidwarp._checks import warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
 from torchfluidwarp.core.grid import mean_pixels_per_cell
@@ -51,12 +51,11 @@ def pose(pa: Tensor, pb: Tensor, align: AlignKind | None) -> Tensor:
     explained = 1 - float((apply_alignment(M, a) - b).square().sum()) / spread
     if explained >= MIN_POSE_FIT:
         return M
-    warnings.warn(
+    warn(
         f"the marks do not agree on a pose: the {align} pre-alignment explains {max(explained, 0):.0%} of how "
         f"points_b spread (under {MIN_POSE_FIT:.0%}), so the morph runs without it; check that points_a and "
         "points_b list the same features in the same order",
         RuntimeWarning,
-        stacklevel=3,
     )
     return torch.eye(3, dtype=torch.float64, device=a.device)
 
@@ -86,11 +85,10 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
         bad = torch.triu(turned | torn, diagonal=1).nonzero().tolist()
         if bad:
             listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
-            warnings.warn(
+            warn(
                 f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth morph "
                 "can do without folding; check their order (result.error shows which points were not reached)",
                 RuntimeWarning,
-                stacklevel=3,
             )
 
 

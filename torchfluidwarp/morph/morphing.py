@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import check_instance, check_int, check_memory, check_tensor, compute_dtype
+from torchfluidwarp._checks import check_instance, check_int, check_memory, check_size, check_tensor, compute_dtype
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
@@ -306,7 +306,7 @@ def morph(
     shape, colour = schedule("motion", timing.motion), schedule("blend", timing.blend)
     a, b = match_channels(a, b)
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
-    size = size_a if blending.size is None else blending.size  # the canvas (H, W)
+    size = size_a if blending.size is None else check_size("blending.size", blending.size)  # the canvas (H, W)
     H, W = size
     estimate = _memory(size, a.shape[1], 1, steps, settings.grid, a.element_size())  # streamed
     check_memory(

@@ -159,7 +159,8 @@ class Scene:
         )
         assert size is not None and place is not None
         H, W = self.size
-        if (H, W) == tuple(size) == tuple(image.shape[-2:]) and bool((place == torch.eye(3).to(place)).all()):
+        identity = torch.eye(3, dtype=place.dtype, device=place.device)
+        if (H, W) == tuple(size) == tuple(image.shape[-2:]) and bool((place == identity).all()):
             return image[:, :, rows[0] : rows[1]]  # the picture itself: no resampling
         ident = identity_map((rows[1] - rows[0], W), device=image.device, dtype=torch.float64)
         ident = ident + ident.new_tensor([0.0, float(rows[0])])
@@ -217,7 +218,7 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     to_a = torch.linalg.inv(scene.place_a)
     to_b = torch.linalg.solve(scene.place_b, scene.M.to(scene.place_b))
     map_a = z + read_displacement(g, scene.roi, z) + offset
-    if not bool((to_a == torch.eye(3).to(to_a)).all()):
+    if not bool((to_a == torch.eye(3, dtype=to_a.dtype, device=to_a.device)).all()):
         map_a = apply_alignment(to_a, map_a.double()).to(a.dtype)
     map_b = apply_alignment(to_b, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
     fa, fb = read(a, map_a, scene.size_a), read(b, map_b, scene.size_b)

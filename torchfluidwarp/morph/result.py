@@ -12,13 +12,12 @@ Nothing is rendered until asked for, so a morph of any length holds only its fit
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Iterator, Sequence
 
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_memory, check_real
+from torchfluidwarp._checks import check_int, check_memory, check_real, warn
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph.render import MorphFrames, Scene, render
@@ -193,13 +192,12 @@ class MorphResult:
         n_pixels = 2 * self._count * H * W
         self._folded = count / n_pixels
         if count:
-            warnings.warn(
+            warn(
                 f"the morph's maps fold on {count} of {n_pixels} pixels over all frames of "
                 "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
                 "(result.error names the points not reached), or raise NaturalSettings.straightness or "
                 "PaperSettings.smoothness",
                 RuntimeWarning,
-                stacklevel=4,
             )
 
     def bytes_per_frame(self) -> int:

@@ -17,10 +17,6 @@ Conventions: points are ``(x, y)`` in each image's pixels, pixel centres at inte
 
 from __future__ import annotations
 
-import importlib
-import warnings
-from typing import Any
-
 from starlette.applications import Starlette
 from torch import Tensor
 
@@ -30,16 +26,6 @@ from torchfluidwarp.apps.studio.routes import routes
 from torchfluidwarp.apps.studio.session import Session
 
 __all__ = ["StudioConfig", "create_app", "loopback_hosts"]
-
-# names this module held before the studio was split by job: they resolve, with a DeprecationWarning, for
-# one release
-_MOVED = {
-    "LatestOnly": "torchfluidwarp.apps.studio.jobs",
-    "Superseded": "torchfluidwarp.apps.studio.jobs",
-    "TOKEN_HEADER": "torchfluidwarp.apps.studio.guard",
-    "MAX_UPLOAD": "torchfluidwarp.apps.studio.config",
-    "config_json": "torchfluidwarp.apps.animate",
-}
 
 
 def create_app(
@@ -66,15 +52,3 @@ def create_app(
     app.state.studio = session
     app.state.worker = session.worker
     return app
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    warnings.warn(
-        f"{__name__}.{name} moved to {_MOVED[name]}: use `from {_MOVED[name]} import {name}`. "
-        "The old path goes in the next release.",
-        DeprecationWarning,
-        stacklevel=2,
-    )
-    return getattr(importlib.import_module(_MOVED[name]), name)
