@@ -50,7 +50,7 @@ def divergence(velocity: Tensor) -> Tensor:
 
     ``u[j, i + 1] - u[j, i] + v[j + 1, i] - v[j, i]``.
     """
-    u, v = StaggeredGrid.of(velocity).split(velocity)
+    u, v = StaggeredGrid.components(velocity)
     return (u.diff(dim=-1) + v.diff(dim=-2)).unsqueeze(1)
 
 
@@ -71,18 +71,18 @@ def faces_from_cells(field: Tensor) -> Tensor:
 
 def cells_from_faces(velocity: Tensor) -> Tensor:
     """Average a staggered velocity onto cell centres: ``(B, 2, h, w)``, channel 0 = x."""
-    u, v = StaggeredGrid.of(velocity).split(velocity)
+    u, v = StaggeredGrid.components(velocity)
     return torch.stack([0.5 * (u[..., 1:] + u[..., :-1]), 0.5 * (v[:, 1:] + v[:, :-1])], dim=1)
 
 
 def vector_laplacian(velocity: Tensor) -> Tensor:
     """Vector Laplacian of a staggered velocity: no flow through the walls, free slip along them."""
-    u, v = StaggeredGrid.of(velocity).split(velocity)
+    u, v = StaggeredGrid.components(velocity)
     uy = F.pad(u.unsqueeze(1), (0, 0, 1, 1), mode="replicate")[:, 0]
     lu = (u[..., 2:] - 2 * u[..., 1:-1] + u[..., :-2]) + (uy[:, 2:, 1:-1] - 2 * u[:, :, 1:-1] + uy[:, :-2, 1:-1])
     vx = F.pad(v.unsqueeze(1), (1, 1, 0, 0), mode="replicate")[:, 0]
     lv = (v[:, 2:] - 2 * v[:, 1:-1] + v[:, :-2]) + (vx[:, 1:-1, 2:] - 2 * v[:, 1:-1] + vx[:, 1:-1, :-2])
-    return StaggeredGrid.of(velocity).pack(F.pad(lu, (1, 1)), F.pad(lv, (0, 0, 1, 1)))
+    return StaggeredGrid.pack(F.pad(lu, (1, 1)), F.pad(lv, (0, 0, 1, 1)))
 
 
 def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
@@ -92,7 +92,7 @@ def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
     (shear is zero on the walls: free slip), hence symmetric positive semi-definite, and it couples ``u``
     and ``v``. The viscosity at a corner is the mean of its four cells.
     """
-    u, v = StaggeredGrid.of(velocity).split(velocity)
+    u, v = StaggeredGrid.components(velocity)
     mu = viscosity[:, 0]
     mu_n = 0.25 * (mu[:, 1:, 1:] + mu[:, :-1, 1:] + mu[:, 1:, :-1] + mu[:, :-1, :-1])  # (B, h-1, w-1)
     qx = 2 * mu * (u[..., 1:] - u[..., :-1])  # (B, h, w)
@@ -105,7 +105,7 @@ def strain_operator(velocity: Tensor, viscosity: Tensor) -> Tensor:
     h, w = u.shape[-2], v.shape[-1]
     gu = torch.cat([gu[..., :1] * 0, gu[..., 1:w], gu[..., :1] * 0], dim=-1)
     gv = torch.cat([gv[:, :1] * 0, gv[:, 1:h], gv[:, :1] * 0], dim=1)
-    return StaggeredGrid.of(velocity).pack(gu, gv)
+    return StaggeredGrid.pack(gu, gv)
 
 
 # The diffusion operators act on the interior faces and as the identity on walls and padding, with no

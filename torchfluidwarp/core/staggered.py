@@ -94,10 +94,16 @@ class StaggeredGrid:
 
     def split(self, velocity: Tensor) -> tuple[Tensor, Tensor]:
         """The two components without their padding: ``u`` ``(B, h, w + 1)`` and ``v`` ``(B, h + 1, w)`` (views)."""
-        h, w = self.h, self.w
-        return velocity[:, 0, :h, :], velocity[:, 1, :, :w]
+        return self.components(velocity)
 
-    def pack(self, u: Tensor, v: Tensor) -> Tensor:
+    @staticmethod
+    def components(velocity: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`split` of any staggered velocity ``(..., 2, h + 1, w + 1)``, with no grid built: for the grid
+        operators, called several times per step on velocities whose grid they do not hold."""
+        return velocity[..., 0, :-1, :], velocity[..., 1, :, :-1]
+
+    @staticmethod
+    def pack(u: Tensor, v: Tensor) -> Tensor:
         """Inverse of :meth:`split`: ``(B, 2, h + 1, w + 1)`` with zero padding."""
         return torch.stack([F.pad(u, (0, 0, 0, 1)), F.pad(v, (0, 1))], dim=1)
 
