@@ -24,7 +24,7 @@ WORKLOADS = r"""
 import json, sys, time, warnings
 import torch
 warnings.simplefilter("ignore")
-torch.set_num_threads(2)
+torch.set_num_threads(int(sys.argv[1]))
 import torchfluidwarp as tfw
 from torchfluidwarp.data import load_sample, load_sample_points
 
@@ -82,10 +82,10 @@ print(json.dumps(out))
 """
 
 
-def run(tree: pathlib.Path) -> dict[str, float]:
-    env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "2", "MPLBACKEND": "Agg"}
+def run(tree: pathlib.Path, threads: int) -> dict[str, float]:
+    env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": str(threads), "MPLBACKEND": "Agg"}
     done = subprocess.run(
-        [sys.executable, "-c", WORKLOADS], cwd=tree, env=env, capture_output=True, text=True, check=False
+        [sys.executable, "-c", WORKLOADS, str(threads)], cwd=tree, env=env, capture_output=True, text=True, check=False
     )
     if done.returncode:
         raise SystemExit(f"workloads failed in {tree}:\n{done.stderr[-3000:]}")
@@ -96,6 +96,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--base", default="2e9f7a8", help="the commit to compare against (default: the flat layout)")
     parser.add_argument("--repeats", type=int, default=5, help="subprocess pairs (old, new) to alternate")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads of each subprocess (default 2)")
     args = parser.parse_args()
     print(machine())
     with tempfile.TemporaryDirectory() as tmp:
@@ -105,7 +106,7 @@ def main() -> None:
             runs: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
             for i in range(args.repeats):
                 for name, tree in (("old", old), ("new", ROOT)):
-                    runs[name].append(run(tree))
+                    runs[name].append(run(tree, args.threads))
                     print(f"pair {i + 1}/{args.repeats} {name} done", flush=True)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)], check=False)
@@ -114,7 +115,7 @@ def main() -> None:
         o = statistics.median(r[key] for r in runs["old"])
         n = statistics.median(r[key] for r in runs["new"])
         rows.append([key, f"{1000 * o:.1f}", f"{1000 * n:.1f}", f"{n / o:.2f}"])
-    print(f"base {args.base} vs this checkout, median of {args.repeats} subprocesses each (ms)")
+    print(f"base {args.base} vs this checkout, {args.threads} threads, median of {args.repeats} subprocesses each (ms)")
     print(table(["workload", f"old ({args.base})", "new", "new / old"], rows))
     print(describe_load(machine_load()))
 
