@@ -168,13 +168,13 @@ def response_lags(warp: FluidWarp, viscosity: float) -> int:
     return 1 if viscosity == 0 and warp.simulator.step.keep_divergence in (0.0, 1.0) else warp.steps
 
 
-def _velocity_and_gradient(grid: StaggeredGrid, velocity: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+def _velocity_and_gradient(grid: StaggeredGrid, extended: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
     """Velocity ``(N, M, 2)`` and its gradient ``(N, M, 2, 2)`` (``[..., i, j] = d v_i / d x_j``, central
-    differences over half a cell) of ``velocity`` ``(N, 2, h + 1, w + 1)`` at points ``(N, M, 2)`` in cells.
-    Unchecked: internal, on the roll-outs' finite velocities and points."""
+    differences over half a cell) at points ``(N, M, 2)`` in cells, of velocities ``(N, 2, h + 1, w + 1)``
+    given as ``grid.extend`` of them. Unchecked: internal, on the roll-outs' finite velocities and points."""
     M = points.shape[1]
     e = points.new_tensor([[0.0, 0.0], [0.5, 0.0], [-0.5, 0.0], [0.0, 0.5], [0.0, -0.5]])
-    at = grid.velocity_at(grid.extend(velocity), (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2))
+    at = grid.velocity_at(extended, (points.unsqueeze(1) + e.view(1, 5, 1, 2)).flatten(1, 2))
     at = at.unflatten(1, (5, M))
     grad = torch.stack([at[:, 1] - at[:, 2], at[:, 3] - at[:, 4]], dim=-1)  # the offsets are one cell apart
     return at[:, 0], grad
@@ -210,7 +210,7 @@ def model_jacobian(
     grid = StaggeredGrid.of(velocities)
     c = scale_factor(size, grid.grid.shape, device=paths.device, dtype=paths.dtype)
     p = rescale_points(paths[:, :-1].flatten(0, 1), c)  # (B T, M, 2): where each step starts, cells
-    flow = velocities.flatten(0, 1)
+    flow = grid.extend(velocities.flatten(0, 1))  # once, for the starting points and the midpoints
     vp, gp = _velocity_and_gradient(grid, flow, p)
     mid = p + 0.5 * dt * vp
     _, gm = _velocity_and_gradient(grid, flow, mid)

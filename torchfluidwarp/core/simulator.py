@@ -233,6 +233,9 @@ class FluidSimulator(nn.Module):
         self.layout = StaggeredGrid(self.grid)  # the staggered layout and its constants, held with the simulator
         self.dt = check_positive("dt", dt)
         self.step = StableFluidsStep(dt, **step)
+        for module in (self.step.advect, self.step.diffuse, self.step.project):
+            if module is not None:  # the step's modules share this grid's constants and spectral bases
+                module._layout = self.layout
         self.graphs = StepGraphs(self.step) if cuda_graphs else None
         self.viscosity: Viscosity | nn.Module
         if isinstance(viscosity, (nn.Module, nn.Parameter)):
