@@ -7,7 +7,9 @@ fluid's :class:`~torchfluidwarp.morph.MorphResult`, or a thin-plate-spline or De
 * **folds**: map pixels whose Jacobian determinant is ``<= 0`` (:func:`folded_pixels`, per frame);
 * **landmark error** at the last frame (``result.error``, in the frames' pixels) and the **held-out error**: where
   A's held-out points show in the last frame against B's (:func:`end_error`);
-* **ghosting**: how far apart A's and B's copies of a point show in the middle frame (:func:`ghosting`);
+* **ghosting**: how far apart A's and B's copies of a point show in the middle frame (:func:`ghosting`), and
+  the same seen in the pixels with no points: the local displacement between A and B warped to the middle frame
+  (:func:`image_ghosting`);
 * **seam figure**: a high quantile of the map's second derivative (:func:`seam_figure`);
 * **path smoothness**: the distance between neighbouring frames, its total and its variance
   (:func:`path_distances`, :func:`path_smoothness`): a perceptual-path-length-style measure without a network.
@@ -18,6 +20,7 @@ pixel centres at integers, as :func:`~torchfluidwarp.warp.warp_image` reads them
 not converge to within ``tolerance`` source pixels (carried out of the frame, say) is reported as not located.
 """
 
+from torchfluidwarp.metrics.ghost import GHOST_SIDE, GHOST_TEXTURE, GHOST_WINDOW, image_ghosting
 from torchfluidwarp.metrics.maps import SEAM_QUANTILE, folded_pixels, seam_figure
 from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
 from torchfluidwarp.metrics.points import (
@@ -32,6 +35,9 @@ from torchfluidwarp.metrics.points import (
 from torchfluidwarp.metrics.report import Morph, morph_folds, morph_path, morph_report
 
 __all__ = [
+    "GHOST_SIDE",
+    "GHOST_TEXTURE",
+    "GHOST_WINDOW",
     "LOCATE_TOLERANCE",
     "Morph",
     "PathKind",
@@ -39,6 +45,7 @@ __all__ = [
     "end_error",
     "folded_pixels",
     "ghosting",
+    "image_ghosting",
     "invert_map_at",
     "landmark_error",
     "locate",

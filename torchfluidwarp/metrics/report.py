@@ -14,6 +14,7 @@ from torchfluidwarp._checks import check_int, check_tensor
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.metrics.ghost import image_ghosting
 from torchfluidwarp.metrics.maps import folded_pixels, seam_figure
 from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
 from torchfluidwarp.metrics.points import end_error, ghosting
@@ -32,24 +33,31 @@ class Morph(Protocol):
 
     def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]: ...
 
-    def render(self, ts: Sequence[float]) -> Any: ...  # MorphFrames: frames, maps_a, maps_b (n, ...)
+    def render(self, ts: Sequence[float]) -> Any: ...  # MorphFrames: frames, forward, backward, maps_a, maps_b
 
     def frame_ts(self, start: int, stop: int) -> list[float]: ...
 
 
-def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor]]:
-    """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2))`` for each of the ``N`` frames, in order, rendered
-    ``chunk`` frames at a time through the result's public :meth:`render`."""
+def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor, Tensor, Tensor]]:
+    """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2), warped_a (C, H, W), warped_b (C, H, W))`` for each of
+    the ``N`` frames, in order, rendered ``chunk`` frames at a time through the result's public :meth:`render`
+    (``warped_a`` is A warped forward, ``warped_b`` B pulled back)."""
     for start in range(0, len(result), chunk):
         part = result.render(result.frame_ts(start, start + chunk))
-        yield from zip(part.frames.unbind(0), part.maps_a.unbind(0), part.maps_b.unbind(0))
+        yield from zip(
+            part.frames.unbind(0),
+            part.maps_a.unbind(0),
+            part.maps_b.unbind(0),
+            part.forward.unbind(0),
+            part.backward.unbind(0),
+        )
 
 
 def morph_folds(result: Morph, chunk: int = 8) -> tuple[Tensor, Tensor]:
     """Folded pixels per frame of a morph's maps into A and into B (:func:`folded_pixels`), rendered ``chunk``
     frames at a time: ``(N,)`` int64 each."""
     chunk = check_int("chunk", chunk)
-    counts = [(folded_pixels(ma)[0], folded_pixels(mb)[0]) for _, ma, mb in _stream(result, chunk)]
+    counts = [(folded_pixels(ma)[0], folded_pixels(mb)[0]) for _, ma, mb, *_ in _stream(result, chunk)]
     return torch.stack([a for a, _ in counts]), torch.stack([b for _, b in counts])
 
 
@@ -74,6 +82,13 @@ def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
         "of": int(ok.numel()),
         "per_point": [float(x) if bool(o) else None for x, o in zip(d, ok)],
     }
+
+
+def _inside(map1: Tensor, size: tuple[int, int]) -> Tensor:
+    """``(H, W)`` bool: where a map ``(H, W, 2)`` reads inside a picture of ``size`` ``(h, w)`` (between its
+    first and last pixel centres, where bilinear reading holds no edge pixel)."""
+    x, y = map1[..., 0], map1[..., 1]
+    return (x >= 0) & (x <= size[1] - 1) & (y >= 0) & (y <= size[0] - 1)
 
 
 def morph_report(
@@ -102,10 +117,15 @@ def morph_report(
     Returns:
         ``{"frames", "size": [H, W], "mid_frame", "mid_t", "folds": {"a", "b": per-frame counts, "total",
         "fraction"}, "landmark_error_px": {"mean", "max", "per_point"}, "marked": {"end", "ghost"}, "held_out":
-        {"end", "ghost"} or None, "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean",
-        "max", "variance"}}``; each ``"end"``/``"ghost"`` holds ``mean``, ``median``, ``max`` (pixels of the
-        frame; ``None`` when no point was located), ``located``, ``of`` and ``per_point``. The middle frame is
-        ``N // 2``; "end" is measured in the last frame, "ghost" in the middle one.
+        {"end", "ghost"} or None, "image_ghost": {"median", "p90", "mean", "covered", "textured", "scale"},
+        "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean", "max", "variance"}}``; each
+        ``"end"``/``"ghost"`` holds ``mean``, ``median``, ``max`` (pixels of the frame; ``None`` when no point was
+        located), ``located``, ``of`` and ``per_point``. The middle frame is ``N // 2``; "end" is measured in the
+        last frame, "ghost" in the middle one. ``"image_ghost"`` is the ghosting seen in the middle frame's
+        pixels, with no points (:func:`~torchfluidwarp.metrics.image_ghosting`): how far apart A's and B's
+        structures stand there, from A warped forward and B pulled back, over the pixels both maps read inside
+        their picture (``"covered"``, a fraction of the frame) and where both show structure (``"textured"``);
+        ``median``, ``p90`` and ``mean`` are in the frame's pixels (``None`` when nothing is textured).
     """
     check_tensor("image_a", image_a)
     check_tensor("image_b", image_b)
@@ -118,13 +138,18 @@ def morph_report(
     folds_a: list[int] = []
     folds_b: list[int] = []
     kept: dict[int, tuple[Tensor, Tensor]] = {}
+    image_ghost: dict[str, Any] = {}
+    size_b = (image_b.shape[-2], image_b.shape[-1])
 
     def frames() -> Iterator[Tensor]:
-        for k, (frame, ma, mb) in enumerate(_stream(result, chunk)):
+        for k, (frame, ma, mb, fa, fb) in enumerate(_stream(result, chunk)):
             folds_a.append(int(folded_pixels(ma)[0]))
             folds_b.append(int(folded_pixels(mb)[0]))
             if k in (mid, n - 1):
                 kept[k] = (ma.detach().cpu(), mb.detach().cpu())
+            if k == mid:  # measured now, while the chunk holds the warped pictures
+                both = _inside(ma.detach(), size) & _inside(mb.detach(), size_b)
+                image_ghost.update(image_ghosting(fa.detach(), fb.detach(), both))
             yield frame
 
     distances = path_distances(frames(), path)
@@ -161,6 +186,7 @@ def morph_report(
         },
         "marked": figures["marked"],
         "held_out": figures.get("held_out"),
+        "image_ghost": image_ghost,
         "seam": {"a": seam_a, "b": seam_b, "max": max(seam_a, seam_b)},
         "path": {"kind": path, "distances": distances.tolist(), **path_smoothness(distances)},
     }
