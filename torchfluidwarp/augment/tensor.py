@@ -2,7 +2,8 @@
 
 One call draws random brush forces per sample (how many brushes, how strong, how wide, for how many steps),
 rolls the fluid out once for the whole batch (:mod:`~torchfluidwarp.augment.draw`), and then moves every input
-of the call through that same flow (:mod:`~torchfluidwarp.augment.carry`):
+of the call through that same flow (:mod:`~torchfluidwarp.augment.carry`). With ``p < 1`` each sample is warped
+with probability ``p`` (like torchvision's random transforms), and only the chosen ones are rolled out:
 
 * images are resampled bilinearly through the **backward map** (where each output pixel reads from);
 * masks are resampled by nearest sampling, so label values survive unchanged;
@@ -35,7 +36,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import check_instance, check_tensor, describe
+from torchfluidwarp._checks import check_fraction, check_instance, check_tensor, describe
 from torchfluidwarp.augment.carry import apply_fluid_warp
 from torchfluidwarp.augment.draw import FluidWarpParams, draw_fluid_warp, make_simulator
 from torchfluidwarp.augment.settings import FIELDS, FluidWarpSettings, make_settings, settings_signature
@@ -53,10 +54,11 @@ class FluidWarpAugment(nn.Module):
     (:class:`~torchfluidwarp.augment.transforms.RandomFluidWarp`), which draws through this module.
 
     The draw happens once per call (:meth:`make_params`), and all inputs of the call share it. The whole batch is
-    rolled out in one :class:`~torchfluidwarp.warp.layer.FluidWarp` call with per-sample forces, on the input's
-    device and in its floating dtype (float32 for integer images); each sample's warp depends on its own brushes
-    only. A seed fixes the warps of a call for its batch size: sample ``b`` of a batch is not the warp that
-    the ``b``-th of a run of single-image calls would draw (see :func:`~torchfluidwarp.augment.draw.draw_fluid_warp`).
+    rolled out in one call of the module's :class:`~torchfluidwarp.core.simulator.FluidSimulator` (made once, with
+    the module) with per-sample forces, on the input's device and in its floating dtype (float32 for integer
+    images); each sample's warp depends on its own brushes only. A seed fixes the warps of a call for its batch
+    size: sample ``b`` of a batch is not the warp that the ``b``-th of a run of single-image calls would draw (see
+    :func:`~torchfluidwarp.augment.draw.draw_fluid_warp`).
 
     Args:
         count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries: the settings, by name
@@ -64,6 +66,10 @@ class FluidWarpAugment(nn.Module):
             :class:`~torchfluidwarp.augment.settings.FluidWarpSettings`; ranges are ``(min, max)`` or a number.
         settings: a ready :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` instead; settings given by
             name next to it replace its fields.
+        p: the probability that a sample is warped, in ``[0, 1]``, like ``p`` of torchvision's random transforms
+            but drawn per sample of the batch (with ``generator``). The chosen samples are rolled out together; the
+            others come back as they were given, and so do all inputs when none is chosen. With ``p = 1`` (the
+            default) nothing is drawn for it, so a seed gives the same warps as without it.
         generator: a ``torch.Generator`` for the draws; ``None`` uses torch's default RNG (which ``DataLoader``
             seeds in each worker from its base seed). In a ``DataLoader`` worker a generator is replaced, on the
             first draw there, by a fresh one seeded from its ``initial_seed()`` and the worker's seed
@@ -75,11 +81,12 @@ class FluidWarpAugment(nn.Module):
     Attributes:
         settings: the validated :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` (its fields also read
             as attributes of the module, ``aug.strength``).
+        p: the probability that a sample is warped.
 
     Raises:
         TypeError, ValueError: as :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` (a bad range, or a
             setting strong enough to fold, past :data:`~torchfluidwarp.augment.settings.MAX_SHEAR`), naming the
-            argument; a generator that is not one.
+            argument; a ``p`` outside ``[0, 1]``; a generator that is not one.
 
     Folds: within that bound, stacked brushes fold no map unless they are wider than about a tenth of the
     image. Each drawn map is checked anyway (:func:`~torchfluidwarp.augment.draw.min_quad_determinant` on the
@@ -100,6 +107,8 @@ class FluidWarpAugment(nn.Module):
         ...           masks=(image[:, :1] > 0.5), boxes=torch.tensor([[[10.0, 10.0, 30.0, 40.0]]] * 2))
         >>> sorted(out), out["masks"].dtype
         (['boxes', 'image', 'keypoints', 'masks'], torch.bool)
+        >>> FluidWarpAugment(p=0.0)(image) is image  # no sample chosen: the input as it was
+        True
     """
 
     @settings_signature
@@ -107,11 +116,13 @@ class FluidWarpAugment(nn.Module):
         self,
         *ranges: Any,
         settings: FluidWarpSettings | None = None,
+        p: float = 1.0,
         generator: torch.Generator | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__()
         self.settings = make_settings(settings, *ranges, **kwargs)
+        self.p = check_fraction("p", p)
         check_instance("generator", generator, torch.Generator, optional=True)
         self.generator = generator
         self._worker: int | None = None
@@ -125,7 +136,7 @@ class FluidWarpAugment(nn.Module):
         return super().__getattr__(name)
 
     def extra_repr(self) -> str:
-        return self.settings.describe()
+        return self.settings.describe() + ("" if self.p == 1.0 else f", p={self.p}")
 
     def _rng(self) -> torch.Generator | None:
         """The generator for this call; a DataLoader worker re-seeds its own copy once."""
@@ -138,6 +149,15 @@ class FluidWarpAugment(nn.Module):
             self.generator = torch.Generator(self.generator.device).manual_seed(seed)
             self._worker = info.id
         return self.generator
+
+    def _chosen(self, batch: int) -> Tensor | None:
+        """The samples of a batch that this call warps, ``(k,)`` indices in order on the generator's device (the
+        CPU without one), each drawn with probability ``p``; ``None`` when ``p`` is 1 (all of them, nothing drawn)."""
+        if self.p == 1.0:
+            return None
+        g = self._rng()
+        coins = torch.rand(batch, generator=g, device=g.device if g is not None else torch.device("cpu"))
+        return (coins < self.p).nonzero().flatten()
 
     def make_params(
         self,
@@ -183,7 +203,8 @@ class FluidWarpAugment(nn.Module):
 
         Returns:
             the warped image when only an image is given; otherwise a dict with the keys ``"image"`` and those
-            of the other inputs given.
+            of the other inputs given. With ``p < 1`` the samples not chosen are copied through unchanged, and when
+            none is, the inputs themselves are returned.
 
         Raises:
             TypeError, ValueError: inputs that are not tensors or whose shapes do not match the image.
@@ -218,10 +239,28 @@ class FluidWarpAugment(nn.Module):
         kp = batched("keypoints", keypoints, [None, 2], True)
         mk = batched("masks", masks, [None, H, W], False)
         bx = batched("boxes", boxes, [None, 4], True)
+        given = {k: v for k, v in (("image", img), ("keypoints", kp), ("masks", mk), ("boxes", bx)) if v is not None}
+        chosen = self._chosen(B)
+        if chosen is not None and chosen.numel() == 0:  # nothing to warp: the inputs as they came
+            as_given = {"image": image, "keypoints": keypoints, "masks": masks, "boxes": boxes}
+            return image if len(given) == 1 else {k: v for k, v in as_given.items() if v is not None}
+        if chosen is not None and chosen.numel() < B:  # roll out the chosen samples only
+            pick = {k: v.index_select(0, chosen.to(v.device)) for k, v in given.items()}
+        else:
+            pick, chosen = given, None
         dtype = img.dtype if img.is_floating_point() else torch.float32
-        params = self.make_params(B, (H, W), device=img.device, dtype=dtype)
+        params = self.make_params(pick["image"].shape[0], (H, W), device=img.device, dtype=dtype)
         edge_points = self.settings.edge_points
-        out = apply_fluid_warp(params, img, keypoints=kp, masks=mk, boxes=bx, edge_points=edge_points)
+        out = apply_fluid_warp(
+            params,
+            pick["image"],
+            keypoints=pick.get("keypoints"),
+            masks=pick.get("masks"),
+            boxes=pick.get("boxes"),
+            edge_points=edge_points,
+        )
+        if chosen is not None:  # the others as they were given
+            out = {k: given[k].index_copy(0, chosen.to(v.device), v) for k, v in out.items()}
         if unbatched:
             out = {k: v.squeeze(0) for k, v in out.items()}
         return out["image"] if len(out) == 1 else out
@@ -235,6 +274,7 @@ def random_fluid_warp(
     masks: Tensor | None = None,
     boxes: Tensor | None = None,
     settings: FluidWarpSettings | None = None,
+    p: float = 1.0,
     generator: torch.Generator | None = None,
     **kwargs: Any,
 ) -> Tensor | dict[str, Tensor]:
@@ -250,7 +290,7 @@ def random_fluid_warp(
         keypoints: ``(B, M, 2)`` (``(M, 2)`` unbatched) pixels ``(x, y)``, pixel centres at integers.
         masks: ``(B, K, H, W)`` (``(K, H, W)`` unbatched), any dtype; nearest sampling.
         boxes: ``(B, N, 4)`` (``(N, 4)`` unbatched) ``(x1, y1, x2, y2)`` pixels.
-        count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries, settings, generator: as
+        count, strength, radius, steps, grid, dt, viscosity, edge_points, max_retries, settings, p, generator: as
             for :class:`FluidWarpAugment` (by name only here).
 
     Returns:
@@ -266,5 +306,5 @@ def random_fluid_warp(
         >>> out["image"].shape, out["keypoints"].shape
         (torch.Size([3, 32, 32]), torch.Size([1, 2]))
     """
-    aug = FluidWarpAugment(settings=settings, generator=generator, **kwargs)
+    aug = FluidWarpAugment(settings=settings, p=p, generator=generator, **kwargs)
     return aug(image, keypoints=keypoints, masks=masks, boxes=boxes)

@@ -7,7 +7,8 @@ never does. Reach the transform as ``torchfluidwarp.RandomFluidWarp`` (imported 
 (the tensor-level :class:`~torchfluidwarp.augment.tensor.FluidWarpAugment` draws the warp), never the reverse.
 
 One draw of random forces per call (:meth:`RandomFluidWarp.make_params`) serves every input of the sample,
-each moved by the kernel for its type (:func:`fluid_warp`):
+each moved by the kernel for its type (:func:`fluid_warp`); with ``p < 1`` the draw first decides, with probability
+``p``, whether the sample is warped at all:
 
 ==========================================  =====================================================================
 ``tv_tensors.Image``, ``Video``, plain       resampled bilinearly through the backward map, ``(..., C, H, W)``;
@@ -211,6 +212,9 @@ class RandomFluidWarp(v2.Transform):
             :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` (ranges ``(min, max)`` or a number; the
             grid covers the canvas whatever its size).
         settings: a ready :class:`~torchfluidwarp.augment.settings.FluidWarpSettings` instead.
+        p: the probability that a call warps its sample, in ``[0, 1]`` (torchvision's ``p``, drawn with
+            ``generator``); a call that does not returns its inputs as they came. Default 1: always, and nothing
+            drawn for it.
         generator: ``torch.Generator`` or ``None`` (torch's global RNG, which ``DataLoader`` seeds per worker).
             A generator is pickled into each ``DataLoader`` worker and re-seeded there from its seed and the
             worker's seed, so workers draw different warps; either way a loader seeded with
@@ -256,11 +260,19 @@ class RandomFluidWarp(v2.Transform):
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.sampler.extra_repr()})"
 
+    @property
+    def p(self) -> float:
+        """The probability that a call warps its sample."""
+        return self.sampler.p
+
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
         try:
             size = v2.query_size(flat_inputs)
         except (TypeError, ValueError) as exc:  # torchvision's own message, which names no argument
             raise type(exc)(f"sample: {exc}") from exc
+        chosen = self.sampler._chosen(1)
+        if chosen is not None and chosen.numel() == 0:  # not this time: transform passes every input through
+            return {"fluid": None}
         device, dtype = torch.device("cpu"), torch.float32
         for inpt in flat_inputs:
             if isinstance(inpt, Tensor) and not isinstance(inpt, (tv_tensors.KeyPoints, tv_tensors.BoundingBoxes)):
@@ -270,4 +282,6 @@ class RandomFluidWarp(v2.Transform):
         return {"fluid": self.sampler.make_params(1, size, device=device, dtype=dtype)}
 
     def transform(self, inpt: Any, params: dict[str, Any]) -> Any:
+        if params["fluid"] is None:
+            return inpt
         return fluid_warp(inpt, params["fluid"], edge_points=self.sampler.settings.edge_points)

@@ -21,6 +21,7 @@ and they go when it goes.
 from __future__ import annotations
 
 import math
+from types import ModuleType
 
 import torch
 import torch.nn.functional as F
@@ -61,6 +62,10 @@ class StaggeredGrid:
 
     Args:
         grid: the fluid grid, ``(h, w)`` or an int (square).
+        fused: whether the self-advection, the back-trace and the carry run the fused Triton kernels of
+            :mod:`torchfluidwarp.core.fused`: ``None`` (default) where :func:`~torchfluidwarp.core.fused.usable`
+            says so (CUDA tensors, Triton installed), ``True`` always (CPU tensors under Triton's interpreter, in
+            the tests), ``False`` never. The attribute of that name may be changed later.
 
     Example:
         >>> g = StaggeredGrid((4, 6))
@@ -71,8 +76,9 @@ class StaggeredGrid:
         tensor([[[1., 1.]]])
     """
 
-    def __init__(self, grid: FluidGrid | int | tuple[int, int]) -> None:
+    def __init__(self, grid: FluidGrid | int | tuple[int, int], *, fused: bool | None = None) -> None:
         self.grid = FluidGrid.of(grid)
+        self.fused = fused
         self.h, self.w = self.grid.shape
         self._constants: dict[tuple[torch.device, torch.dtype], dict[str, Tensor]] = {}
         self.spectral = SpectralBases()  # the pressure and viscosity solves' transforms, held here too
@@ -184,6 +190,14 @@ class StaggeredGrid:
         index = self.constants(velocity)["extend_index"]
         return velocity.reshape(velocity.shape[0], -1).index_select(1, index).view(-1, 1, self.h + 1, self.w + 1)
 
+    def _fused_kernels(self, *tensors: Tensor) -> ModuleType | None:
+        """:mod:`torchfluidwarp.core.fused` when a call on ``tensors`` runs its kernels (see ``fused``), else None."""
+        if self.fused is False or (self.fused is None and not tensors[0].is_cuda):
+            return None  # the CPU path never imports Triton
+        from torchfluidwarp.core import fused
+
+        return fused if self.fused or fused.usable(*tensors) else None
+
     # ---- the unchecked kernels, points (B, N, 2) in cells ----------------------------------------------------
 
     def velocity_at(self, extended: Tensor, points: Tensor) -> Tensor:
@@ -212,6 +226,9 @@ class StaggeredGrid:
         """Where points ``(B, N, 2)`` came from ``dt`` ago: the explicit midpoint rule (RK2) back along the
         characteristic, clamped into the box (the midpoint needs no clamp: sampling holds the velocity constant
         outside the box)."""
+        kernels = self._fused_kernels(extended, points)
+        if kernels is not None:  # one kernel, one adjoint kernel
+            return kernels.backtrace(extended, points, dt)
         mid = points - (0.5 * dt) * self.velocity_at(extended, points)
         return self.clamp(points - dt * self.velocity_at(extended, mid))
 
@@ -270,7 +287,11 @@ class StaggeredGrid:
         n = self.substeps(ext, dt, max_strain, max_substeps) if n is None else n
         h = dt / n
         points = channel_first(points)
+        kernels = self._fused_kernels(ext, points)
         for _ in range(n):
+            if kernels is not None:  # a sub-step forward is the back-trace over -h: one kernel
+                points = kernels.backtrace(ext, points, -h)
+                continue
             mid = points + (0.5 * h) * self.velocity_at(ext, points)
             points = self.clamp(points + h * self.velocity_at(ext, mid))
         return points
@@ -303,6 +324,9 @@ class StaggeredGrid:
 
     def advect_velocity(self, velocity: Tensor, dt: float) -> Tensor:
         """Self-advection of a staggered velocity (semi-Lagrangian, midpoint back-trace), walls kept at zero."""
+        kernels = self._fused_kernels(velocity)
+        if kernels is not None:  # one kernel, one adjoint kernel
+            return kernels.advect_velocity(velocity, dt)
         h, w = self.h, self.w
         c = self.constants(velocity)
         ext = self.extend(velocity)
