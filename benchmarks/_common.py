@@ -416,10 +416,15 @@ def make_image(size: tuple[int, int], seed: int = 1234) -> Tensor:
 def morph_settings(spec: dict[str, Any] | None = None) -> Any:
     """Typed morph settings from a JSON-like dict: ``"method"`` (``"natural"``, the default, or ``"paper"``) picks
     the class (:data:`torchfluidwarp.morph.settings.METHODS`), the other keys are its fields
-    (``{"method": "paper", "grid": 32, "max_iter": 20}``)."""
+    (``{"method": "paper", "grid": 32, "max_iter": 20}``); ``"dense"`` may be a dict of
+    :class:`~torchfluidwarp.correspond.halfway.HalfwaySettings` fields."""
+    from torchfluidwarp.correspond.halfway import HalfwaySettings
     from torchfluidwarp.morph.settings import METHODS
 
     spec = dict(spec or {})
+    if isinstance(spec.get("dense"), dict):  # {"dense": {"levels": [64, 128], ...}}: the pixels' help
+        dense = {k: tuple(v) if isinstance(v, list) else v for k, v in spec["dense"].items()}
+        spec["dense"] = HalfwaySettings(**dense)
     return METHODS[spec.pop("method", "natural")](**spec)
 
 

@@ -75,7 +75,7 @@ _MORPH_TUNING = (
         "S",
         NON_NEGATIVE,
         "--method natural: weight on the fit's corrections to the points' straight-line velocities, pixels^2 of "
-        "point error per (pixel per step)^2 (default 3)",
+        "point error per (pixel per step)^2 (default 0: the marks are met)",
     ),
     (
         "--smoothness",
@@ -129,6 +129,11 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         p.add_argument(flag, choices=choices, default=choices[0], help=text)
     for flag, metavar, kind, text in _MORPH_TUNING:
         p.add_argument(flag, metavar=metavar, type=kind, default=None, help=text)
+    p.add_argument(
+        "--no-dense",
+        action="store_true",
+        help="--method natural: align only what was marked (skip the pixels' alignment between the marks)",
+    )
     add_result_options(p)
     add_limit_options(p)
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")

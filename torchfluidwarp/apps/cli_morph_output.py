@@ -126,6 +126,10 @@ def morph_settings(args: argparse.Namespace) -> MorphSettings:
             owner = next(m for m, other in METHODS.items() if name in {f.name for f in dataclasses.fields(other)})
             raise InputError(f"--{name.replace('_', '-')} applies to --method {owner}, not --method {method}")
         values[name] = value
+    if getattr(args, "no_dense", False):
+        if "dense" not in fields:
+            raise InputError(f"--no-dense applies to --method natural, not --method {method}")
+        values["dense"] = None
     if hasattr(args, "align"):
         values["align"] = None if args.align == "none" else args.align
     if hasattr(args, "inverse"):

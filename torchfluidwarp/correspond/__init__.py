@@ -11,6 +11,9 @@
   :func:`~torchfluidwarp.correspond.auto.find_points`: the same, with which matcher it used and why.
 * :func:`~torchfluidwarp.correspond.refine.refine_points`: the pixels add pairs to sparse ones, through a flow
   fitted to the images (:func:`~torchfluidwarp.control.images.fit_images`) with the pairs as anchors.
+* :func:`~torchfluidwarp.correspond.halfway.halfway_alignment`: what the marks leave open, aligned by the pixels
+  on the morph's middle frame (local correlation, coarse to fine), as :class:`HalfwaySettings` say; the natural
+  morph does this by default.
 
 Every point is ``(x, y)`` in pixels with pixel centres at integers, as everywhere in the library.
 """
@@ -33,6 +36,7 @@ from torchfluidwarp.correspond.faces import (
     find_faces,
 )
 from torchfluidwarp.correspond.features import match_features
+from torchfluidwarp.correspond.halfway import HalfwayAlignment, HalfwaySettings, halfway_alignment
 from torchfluidwarp.correspond.refine import refine_points
 
 __all__ = [
@@ -40,6 +44,8 @@ __all__ = [
     "FACE_MESH_INDICES",
     "Face",
     "FoundPoints",
+    "HalfwayAlignment",
+    "HalfwaySettings",
     "MatchMode",
     "MatchNotice",
     "NoFaceFound",
@@ -49,6 +55,7 @@ __all__ = [
     "detect_face_points",
     "find_faces",
     "find_points",
+    "halfway_alignment",
     "match_features",
     "refine_points",
 ]

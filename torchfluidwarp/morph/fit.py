@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
@@ -158,6 +159,7 @@ def fit_natural(
     settings: NaturalSettings,
     warm_start: KeyframeFit | None,
     progress: bool,
+    dense: Callable[[Tensor, Tensor], Callable[[Tensor], Tensor]] | None = None,
 ) -> tuple[KeyframeFit, tuple[int, int, int, int]]:
     """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
     :class:`~torchfluidwarp.morph.settings.NaturalSettings`).
@@ -169,6 +171,9 @@ def fit_natural(
         settings: the method's settings.
         warm_start: a previous fit whose kicks' corrections start this one, when their shapes agree.
         progress: tqdm bars.
+        dense: given the marks' midpoints and travels ``(M, 2)`` (A's pixels), the residual travel ``R`` between
+            them, points ``(N, 2)`` -> ``(N, 2)``, A's pixels
+            (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`), which the forces carry.
 
     Returns:
         The fit, in the box's frame, and the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and
@@ -185,7 +190,11 @@ def fit_natural(
     # the ends stay clear of the walls, where the forces fade out
     end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
     mids, disp = (src + end) / 2, end - src
-    forces = LandmarkForces(mids, disp, steps, inside=inside)
+    residual = None
+    if dense is not None:
+        found = dense(mids + offset, disp)
+        residual = lambda p: found(p + offset)  # noqa: E731  (box pixels)
+    forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
         with torch.no_grad():

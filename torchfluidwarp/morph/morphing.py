@@ -17,6 +17,7 @@ the point matching's, each a frozen dataclass whose defaults are the morph's.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -26,7 +27,7 @@ from torchfluidwarp._checks import check_instance, check_int, check_memory, chec
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
-from torchfluidwarp.correspond import auto_points
+from torchfluidwarp.correspond import auto_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural, fit_paper, paper_flows, pose
@@ -323,7 +324,15 @@ def morph(
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb_c)
     if isinstance(settings, NaturalSettings):
-        fit, box = fit_natural(pa_c, target, size, settings, warm_start, progress)
+        dense = None
+        if settings.dense is not None:
+            to_a, to_b = torch.linalg.inv(place_a), torch.linalg.solve(place_b, M.to(place_b))
+            options = settings.dense
+
+            def dense(mids: Tensor, disp: Tensor) -> Callable[[Tensor], Tensor]:
+                return halfway_alignment(a, b, to_a, to_b, size, mids, disp, options)
+
+        fit, box = fit_natural(pa_c, target, size, settings, warm_start, progress, dense)
     else:
         if settings.margin is None:
             box = (0, 0, W, H)

@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import check_int, check_size, check_tensor
@@ -85,6 +86,10 @@ class LandmarkForces(nn.Module):
         inside: optional ``(x0, y0, x1, y1)`` pixels: the forces act fully inside this rectangle and fade to
             zero (a half cosine) at the image's edges, where the fluid's walls are. A morph puts the walls
             outside the picture and the picture inside, so the walls leave no seam.
+        residual: optional ``R``: points ``(N, 2)`` -> ``(N, 2)`` pixels, a correction to the spline's travel
+            between the marks (0 at the marks), so that every particle travels ``x(s) = m + (s - 1/2) (D + R)(m)``;
+            found by the pixels (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`). The kick at step 0
+            carries it; the corrections stay the marks' own.
 
     Example:
         >>> mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
@@ -100,6 +105,7 @@ class LandmarkForces(nn.Module):
         steps: int,
         batch: int = 1,
         inside: tuple[float, float, float, float] | None = None,
+        residual: Callable[[Tensor], Tensor] | None = None,
     ) -> None:
         super().__init__()
         m = check_tensor("midpoints", midpoints, shape=[None, 2])
@@ -113,13 +119,16 @@ class LandmarkForces(nn.Module):
         self.displacements: Tensor
         self.weight = nn.Parameter(torch.zeros(batch, steps, m.shape[0], 2, device=m.device, dtype=m.dtype))
         self.inside = None if inside is None else tuple(float(v) for v in inside)
-        self._basis: dict[tuple, Tensor] = {}  # (T, h w, M) per grid, image size, device and dtype
+        self.residual = residual
+        self._basis: dict[tuple, tuple[Tensor, Tensor]] = {}  # (T, h w, M), (h w, 2) per grid, size, device, dtype
 
     def extra_repr(self) -> str:
         return f"steps={self.weight.shape[1]}, points={self.weight.shape[2]}, inside={self.inside}"
 
-    def basis(self, grid: FluidGrid, image_size: tuple[int, int]) -> Tensor:
-        """``(T, h w, M)``: per step, the points' cardinal splines at each cell's particle, faded toward the walls."""
+    def basis(self, grid: FluidGrid, image_size: tuple[int, int]) -> tuple[Tensor, Tensor]:
+        """``(T, h w, M)``: per step, the points' cardinal splines at each cell's particle, faded toward the walls;
+        and ``(h w, 2)`` pixels: the residual's travel at each cell's particle at step 0, faded likewise (0 without
+        a residual)."""
         key = (grid.shape, image_size, self.midpoints.device, self.weight.dtype)
         if key not in self._basis:
             with torch.inference_mode(False), torch.no_grad():  # kept for later fits that record gradients
@@ -134,15 +143,21 @@ class LandmarkForces(nn.Module):
                     fade = (_fade(cells[:, 0], x0, x1, -0.5, W - 0.5) * _fade(cells[:, 1], y0, y1, -0.5, H - 0.5))[
                         :, None
                     ]
-                travel = tps_fit(mids, disp)  # D
+                spline = tps_fit(mids, disp)  # D
+                residual = self.residual
+                travel = spline if residual is None else (lambda p: spline(p) + residual(p))  # noqa: E731
                 cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
                 T = self.weight.shape[1]
                 rows, at = [], cells
+                extra = torch.zeros_like(cells)
                 for t in range(T):
                     # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
                     at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
                     rows.append(fade * cardinal(at))
-                self._basis[key] = torch.stack(rows).to(self.weight.dtype)
+                    if t == 0 and residual is not None:
+                        extra = fade * residual(at)
+                dtype = self.weight.dtype
+                self._basis[key] = (torch.stack(rows).to(dtype), extra.to(dtype))
         return self._basis[key]
 
     def forward(self, grid: FluidGrid, steps: int, dt: float, image_size: tuple[int, int]) -> Tensor:
@@ -154,5 +169,8 @@ class LandmarkForces(nn.Module):
         v = self.displacements.to(self.weight.dtype) / (T * dt) + self.weight  # (B, T, M, 2) pixels per time unit
         kicks = torch.cat([v[:, :1], v.diff(dim=1)], dim=1)
         to_cells = cell_scale((H, W), g, device=v.device, dtype=v.dtype) / dt
-        field = torch.einsum("tnm,btmc->btcn", self.basis(g, (H, W)), kicks * to_cells)  # (B, T, 2, h w)
+        basis, extra = self.basis(g, (H, W))
+        field = torch.einsum("tnm,btmc->btcn", basis, kicks * to_cells)  # (B, T, 2, h w)
+        if self.residual is not None:  # the residual's kick, at step 0
+            field = field + F.pad((extra.T * to_cells.view(2, 1) / (T * dt)).unsqueeze(0), (0, 0, 0, 0, 0, T - 1))
         return field.reshape(B, T, 2, *g.shape)
