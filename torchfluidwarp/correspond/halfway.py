@@ -136,14 +136,15 @@ def _on_canvas(image: Tensor, from_canvas: Tensor, at: Tensor) -> Tensor:
     the raster is coarser than the picture."""
     size = (image.shape[-2], image.shape[-1])
     grey = image[:, :3].mean(1, keepdim=True) if image.shape[1] in (3, 4) else image[:, :1]
-    inside = torch.ones_like(grey)
     points = apply_alignment(from_canvas, at.reshape(-1, 2)).reshape(at.shape)
     spacing = float((points[1:, :] - points[:-1, :]).norm(dim=-1).mean()) if at.shape[0] > 1 else 1.0
     if spacing > 1.5:  # a coarser raster: average the picture over the raster's footprint first
         k = int(spacing)
         grey = F.avg_pool2d(grey, k, stride=1, padding=k // 2, count_include_pad=False)[..., : size[0], : size[1]]
     g = _normalised(points, size).unsqueeze(0).to(grey.dtype)
-    covered = F.grid_sample(inside, g, mode="bilinear", padding_mode="zeros", align_corners=False)
+    x, y = points[..., 0], points[..., 1]
+    depth = torch.minimum(torch.minimum(x + 0.5, size[1] - 0.5 - x), torch.minimum(y + 0.5, size[0] - 0.5 - y))
+    covered = (depth + 0.5).clamp(0, 1).to(grey.dtype)[None, None]  # 1 inside, 0 a pixel beyond the edge
     return torch.cat([sample(grey, g, align_corners=False, check=None), covered], 1)
 
 
@@ -209,8 +210,8 @@ class _Level:
         half = field.permute(0, 2, 3, 1)[0] / 2  # (h, w, 2)
         ga = _normalised(self.at - half, self.size).unsqueeze(0)
         gb = _normalised(self.at + half, self.size).unsqueeze(0)
-        wa = F.grid_sample(self.ca, ga, mode="bilinear", padding_mode="border", align_corners=False)
-        wb = F.grid_sample(self.cb, gb, mode="bilinear", padding_mode="border", align_corners=False)
+        wa = sample(self.ca, ga, align_corners=False, check=None)  # finite: the travel is a spline plus R
+        wb = sample(self.cb, gb, align_corners=False, check=None)
         valid = (wa[:, 1:] * wb[:, 1:]).detach()
         cost = (1 - local_ncc2(wa[:, :1], wb[:, :1], self.settings.window)) * valid
         return cost.sum() / valid.sum().clamp(min=1), valid
