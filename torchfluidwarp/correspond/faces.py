@@ -7,7 +7,9 @@ in two stages (:func:`find_faces`):
    picture, reduced to at most :data:`DETECTION_SIDE` pixels: the full-range model
    (``face_detection_full_range_sparse.tflite``, for faces down to a few percent of the picture) and the
    short-range model (``face_detection_short_range.tflite``), the latter also on the picture set in a grey
-   margin (:data:`MARGIN`), so that a face that fills the frame is seen whole. Boxes of one face are merged.
+   margin (:data:`MARGIN`), so that a face that fills the frame is seen whole; the full-range model looks again
+   at overlapping squares of the picture (:data:`TILES`), so that a group photo's small faces are seen at twice
+   the size. Boxes of one face are merged.
 2. **Its landmarks.** For each face, a square crop :data:`CROP_SCALE` times the face's box, turned so that the
    eyes are level and resampled to :data:`CROP` pixels (the resolution the mesh model works at), goes through
    the face mesh (``mp.solutions.face_mesh``, ``face_landmark.tflite``); its 468 points are mapped back to the
@@ -35,6 +37,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from types import ModuleType
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -54,6 +57,7 @@ __all__ = [
     "MARGIN",
     "MAX_FACES",
     "MIN_SCORE",
+    "TILES",
     "Chosen",
     "Face",
     "NoFaceFound",
@@ -82,6 +86,10 @@ work at 128 and 192 pixels, so more only costs time)."""
 MARGIN = 0.5
 """The grey margin around the picture on the short-range detector's second look, per side, as a share of the
 picture's longer side: a face that fills the picture then fills a third of it, as the model expects."""
+TILES = 2
+"""The full-range detector's second look: the picture in squares of ``1 / TILES`` of its longer side, each half a
+square from the next. The model reads its input at 192 pixels, so a face a tenth of the picture across is 19
+pixels to it in the whole picture, too few for faces turned or looking down, and twice that in a square."""
 MIN_SCORE = 0.5
 """The detectors' least confidence for a face."""
 CROP = 256
@@ -178,11 +186,10 @@ def _reduced(image: Tensor, side: int) -> Tensor:
     return F.interpolate(image.float(), size=size, mode="bilinear", antialias=True, align_corners=False)
 
 
-def _detect(mp: ModuleType, rgb, model: int, offset: tuple[float, float], scale: float) -> list[_Box]:
-    """One detector's boxes on ``rgb`` ``(h, w, 3)``, in picture pixels: ``picture = offset + scale * rgb``."""
+def _detect(detector, rgb, offset: tuple[float, float], scale: float) -> list[_Box]:
+    """A detector's boxes on ``rgb`` ``(h, w, 3)``, in picture pixels: ``picture = offset + scale * rgb``."""
     h, w = rgb.shape[:2]
-    with mp.solutions.face_detection.FaceDetection(model_selection=model, min_detection_confidence=MIN_SCORE) as fd:
-        found = fd.process(rgb).detections or []
+    found = detector.process(rgb).detections or []
     boxes = []
     for d in found:
         r = d.location_data.relative_bounding_box
@@ -199,6 +206,12 @@ def _detect(mp: ModuleType, rgb, model: int, offset: tuple[float, float], scale:
     return boxes
 
 
+def _starts(n: int, side: int) -> list[int]:
+    """Where squares of ``side`` pixels start along ``n`` pixels, half a square apart, the last at the end."""
+    count = 1 + max(0, math.ceil((n - side) / (side / 2)))
+    return [min(n - side, round(i * side / 2)) for i in range(count)]
+
+
 def _face_boxes(mp: ModuleType, image: Tensor) -> list[_Box]:
     """The faces' boxes in ``image`` ``(1, C, H, W)``, best score first, one per face."""
     H, W = image.shape[-2:]
@@ -210,11 +223,19 @@ def _face_boxes(mp: ModuleType, image: Tensor) -> list[_Box]:
         F.pad(torch.from_numpy(rgb).permute(2, 0, 1), (pad, pad, pad, pad), value=128).permute(1, 2, 0).contiguous()
     ).numpy()
     centre = (scale - 1) / 2  # pixel centres: picture x = scale * (x_small + 0.5) - 0.5
-    boxes = (
-        _detect(mp, rgb, 1, (centre, centre), scale)
-        + _detect(mp, rgb, 0, (centre, centre), scale)
-        + _detect(mp, padded, 0, (centre - scale * pad, centre - scale * pad), scale)
-    )
+    h, w = rgb.shape[:2]
+    side = math.ceil(max(h, w) / TILES)
+    th, tw = min(h, side), min(w, side)
+    detector = mp.solutions.face_detection.FaceDetection  # opened once per model: an opening costs about 3 looks
+    with detector(model_selection=1, min_detection_confidence=MIN_SCORE) as full:
+        boxes = _detect(full, rgb, (centre, centre), scale)
+        for y0 in _starts(h, th):
+            for x0 in _starts(w, tw):
+                tile = np.ascontiguousarray(rgb[y0 : y0 + th, x0 : x0 + tw])
+                boxes += _detect(full, tile, (centre + scale * x0, centre + scale * y0), scale)
+    with detector(model_selection=0, min_detection_confidence=MIN_SCORE) as short:
+        boxes += _detect(short, rgb, (centre, centre), scale)
+        boxes += _detect(short, padded, (centre - scale * pad, centre - scale * pad), scale)
     kept: list[_Box] = []
     for box in sorted(boxes, key=lambda b: b.score, reverse=True):
         if all(box.iou(other) <= _SAME_FACE for other in kept):
