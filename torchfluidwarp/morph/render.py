@@ -21,43 +21,159 @@ from torchfluidwarp.morph.settings import FEATHER, InverseMethod
 from torchfluidwarp.warp.frames import identity_map, jacobian_determinant, sample_map
 from torchfluidwarp.warp.maps import backward_maps, raster_displacements, read_displacement, upsample_raster
 
+EDGE_DEPTH = 4.0
+"""The hand-over band inside a picture's edge is at most this many times as wide as the strip of the canvas that
+the picture leaves uncovered beyond that edge (and at most the feather): an edge that only just enters the canvas
+hands over in a band that grows with the strip, instead of one that appears at the feather's full width."""
 
-def _coverage(coords: Tensor, det: Tensor, size: tuple[int, int], feather: float = FEATHER) -> Tensor:
-    """``(1, 1, H, W)`` in ``[0, 1]``: 1 where a map ``(1, H, W, 2)`` reads at least ``feather`` output pixels
-    inside an image of ``size``, falling linearly to 0 at its edge (and 0 beyond). Distances in the image are
-    converted to output pixels by the map's local scale, ``sqrt |det J|`` source pixels per output pixel, from the
-    map's Jacobian determinant ``det`` ``(1, H, W)``."""
-    H, W = size
-    x, y = coords[..., 0], coords[..., 1]
-    inside = torch.minimum(torch.minimum(x + 0.5, W - 0.5 - x), torch.minimum(y + 0.5, H - 0.5 - y))
-    scale = det.abs().clamp(min=1e-12).sqrt()
+EDGE_SHARE = 0.25
+"""The hand-over band inside a side of a picture is at most this fraction of the picture's extent across that side
+in the output (its width for the left and right sides, its height for the top and bottom), so that a picture drawn
+small on the canvas still shows, not only its bands."""
+
+
+FACING = 8
+"""How the distance from an edge to the canvas's border behind it weighs the canvas's two borders that the edge's
+normal heads for: by the cosine of the angle between them to this power. The border the edge faces counts almost
+alone; near 45 degrees the two are averaged, so the weight moves smoothly from one to the other."""
+
+EDGE_MIRROR = 0.5
+"""A strip of the canvas that a picture leaves uncovered beyond one of its sides, narrower than this fraction of the
+feather, is filled by the picture itself mirrored about that side (fully as the strip's width goes to 0, not at all
+from this width on): a thin strip of the other picture along a border would show as a line. The width counts in
+the picture's pixels too where the canvas shows the picture shrunk, so that no more than this much of the picture
+is ever shown mirrored (where the map squeezes a picture, its distances beyond the edge are the least certain)."""
+
+
+def _smoothstep(t: Tensor) -> Tensor:
+    """``3 t^2 - 2 t^3`` of ``t`` clamped to ``[0, 1]``: a ramp whose slope is 0 at both ends, so that neither end
+    of a hand-over band shows as a kink."""
+    t = t.clamp(0, 1)
+    return t * t * (3 - 2 * t)
+
+
+def _coverage(
+    coords: Tensor, size: tuple[int, int], canvas: tuple[int, int], top: int, feather: float = FEATHER
+) -> tuple[Tensor, Tensor]:
+    """How far a frame may show the picture of ``size`` ``(h, w)`` that a map ``(1, n, W, 2)`` reads, the map
+    covering rows ``top .. top + n - 1`` of a canvas of ``canvas`` ``(H, W)``.
+
+    Each side of the picture (left, right, top, bottom) is measured on its own, in output pixels: its distance
+    ``d`` is how far inside that side the map reads divided by the map's stretch across it (the norm of the output
+    gradient of the read point's ``x`` for the left and right sides, of ``y`` for the top and bottom), and the
+    direction towards it, ``u``, is that gradient's. The side's edge lies inside the canvas by ``depth = t - d``,
+    ``t`` being the distance along ``u`` to the canvas's border behind the edge: the distances ``b_x / |u_x|`` and
+    ``b_y / |u_y|`` to the two borders ``u`` heads for, weighted by ``|u_x|^k`` and ``|u_y|^k`` (:data:`FACING`),
+    so that a border the edge only grazes near a corner of the canvas does not cut the strip short.
+    Where ``depth > 0`` the coverage ramps from 0 at the edge to 1 at
+    ``min(feather, EDGE_DEPTH * depth, EDGE_SHARE * extent)`` inside (:func:`_smoothstep`), ``extent`` being the
+    picture's extent across the side in output pixels. A side whose edge lies on or beyond the canvas's border
+    does not show in the frame and covers fully: a picture that fills the canvas keeps the plain dissolve up to
+    the canvas's border. A side whose edge lies only just inside covers nearly fully, beyond its edge too (the
+    picture is read mirrored there, :func:`_dissolve`): the coverage is ``m + (1 - m) ramp`` with
+    ``m = smoothstep(1 - depth max(1, g) / (EDGE_MIRROR * feather))``, ``g`` the map's stretch across the side
+    (source pixels per output pixel). The picture's coverage is the product over its sides.
+
+    Returns:
+        ``(coverage, inside)``: ``(1, 1, n, W)`` in ``[0, 1]`` and the distance inside the nearest side,
+        ``(1, n, W)`` output pixels (negative beyond it).
+    """
+    h, w = size
+    H, W = canvas
+    d_row, d_col = torch.gradient(coords[0], dim=(0, 1))  # (n, W, 2): d/d(row) and d/d(column) of the read point
+    cols = torch.arange(W, device=coords.device, dtype=coords.dtype).view(1, 1, W)
+    rows = torch.arange(top, top + coords.shape[1], device=coords.device, dtype=coords.dtype).view(1, -1, 1)
+    coverage = torch.ones_like(coords[..., 0])  # (1, n, W)
+    inside = torch.full_like(coverage, float("inf"))
+    for axis, extent_src in ((0, w), (1, h)):  # the left and right sides, then the top and bottom
+        grad = torch.stack([d_col[..., axis], d_row[..., axis]], -1)[None]  # (1, n, W, 2): output gradient
+        norm = grad.norm(dim=-1).clamp(min=1e-12)
+        ux, uy = grad[..., 0] / norm, grad[..., 1] / norm
+        extent = extent_src / norm  # the picture's width (or height) in output pixels
+        for sign, to_edge in ((-1, coords[..., axis] + 0.5), (1, extent_src - 0.5 - coords[..., axis])):
+            d = to_edge / norm  # output pixels inside this side
+            inside = torch.minimum(inside, d)
+            if feather <= 0:
+                continue
+            vx, vy = sign * ux, sign * uy  # the output direction towards this side's edge
+            # the distances to the canvas's borders on the far side of the edge, along that direction, weighted by
+            # how squarely the edge faces each (cos^FACING): the one it faces counts, one it only grazes does not
+            ax, ay = vx.abs().clamp(min=1e-6), vy.abs().clamp(min=1e-6)
+            fx, fy = ax.pow(FACING), ay.pow(FACING)
+            to_x = torch.where(vx < 0, cols + 0.5, W - 0.5 - cols) / ax
+            to_y = torch.where(vy < 0, rows + 0.5, H - 0.5 - rows) / ay
+            depth = ((fx * to_x + fy * to_y) / (fx + fy) - d).clamp(min=0)  # how far inside the canvas the edge lies
+            band = torch.minimum(EDGE_DEPTH * depth, EDGE_SHARE * extent).clamp(max=feather, min=1e-12)
+            # a strip beyond the edge that is thin on the canvas and in the picture: the picture mirrored
+            mirror = _smoothstep(1 - depth * norm.clamp(min=1) / (EDGE_MIRROR * feather))
+            coverage = coverage * (mirror + (1 - mirror) * _smoothstep(d / band))
     if feather <= 0:  # no band: the hand-over happens at the edge itself
-        return (inside >= 0).to(coords.dtype).unsqueeze(1)
-    return (inside / (scale * feather)).clamp(0, 1).unsqueeze(1)
+        return (inside >= 0).to(coords.dtype).unsqueeze(1), inside
+    return coverage.unsqueeze(1), inside
+
+
+def _reflect(coords: Tensor, size: tuple[int, int]) -> Tensor:
+    """Read points ``(..., 2)`` beyond a picture of ``size`` mirrored back into it about its border (pixel centres
+    at integers: the border is at ``-0.5`` and ``w - 0.5``), so that what is shown beyond the edge continues the
+    picture's own content instead of holding its edge pixels."""
+    h, w = size
+    span = coords.new_tensor([w, h])
+    u = torch.remainder(coords + 0.5, 2 * span)
+    return torch.where(u < span, u, 2 * span - u) - 0.5
+
+
+def _mirrored(image: Tensor, frame: Tensor, coords: Tensor, size: tuple[int, int], where: Tensor) -> Tensor:
+    """``frame`` ``(1, C, n, W)`` (``image`` read at ``coords`` ``(1, n, W, 2)``) with the pixels ``where``
+    ``(1, n, W)`` read again at :func:`_reflect`'s mirrored points."""
+    if not bool(where.any()):
+        return frame
+    mirrored = read(image, _reflect(coords[where], size).view(1, 1, -1, 2), size)  # (1, C, 1, P)
+    out = frame.clone()
+    out[0][:, where[0]] = mirrored[0, :, 0]
+    return out
+
+
+BEYOND_SHARPNESS = 4.0
+"""Where neither picture covers a pixel, the weights of the two follow the inverse of how far beyond its edge each
+is read, to this power: the one read nearer its own interior takes over within a short distance of where the two
+are equally far out (the weights there are the colour's schedule)."""
 
 
 def _dissolve(
+    images: tuple[Tensor, Tensor],
     fa: Tensor,
     fb: Tensor,
     map_a: Tensor,
     map_b: Tensor,
-    det_a: Tensor,
-    det_b: Tensor,
     w: float,
-    size: tuple[int, int],
+    sizes: tuple[tuple[int, int], tuple[int, int]],
+    canvas: tuple[int, int],
+    top: int,
     feather: float = FEATHER,
-    size_b: tuple[int, int] | None = None,
 ) -> Tensor:
-    """Cross-dissolve ``(1 - w) fa + w fb``, except near and beyond an image's edge.
+    """Cross-dissolve ``(1 - w) fa + w fb``, except where a picture's edge shows in the canvas.
 
-    Beyond it, sampling holds the edge pixels and smears them into streaks (the pre-alignment can reach far beyond
-    the other image), and at it the picture ends in a line; so the weight moves toward the image that is read
-    further inside, ``w' = w c_b / ((1 - w) c_a + w c_b)`` with the coverages ``c`` of :func:`_coverage`. Where both
-    read at least ``feather`` output pixels inside, or both beyond, it is ``w``.
+    ``fa`` and ``fb`` ``(1, C, n, W)`` are ``images`` A and B read at ``map_a`` and ``map_b`` ``(1, n, W, 2)``
+    (each in its picture's pixels, ``sizes``), rows ``top ..`` of the ``canvas``. With the coverages ``c_a``,
+    ``c_b`` of :func:`_coverage` and ``r = c_b / c_a``, the weight of B is ``w r`` where ``c_b <= c_a`` and
+    ``1 - (1 - w) / r`` where ``c_b >= c_a``: ``w`` where both cover alike, the picture that covers where only one
+    does, and across a band where one picture's coverage ramps while the other's is full, a hand-over spread
+    evenly over the whole band whatever ``w`` (``w c_b`` inside B's edge, ``1 - (1 - w) c_a`` inside A's). Where
+    neither covers, ``r`` is the ratio of how far beyond its edge each is read, ``(i_a / i_b)^k``
+    (:data:`BEYOND_SHARPNESS`): the picture read nearer its own interior takes over. Where the weight falls on a
+    picture read beyond its edge, that picture is read mirrored about its border (:func:`_reflect`): its content
+    continues there instead of its edge pixels smeared into streaks.
     """
-    ca, cb = _coverage(map_a, det_a, size, feather), _coverage(map_b, det_b, size, feather)
-    den = (1 - w) * ca + w * cb
-    weight = torch.where(den > 0, w * cb / den.clamp(min=1e-12), torch.full_like(den, w))
+    ca, ia = _coverage(map_a, sizes[0], canvas, top, feather)
+    cb, ib = _coverage(map_b, sizes[1], canvas, top, feather)
+    neither = (ca == 0) & (cb == 0)
+    tiny = torch.finfo(ca.dtype).tiny
+    out_a, out_b = (-ia).clamp(min=tiny).unsqueeze(1), (-ib).clamp(min=tiny).unsqueeze(1)  # output pixels beyond
+    ca = torch.where(neither, out_b.pow(BEYOND_SHARPNESS), ca)  # the nearer one's share: the other's distance
+    cb = torch.where(neither, out_a.pow(BEYOND_SHARPNESS), cb)
+    weight = torch.where(cb <= ca, w * cb / ca.clamp(min=tiny), 1 - (1 - w) * ca / cb.clamp(min=tiny))  # (1, 1, n, W)
+    fa = _mirrored(images[0], fa, map_a, sizes[0], (ia < 0) & (weight[:, 0] < 1))
+    fb = _mirrored(images[1], fb, map_b, sizes[1], (ib < 0) & (weight[:, 0] > 0))
     return torch.lerp(fa, fb, weight)
 
 
@@ -223,7 +339,8 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     map_b = apply_alignment(to_b, (z + read_displacement(k, scene.roi, z) + offset).double()).to(a.dtype)
     fa, fb = read(a, map_a, scene.size_a), read(b, map_b, scene.size_b)
     det_a, det_b = jacobian_determinant(map_a), jacobian_determinant(map_b)  # (1, n, W) each
-    frame = _dissolve(fa, fb, map_a, map_b, det_a, det_b, w, scene.size_a, scene.feather, scene.size_b)
+    sizes = (scene.size_a, scene.size_b)
+    frame = _dissolve((a, b), fa, fb, map_a, map_b, w, sizes, (H, W), lo, scene.feather)
     mine = slice(rows[0] - lo, rows[1] - lo)  # the band's own rows
     frame, fa, fb, map_a, map_b = frame[:, :, mine], fa[:, :, mine], fb[:, :, mine], map_a[:, mine], map_b[:, mine]
     if scene.masks is not None:  # the region, carried by each image's map, shows the morph; the rest the background

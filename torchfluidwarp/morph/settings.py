@@ -63,7 +63,8 @@ InverseMethod = Literal["flow", "paper"]
 FEATHER = 64.0
 """Output pixels: the cross-dissolve hands a frame over to the other image within this distance inside an
 image's edge (:class:`Blending`), so neither image's edge, nor the edge pixels that sampling smears beyond it,
-shows as a line."""
+shows as a line. At most: the band is narrower where the picture is drawn small or its edge only just enters the
+canvas, and an edge on the canvas's border has none (:mod:`~torchfluidwarp.morph.render`)."""
 
 MAX_MARGIN = 10.0
 """The largest :attr:`PaperSettings.margin`: a box ten times the points' extent on each side already holds a fluid
