@@ -132,15 +132,18 @@ def _normalised(points: Tensor, size: tuple[int, int]) -> Tensor:
 
 def _on_canvas(image: Tensor, from_canvas: Tensor, at: Tensor) -> Tensor:
     """``image`` ``(1, C, H_i, W_i)`` read at canvas points ``at`` ``(h, w, 2)`` through ``from_canvas`` ``(3, 3)``
-    (canvas pixels to the picture's), as grey plus a coverage channel, ``(1, 2, h, w)``; antialiased first when
-    the raster is coarser than the picture."""
+    (canvas pixels to the picture's), as grey plus a coverage channel, ``(1, 2, h, w)`` float64. Where the raster
+    is coarser than the picture, the picture is first shrunk (antialiased) until the raster's spacing is about a
+    pixel of it: the cost and memory follow the raster, not the picture (a 6000-pixel photograph is read from a
+    copy of a few hundred pixels)."""
     size = (image.shape[-2], image.shape[-1])
     grey = image[:, :3].mean(1, keepdim=True) if image.shape[1] in (3, 4) else image[:, :1]
     points = apply_alignment(from_canvas, at.reshape(-1, 2)).reshape(at.shape)
     spacing = float((points[1:, :] - points[:-1, :]).norm(dim=-1).mean()) if at.shape[0] > 1 else 1.0
-    if spacing > 1.5:  # a coarser raster: average the picture over the raster's footprint first
-        k = int(spacing)
-        grey = F.avg_pool2d(grey, k, stride=1, padding=k // 2, count_include_pad=False)[..., : size[0], : size[1]]
+    if spacing > 1.5:  # the same [-1, 1] coordinates read the shrunk copy at the same places
+        small = (max(2, round(size[0] / spacing)), max(2, round(size[1] / spacing)))
+        grey = F.interpolate(grey, size=small, mode="bilinear", antialias=True, align_corners=False)
+    grey = grey.double()
     g = _normalised(points, size).unsqueeze(0).to(grey.dtype)
     x, y = points[..., 0], points[..., 1]
     depth = torch.minimum(torch.minimum(x + 0.5, size[1] - 0.5 - x), torch.minimum(y + 0.5, size[0] - 0.5 - y))
@@ -196,8 +199,8 @@ class _Level:
         self.unit = max(size) / 100.0
         self.D = travel(self.at.reshape(-1, 2)).reshape(h, w, 2).permute(2, 0, 1).unsqueeze(0)
         self.control = (max(2, round(h / settings.cell)), max(2, round(w / settings.cell)))
-        self.ca = _on_canvas(image_a.double(), from_a.double(), self.at)
-        self.cb = _on_canvas(image_b.double(), from_b.double(), self.at)
+        self.ca = _on_canvas(image_a, from_a.double(), self.at)
+        self.cb = _on_canvas(image_b, from_b.double(), self.at)
         self.near = _near_marks(self.at, mids, settings.reach).to(self.D.dtype)
         self.floor = min(MIN_AREA, float(least_area(self.D, self.spacing).min()))  # the marks' squeeze is theirs
 

@@ -230,7 +230,8 @@ def _uint8_stream(frames: Tensor | Iterable[Tensor]) -> Iterator[np.ndarray]:
     """Frames as ``(H, W, C)`` uint8 arrays of one size, one at a time; the first is checked before this returns.
 
     A tensor ``(T, C, H, W)`` is validated (and converted) whole; an iterable's ``(C, H, W)`` frames are
-    validated one by one as ``frames[k]``.
+    validated one by one as ``frames[k]``, and each float frame is let go once converted, before the next one is
+    asked for (a streamed morph renders it then: a 6000 x 6000 RGB frame is 432 MB as float32).
     """
     if isinstance(frames, Tensor):
         data = _uint8_frames(frames, "frames")
@@ -245,7 +246,21 @@ def _uint8_stream(frames: Tensor | Iterable[Tensor]) -> Iterator[np.ndarray]:
     if first is None:
         raise InputError("frames is empty: an animation needs at least one frame", argument="frames")
     head = _uint8_frame(first, 0, None)
-    return itertools.chain([head], (_uint8_frame(f, k, head.shape) for k, f in enumerate(source, 1)))
+    del first
+    return itertools.chain([head], _uint8_rest(source, head.shape))
+
+
+def _uint8_rest(source: Iterator[object], shape: tuple[int, ...]) -> Iterator[np.ndarray]:
+    """``frames[1:]`` of :func:`_uint8_stream`, converted one at a time; no frame is held while the next one is
+    made (a generator expression would keep its loop variable, the previous float frame, until then, and
+    ``enumerate`` keeps its last item)."""
+    k = 1
+    for frame in source:
+        out = _uint8_frame(frame, k, shape)
+        del frame
+        yield out
+        del out
+        k += 1
 
 
 def _uint8_frame(frame: object, k: int, shape: tuple[int, ...] | None) -> np.ndarray:
@@ -268,6 +283,7 @@ def _write_pngs(folder: Path, frames: Iterator[np.ndarray]) -> None:
     for frame in frames:
         iio.imwrite(folder / f"frame_{count:04d}.png", frame[..., 0] if frame.shape[-1] == 1 else frame)
         count += 1
+        del frame  # not held while the next frame is made
     digits = len(str(count - 1))
     if digits > 4:
         for t in range(count):
@@ -302,9 +318,11 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
     """
     delay_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
     cube: Image.Image | None = None
-    for k, frame in enumerate(frames):
+    first = True
+    for frame in frames:  # not enumerate(frames): it would keep the last frame while the next one is made
         rgb = _rgb(frame)
-        if k == 0:
+        if first:
+            first = False
             h, w = rgb.shape[:2]
             if frame.shape[-1] == 4:
                 cube = _cube_palette()
@@ -319,8 +337,8 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
             extra = {"include_color_table": False, "transparency": TRANSPARENT, "disposal": 2}
         else:
             quantized = Image.fromarray(rgb).quantize(colors=256)
-        for part in GifImagePlugin.getdata(quantized, duration=delay_ms, **extra):
-            fp.write(part)
+        fp.writelines(GifImagePlugin.getdata(quantized, duration=delay_ms, **extra))
+        del frame, rgb, quantized  # none of them held while the next frame is made
     fp.write(b";")
 
 
@@ -373,6 +391,7 @@ def _write_mp4(file: Path, frames: Iterator[np.ndarray], fps: float) -> None:
                 writer.send(None)
             writer.send(np.ascontiguousarray(rgb))
             count += 1
+            del frame, rgb  # not held while the next frame is made
     finally:
         if writer is not None:
             writer.close()

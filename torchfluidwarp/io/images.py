@@ -47,10 +47,10 @@ _LUMA = (0.299, 0.587, 0.114)
 MAX_IMAGE_PIXELS = 2**26
 """The most pixels (``H * W``) that :func:`read_image` and :func:`read_image_bytes` decode unless told otherwise
 (``max_pixels``): 67,108,864, e.g. 8192 x 8192, or a 61-megapixel camera's 9504 x 6336. Such an image takes
-about 1 GiB as a float32 RGBA tensor, and twice that while it is converted. A file whose header claims more is
-refused before its pixels are decoded, so a few bytes that claim gigapixels (a "decompression bomb") cost
-nothing. Pillow also refuses, whatever ``max_pixels`` says, more than twice ``PIL.Image.MAX_IMAGE_PIXELS``
-(about 358 million), and warns above ``PIL.Image.MAX_IMAGE_PIXELS``."""
+about 1 GiB as a float32 RGBA tensor, and a quarter more while it is converted (its 8-bit pixels). A file whose
+header claims more is refused before its pixels are decoded, so a few bytes that claim gigapixels (a
+"decompression bomb") cost nothing. Pillow also refuses, whatever ``max_pixels`` says, more than twice
+``PIL.Image.MAX_IMAGE_PIXELS`` (about 358 million), and warns above ``PIL.Image.MAX_IMAGE_PIXELS``."""
 
 _BOMB_PIXELS = re.compile(r"\((\d+) pixels\)")
 
@@ -300,22 +300,21 @@ def _tensor_from_array(
         array = array[..., None]
     if array.ndim != 3 or not 1 <= array.shape[-1] <= 4:
         raise InputError(f"cannot read {source}: unsupported pixel layout {array.shape}", argument=argument)
-    # channels first while still in the file's dtype (a 6000 x 6000 RGB photo: 108 MB as uint8), then one
-    # conversion to the working float dtype, scaled in place: no float64 or non-contiguous float copy
-    planar = np.ascontiguousarray(array.transpose(2, 0, 1))  # (C, H, W)
-    del array
+    if array.shape[-1] == 2:  # gray + alpha: keep the alpha, as RGBA (repeated in the file's dtype, not in floats)
+        array = array[..., [0, 0, 0, 1]]
+    # One pass from the decoded (H, W, C) pixels, in the file's dtype (a 6000 x 6000 RGB photo: 108 MB as uint8),
+    # into the result's (C, H, W) floats, then scaled in place: the floats are the only full-size copy made, in
+    # the working dtype (float32 unless float64 is asked for), never float64 on the way.
     work = np.float64 if dtype == torch.float64 else np.float32
-    if planar.dtype == np.bool_:
-        values = planar.astype(work)
-    elif np.issubdtype(planar.dtype, np.integer):
-        values = planar.astype(work)
-        values /= work(np.iinfo(planar.dtype).max)
-    else:
-        values = np.clip(np.nan_to_num(planar.astype(np.float64)), 0.0, 1.0).astype(work)
-    del planar
+    values = np.empty((array.shape[2], array.shape[0], array.shape[1]), dtype=work)  # (C, H, W)
+    with np.errstate(over="ignore", invalid="ignore"):  # float64 past float32's range: inf, clipped below
+        np.copyto(values, array.transpose(2, 0, 1), casting="unsafe")
+    if np.issubdtype(array.dtype, np.integer):
+        values /= work(np.iinfo(array.dtype).max)
+    elif array.dtype != np.bool_:  # float pixels clipped to [0, 1], in place: fmax takes NaN to 0, as -inf
+        np.fmax(values, 0.0, out=values)
+        np.fmin(values, 1.0, out=values)
     image = torch.from_numpy(values).unsqueeze(0)  # (1, C, H, W)
-    if image.shape[1] == 2:  # gray + alpha: keep the alpha, as RGBA
-        image = torch.cat([image[:, :1].expand(-1, 3, -1, -1), image[:, 1:]], dim=1)
     return _convert_channels(image, channels).to(dtype).contiguous()
 
 
