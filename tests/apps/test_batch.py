@@ -15,8 +15,9 @@ import pytest
 import torch
 
 from torchfluidwarp.apps import batch
-from torchfluidwarp.apps.batch import morph_pairs, read_pairs
+from torchfluidwarp.apps.batch import morph_pairs, planned_work, read_pairs
 from torchfluidwarp.apps.cli import main
+from torchfluidwarp.apps.cli_args import EXIT_BAD_INPUT, EXIT_OK, work_seconds
 from torchfluidwarp.io import write_image, write_points
 from torchfluidwarp.morph import NaturalSettings
 from torchfluidwarp.morph.result import MorphResult
@@ -103,6 +104,35 @@ def test_batch_output_matches_a_single_morph(tmp_path, gen):
     argv = ["morph", str(data / "a0.png"), str(data / "b0.png"), "--points-a", str(data / "a0.pts")]
     assert main([*argv, "--points-b", str(data / "b0.json"), "-o", str(single), *FAST]) == 0
     np.testing.assert_array_equal(iio.imread(single, index=None), iio.imread(tmp_path / "out/pair0.gif", index=None))
+
+
+def test_a_batch_projected_past_max_minutes_is_refused_before_any_pair_and_a_rerun_counts_what_is_left(
+    tmp_path, gen, capsys
+):
+    pairs = make_pairs(tmp_path / "in", gen, n=2, bad=False)  # two pairs of 32 x 36 pictures
+    out = tmp_path / "out"
+    one = work_seconds(f"{out}/pair0.gif", 4, (3, 32, 36))  # a pair's projection: 4 GIF frames of 36 x 32
+    limit = ["--max-minutes", repr(1.5 * one / 60)]  # room for one pair, not for both
+    argv = ["morph", "--pairs", str(pairs), "--out", f"{out}/", *FAST]
+    # the batch's projection is the sum of its pairs': refused before any pair, with it and the flags that allow it
+    assert main([*argv, *limit]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for words in ("2 pairs of 4 frames each would take at least", "--max-minutes 1", "--no-limit"):
+        assert words in err, err
+    assert not out.exists()  # nothing written, not even the folder
+    # --no-limit starts it
+    assert main([*argv, *limit, "--no-limit"]) == EXIT_OK
+    assert listing(out) == ["failures.csv", "pair0.gif", "pair1.gif", "summary.csv"]
+    capsys.readouterr()
+    # a rerun counts only the pairs it will morph: one left is within the limit, both again (--overwrite) are not
+    (out / "pair1.gif").unlink()
+    assert [target for target, _ in planned_work(pairs, out)] == [f"{out / 'pair1'}.gif"]
+    assert planned_work(pairs, out)[0][1] == (3, 32, 36)  # A's (C, H, W), from its file's header
+    assert main([*argv, *limit]) == EXIT_OK
+    assert "1 morphed, 1 skipped" in capsys.readouterr().err
+    assert main([*argv, *limit, "--overwrite"]) == EXIT_BAD_INPUT
+    assert "2 pairs of 4 frames each" in capsys.readouterr().err
 
 
 def test_read_pairs_reports_bad_rows(tmp_path):

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import imageio.v3 as iio
 import torch
 from torch import Tensor
 from tqdm import tqdm
@@ -48,7 +49,7 @@ from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_
 from torchfluidwarp.morph import Blending, MorphSequence, MorphSettings, NaturalSettings, Timing, morph
 from torchfluidwarp.morph.result import MorphResult
 
-__all__ = ["PairRow", "BatchReport", "read_pairs", "morph_pairs", "stream_frames", "STREAM_BYTES"]
+__all__ = ["PairRow", "BatchReport", "read_pairs", "morph_pairs", "planned_work", "stream_frames", "STREAM_BYTES"]
 
 STREAM_BYTES = 512 * 2**20
 """Bytes of frames (with their maps) rendered at once while streaming a morph: 8 frames, fewer when large."""
@@ -176,10 +177,7 @@ def morph_pairs(
     options = _MorphOptions(settings, frames, timing, blending, max_memory)
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise InputError(FFMPEG_HINT)
-    rank = int(os.environ.get("RANK", 0)) if rank is None else rank
-    world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else world_size
-    if not 0 <= rank < world_size:
-        raise InputError(f"rank must be in [0, world_size), got rank={rank}, world_size={world_size}")
+    rank, world_size = _ranks(rank, world_size)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     rows, bad = read_pairs(pairs)
@@ -189,11 +187,10 @@ def morph_pairs(
     summary = {r["name"]: r for r in _read_csv(summary_path)}
     report = BatchReport(failed=list(bad) if rank == 0 else [])
     device = _device()
-    share = rows[rank::world_size]
-    bar = tqdm(share, unit="pair", desc="pairs" if world_size == 1 else f"pairs (rank {rank})", disable=not progress)
-    for pair in bar:
-        target = f"{folder / pair.name}{'/' if fmt == 'png' else '.' + fmt}"
-        if not overwrite and _exists(Path(target)):
+    plan = _plan(rows, folder, fmt, overwrite, rank, world_size)
+    bar = tqdm(plan, unit="pair", desc="pairs" if world_size == 1 else f"pairs (rank {rank})", disable=not progress)
+    for pair, target, done in bar:
+        if done:
             report.skipped.append(pair.name)
             summary.setdefault(pair.name, {"name": pair.name, "output": target, "status": "exists"})
             continue
@@ -220,6 +217,69 @@ def morph_pairs(
         failures = (dict(zip(FAILURE_FIELDS, f)) for f in report.failed)
         _write_csv(folder / f"failures{suffix}.csv", FAILURE_FIELDS, failures)
     return report
+
+
+def planned_work(
+    pairs: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    fmt: OutputFormat = "gif",
+    overwrite: bool = False,
+    rank: int | None = None,
+    world_size: int | None = None,
+) -> list[tuple[str, tuple[int, int, int]]]:
+    """What :func:`morph_pairs` with the same arguments would write: ``(output, (C, H, W))`` for each pair it would
+    morph, the frames' shape being image A's (the canvas), read from its file's header (no pixels are decoded).
+
+    This process's share of the CSV's good rows, less those a rerun skips (their output exists and not
+    ``overwrite``), less those whose image A cannot be read (they fail when their turn comes, with the reason).
+    Nothing is written: the command line checks the batch's work with it before any pair is morphed.
+
+    Raises:
+        OSError: the CSV cannot be read.
+        ValueError: a bad ``rank`` or ``world_size``.
+    """
+    rank, world_size = _ranks(rank, world_size)
+    rows, _ = read_pairs(pairs)
+    work = []
+    for pair, target, done in _plan(rows, Path(out), fmt, overwrite, rank, world_size):
+        shape = None if done else _frame_shape(pair.image_a)
+        if shape is not None:
+            work.append((target, shape))
+    return work
+
+
+def _ranks(rank: int | None, world_size: int | None) -> tuple[int, int]:
+    """``rank`` and ``world_size``, by default from ``torchrun``'s ``RANK`` and ``WORLD_SIZE`` (0 and 1 without)."""
+    rank = int(os.environ.get("RANK", 0)) if rank is None else rank
+    world_size = int(os.environ.get("WORLD_SIZE", 1)) if world_size is None else world_size
+    if not 0 <= rank < world_size:
+        raise InputError(f"rank must be in [0, world_size), got rank={rank}, world_size={world_size}")
+    return rank, world_size
+
+
+def _plan(
+    rows: list[PairRow], folder: Path, fmt: str, overwrite: bool, rank: int, world_size: int
+) -> list[tuple[PairRow, str, bool]]:
+    """This rank's pairs ``rank, rank + world_size, ...``, each with its output and whether it is done (its output
+    exists and not ``overwrite``: a rerun skips it)."""
+    plan = []
+    for pair in rows[rank::world_size]:
+        target = f"{folder / pair.name}{'/' if fmt == 'png' else '.' + fmt}"
+        plan.append((pair, target, not overwrite and _exists(Path(target))))
+    return plan
+
+
+def _frame_shape(path: Path) -> tuple[int, int, int] | None:
+    """``(C, H, W)`` of the image file at ``path`` from its header, or ``None`` when it cannot be read."""
+    try:
+        with iio.imopen(path, "r") as file:
+            shape = tuple(int(n) for n in file.properties(index=0).shape)
+    except Exception:  # noqa: BLE001  (its pair fails when its turn comes, with the reason)
+        return None
+    if len(shape) not in (2, 3):
+        return None
+    return (shape[2] if len(shape) == 3 else 1, shape[0], shape[1])
 
 
 @dataclass(frozen=True)

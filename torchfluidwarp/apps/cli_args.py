@@ -70,7 +70,9 @@ __all__ = [
     "SECONDS_PER_MEGAPIXEL",
     "MAX_MINUTES",
     "add_limit_options",
+    "work_seconds",
     "check_work",
+    "check_batch_work",
     "command_run",
 ]
 
@@ -413,32 +415,87 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
+def work_seconds(path: str, frames: int, shape: Sequence[int]) -> float:
+    """The least time ``frames`` frames of ``shape`` ``(..., C, H, W)`` take to render and write at ``path``, in
+    seconds: ``frames`` times the megapixels of a frame times :data:`SECONDS_PER_MEGAPIXEL` for the output's format
+    (a lower bound).
+
+    Example:
+        >>> work_seconds("out.gif", 100, (3, 1000, 1000))
+        20.0
+    """
+    height, width = (int(n) for n in shape[-2:])
+    suffix = "" if _is_folder(path) else Path(path).suffix.lower()
+    rate = SECONDS_PER_MEGAPIXEL["gif" if suffix == ".gif" else "other"]
+    return frames * height * width / 1e6 * rate
+
+
+def _work_limit(args: argparse.Namespace) -> float | None:
+    """``--max-minutes`` (:data:`MAX_MINUTES` when the command has none), or ``None`` with ``--no-limit``."""
+    if getattr(args, "no_limit", False):
+        return None
+    return float(getattr(args, "max_minutes", None) or MAX_MINUTES)
+
+
+def _too_much_work(what: str, seconds: float, limit: float, size: float, where: str, fewer: str) -> InputError:
+    """The refusal of work projected to take ``seconds`` (above ``limit`` minutes) and ``size`` bytes at ``where``."""
+    from torchfluidwarp._checks import format_bytes
+
+    return InputError(
+        f"{what} would take at least {_duration(seconds)} to render and write (and about {format_bytes(size)} at "
+        f"{where!r}), above the limit of {limit:g} min; ask for {fewer}, or allow it with --max-minutes "
+        f"{max(1, int(seconds / 60) + 1)} (or --no-limit)"
+    )
+
+
 def check_work(args: argparse.Namespace, path: str, frames: int, shape: Sequence[int]) -> None:
     """Refuse, before any work, frames projected to take longer than ``--max-minutes`` to render and write.
 
-    The projection is ``frames`` times the megapixels of a frame of ``shape`` (``(..., C, H, W)``) times
-    :data:`SECONDS_PER_MEGAPIXEL` for the output's format (a lower bound). ``--no-limit`` skips the check; a
-    command without ``--max-minutes`` is checked against :data:`MAX_MINUTES`.
+    The projection is :func:`work_seconds` for ``frames`` frames of ``shape`` ``(..., C, H, W)`` at ``path``.
+    ``--no-limit`` skips the check; a command without ``--max-minutes`` is checked against :data:`MAX_MINUTES`.
 
     Raises:
         InputError: the projection is above the limit; the message gives it, the output's size
             (:func:`output_bytes`), and the flags that allow the run.
     """
-    if getattr(args, "no_limit", False):
+    limit = _work_limit(args)
+    if limit is None:
         return
-    channels, height, width = (int(n) for n in shape[-3:])
-    limit = getattr(args, "max_minutes", None) or MAX_MINUTES
-    suffix = "" if _is_folder(path) else Path(path).suffix.lower()
-    rate = SECONDS_PER_MEGAPIXEL["gif" if suffix == ".gif" else "other"]
-    seconds = frames * height * width / 1e6 * rate
+    seconds = work_seconds(path, frames, shape)
     if seconds > limit * 60:
-        from torchfluidwarp._checks import format_bytes
+        channels, height, width = (int(n) for n in shape[-3:])
+        size = output_bytes(path, frames, height, width, channels)
+        raise _too_much_work(
+            f"{frames} frames of {width}x{height}", seconds, limit, size, path, "fewer or smaller frames"
+        )
 
-        size = format_bytes(output_bytes(path, frames, height, width, channels))
-        raise InputError(
-            f"{frames} frames of {width}x{height} would take at least {_duration(seconds)} to render and write "
-            f"(and about {size} at {path!r}), above the limit of {limit:g} min; ask for fewer or smaller frames, "
-            f"or allow it with --max-minutes {max(1, int(seconds / 60) + 1)} (or --no-limit)"
+
+def check_batch_work(
+    args: argparse.Namespace, outputs: Sequence[tuple[str, Sequence[int]]], frames: int, folder: str
+) -> None:
+    """Refuse, before any work, a batch whose frames are projected to take longer than ``--max-minutes`` in all.
+
+    The projection is the sum of :func:`work_seconds` over ``outputs``, one ``(path, shape)`` per animation of
+    ``frames`` frames of ``shape`` ``(..., C, H, W)``, written at ``path`` in ``folder``. ``--no-limit`` skips the
+    check; a command without ``--max-minutes`` is checked against :data:`MAX_MINUTES`.
+
+    Raises:
+        InputError: the projection is above the limit; the message gives it, the outputs' size
+            (:func:`output_bytes`), and the flags that allow the run.
+    """
+    limit = _work_limit(args)
+    if limit is None:
+        return
+    seconds = sum(work_seconds(path, frames, shape) for path, shape in outputs)
+    if seconds > limit * 60:
+        size = sum(output_bytes(path, frames, int(s[-2]), int(s[-1]), int(s[-3])) for path, s in outputs)
+        raise _too_much_work(
+            f"{len(outputs)} pairs of {frames} frames each",
+            seconds,
+            limit,
+            size,
+            folder,
+            "fewer pairs or fewer or smaller frames",
         )
 
 

@@ -12,8 +12,9 @@ list of pairs (:mod:`torchfluidwarp.apps.batch`). The timing, region and output 
 :mod:`torchfluidwarp.apps.cli_morph_output`.
 
 Exit status as in :mod:`torchfluidwarp.apps.cli`: 0 on success, 2 for bad input (also an output that would not
-fit on its disk, or a morph above ``--max-memory``, refused before any work); with ``--pairs``, 1 when some
-pairs failed (listed in ``DIR/failures.csv``).
+fit on its disk, a morph above ``--max-memory``, or frames projected to take longer than ``--max-minutes`` to
+render and write, refused before any work; with ``--pairs``, the whole batch's frames); with ``--pairs``, 1 when
+some pairs failed (listed in ``DIR/failures.csv``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import warnings
 
 from torch import Tensor
 
-from torchfluidwarp.apps.batch import morph_pairs
+from torchfluidwarp.apps.batch import morph_pairs, planned_work
 from torchfluidwarp.apps.cli_args import (
     EXIT_OK,
     FPS,
@@ -33,6 +34,7 @@ from torchfluidwarp.apps.cli_args import (
     POSITIVE,
     PROG,
     add_limit_options,
+    check_batch_work,
     check_work,
     clock_of,
     count,
@@ -168,7 +170,8 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
         "images",
         metavar="IMAGE",
         nargs="*",
-        help="two images A B (each later one resized to A's size), or more: a sequence through them",
+        help="two images A B, or more: a sequence through them (each placed on the first's canvas by one "
+        "scale factor, never stretched)",
     )
     p.add_argument("--points-a", metavar="FILE", help="A's points (.pts, .json or .csv)")
     p.add_argument("--points-b", metavar="FILE", help="B's points, same count and order")
@@ -297,6 +300,9 @@ def _run_pairs(args: argparse.Namespace) -> int:
         raise InputError("--pairs takes --region points only (one pair of masks cannot serve every pair)")
     if not args.output:
         raise InputError("--pairs needs --out DIR/, the folder for the outputs")
+    # the whole batch's work, before any pair is morphed: the pairs a rerun skips add none
+    work = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite)
+    check_batch_work(args, work, args.frames, args.output)
     timing, blending = result_options(args)
     report = morph_pairs(
         args.pairs,

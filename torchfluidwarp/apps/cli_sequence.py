@@ -119,7 +119,12 @@ def add_average(commands: argparse._SubParsersAction) -> None:
         epilog="example:\n  torchfluidwarp average f1.jpg f2.jpg f3.jpg --points f1.pts f2.pts f3.pts -o mean.png",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("images", metavar="IMAGE", nargs="+", help="two or more images (resized to the first's size)")
+    p.add_argument(
+        "images",
+        metavar="IMAGE",
+        nargs="+",
+        help="two or more images (each placed on the first's canvas by one scale factor, never stretched)",
+    )
     p.add_argument("--points", metavar="FILE", nargs="+", required=True, help="one point file per image, in order")
     p.add_argument("-o", "--output", metavar="OUT", default="average.png", help="the image (default average.png)")
     p.add_argument("--save-points", metavar="FILE", help="write the mean shape (.pts, .json or .csv)")

@@ -6,43 +6,54 @@
 * :func:`average` warps each image to the mean shape of all the point sets with its own fitted flow and averages
   the results: the mean face (or object) of a set, fold-free like every morph.
 
-Images are ``(C, H, W)`` (or ``(1, C, H, W)``) in ``[0, 1]``; points ``(M, 2)`` in each image's pixels, the same
-``M`` features in the same order in every image.
+Images are ``(C, H, W)`` (or ``(1, C, H, W)``) in ``[0, 1]``, of any size and aspect ratio; points ``(M, 2)`` in each
+image's pixels, the same ``M`` features in the same order in every image. Both work on the first image's canvas,
+where each image is placed as :func:`~torchfluidwarp.morph.morph` places a picture (one scale factor for both
+axes: :func:`~torchfluidwarp.morph.morphing.placement`), never stretched.
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_real
+from torchfluidwarp._checks import check_instance, check_int, check_real, check_size
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.errors import InputError, InputTypeError
-from torchfluidwarp.morph.morphing import _as_image, _as_points, morph, resize_pair
+from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettings, Timing
 
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
 
-def _prepared(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[Tensor, Tensor]]:
-    """Each image ``(1, C, H, W)`` at the first one's size, with its points scaled to match."""
+def _checked(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[Tensor, Tensor]]:
+    """Each image ``(1, C, H, W)``, in the richest colour model among them (:func:`match_channels`: nothing is
+    dropped), with its points ``(M, 2)`` in its own pixels; neither is resized."""
     if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple)):
         raise InputTypeError("images and points must be lists (or tuples) of tensors")
     if len(images) < 2:
         raise InputError(f"images must hold at least 2 images, got {len(images)}")
     if len(points) != len(images):
         raise InputError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
-    first = _as_image("images[0]", images[0])
+    pictures = [_as_image(f"images[{i}]", image) for i, image in enumerate(images)]
+    richest = pictures[0][..., :1, :1]  # one pixel stands for the picture's colour model
+    for picture in pictures[1:]:
+        richest, _ = match_channels(richest, picture[..., :1, :1])
     out = []
-    for i, (image, p) in enumerate(zip(images, points)):
-        im = _as_image(f"images[{i}]", image)
-        out.append(resize_pair(first, im, _as_points(f"points[{i}]", p, im)))
+    for i, (picture, p) in enumerate(zip(pictures, points)):
+        out.append((match_channels(richest, picture)[1], _as_points(f"points[{i}]", p, picture)))
     return out
+
+
+def _placed(image: Tensor, canvas: tuple[int, int]) -> Tensor:
+    """``(3, 3)`` float64 on ``image``'s device: where :func:`~torchfluidwarp.morph.morph` places ``image``
+    ``(1, C, H, W)`` on ``canvas`` ``(H_c, W_c)``, from its pixels to the canvas's (:func:`placement`)."""
+    return placement((image.shape[-2], image.shape[-1]), canvas)[0].to(image.device)
 
 
 class MorphSequence:
@@ -88,7 +99,7 @@ class MorphSequence:
 
 
 def _travel(pa: Tensor, pb: Tensor) -> float:
-    """Mean distance the marked points travel, in pixels (A's size)."""
+    """Mean distance the marked points travel, in the canvas's pixels."""
     return float((pb.double() - pa.double()).norm(dim=-1).mean())
 
 
@@ -105,21 +116,32 @@ def morph_sequence(
 ) -> MorphSequence:
     """Morph through ``images`` in order, so that their ``points`` travel from set to set.
 
+    Every segment is a :func:`~torchfluidwarp.morph.morph` on one canvas, the first image's size (or
+    ``blending.size``), so no picture is stretched: each keeps its aspect ratio, placed on the canvas by one scale
+    factor for both axes, the smallest that covers it, centred (:func:`~torchfluidwarp.morph.morphing.placement`),
+    and read at its own resolution. The frames take the richest colour model of the images.
+
     Args:
-        images: two or more images ``(C, H, W)``; each is resized to the first one's size.
-        points: one ``(M, 2)`` set per image, in that image's pixels.
+        images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
+        points: one ``(M, 2)`` set per image, in that image's own pixels.
         settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
             every segment. With the linear motion (``Timing()``, the default) the frames are shared out in
-            proportion to each segment's travel, so the points' speed is the same on both sides of every middle
-            image; ``Timing(motion="smooth")`` eases to rest at each image instead.
+            proportion to each segment's travel on the canvas, so the points' speed is the same on both sides of
+            every middle image; ``Timing(motion="smooth")`` eases to rest at each image instead.
         frames: frames of the whole sequence (at least one more than the number of segments).
 
     Returns:
-        a :class:`MorphSequence`.
+        a :class:`MorphSequence` whose frames are ``(C, H, W)`` on the canvas: image ``i`` placed on it is the
+        frame at the joint before segment ``i``.
     """
-    scaled = [p for _, p in _prepared(images, points)]
+    check_instance("blending", blending, Blending)
+    pairs = _checked(images, points)
+    first = pairs[0][0]
+    canvas = (first.shape[-2], first.shape[-1]) if blending.size is None else check_size("blending.size", blending.size)
+    on_canvas = replace(blending, size=canvas)
+    placed = [apply_alignment(_placed(im, canvas), p.double()) for im, p in pairs]  # (M, 2) canvas pixels each
     n = check_int("frames", frames, minimum=len(images))
-    travel = [max(_travel(a, b), 1e-6) for a, b in zip(scaled, scaled[1:])]
+    travel = [max(_travel(a, b), 1e-6) for a, b in zip(placed, placed[1:])]
     segments = len(travel)
     # frames per segment (joints shared): at least 1 step each, then in proportion to the travel
     steps_total = n - 1
@@ -129,14 +151,14 @@ def morph_sequence(
         shares[shares.index(max(shares))] -= 1
     results = [
         morph(
-            images[i],
-            images[i + 1],
-            points[i],
-            points[i + 1],
+            pairs[i][0],
+            pairs[i + 1][0],
+            pairs[i][1],
+            pairs[i + 1][1],
             settings=settings,
             frames=shares[i] + 1,
             timing=timing,
-            blending=blending,
+            blending=on_canvas,
             progress=progress,
             max_memory=max_memory,
         )
@@ -150,11 +172,13 @@ class AverageResult:
     """What :func:`average` returns.
 
     Attributes:
-        image: ``(C, H, W)`` the mean of the images, each warped to the mean shape.
+        image: ``(C, H, W)`` the mean of the images, each warped to the mean shape, on the first image's canvas.
         points: ``(M, 2)`` the mean shape, in the first image's pixels.
-        warped: ``(N, C, H, W)`` each image warped to the mean shape.
+        warped: ``(N, C, H, W)`` each image placed on the first image's canvas (one scale factor, never stretched)
+            and warped to the mean shape.
         folded: the fraction of the warps' map pixels that fold (0 for a fold-free average).
-        errors: ``(N,)`` each image's mean distance, in pixels, between its warped points and the mean shape.
+        errors: ``(N,)`` each image's mean distance, in the first image's pixels, between its warped points and
+            the mean shape.
     """
 
     image: Tensor
@@ -174,36 +198,54 @@ def average(
 ) -> AverageResult:
     """The average of ``images``: each warped to the mean shape of ``points`` by its own flow, then averaged.
 
-    The mean shape: every point set brought onto the first by a similarity (least squares), averaged, and
-    placed where the sets' own centroids and scales are on average in the first image's frame.
+    Each image is placed on the first image's canvas as :func:`~torchfluidwarp.morph.morph` places a picture (one
+    scale factor for both axes, the smallest that covers the canvas, centred:
+    :func:`~torchfluidwarp.morph.morphing.placement`), so none is stretched, and read at its own resolution. The
+    mean shape: every point set, so placed, brought onto the first by a similarity (least squares), averaged, and
+    placed where the sets' own centroids and scales are on average on the canvas.
 
     Args:
-        images: two or more images ``(C, H, W)``; each is resized to the first one's size.
-        points: one ``(M, 2)`` set per image, the same features in the same order.
+        images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio; the
+            average takes the richest colour model among them.
+        points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order.
         settings, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for every warp (each
             is rendered at its end only, so there are no frames, timing or region to set).
 
     Returns:
         an :class:`AverageResult`.
     """
-    pairs = _prepared(images, points)
+    pairs = _checked(images, points)
     first = pairs[0][0]
-    sets = [p.double() for _, p in pairs]
+    H, W = first.shape[-2:]
+    canvas = (H, W)
+    places = [_placed(image, canvas) for image, _ in pairs]
+    sets = [apply_alignment(place, p.double()) for place, (_, p) in zip(places, pairs)]  # (M, 2) canvas pixels
     onto_first = [apply_alignment(estimate_alignment(p, sets[0], "similarity"), p) for p in sets]
     mean = torch.stack(onto_first).mean(0)
     # place the mean shape at the sets' mean position and size (rather than the first set's)
     back = torch.stack([apply_alignment(estimate_alignment(mean, p, "similarity"), mean) for p in sets]).mean(0)
-    H, W = first.shape[-2:]
     back[:, 0].clamp_(-0.5, W - 0.5)
     back[:, 1].clamp_(-0.5, H - 0.5)
     warped, folded, errors = [], 0.0, []
-    for image, p in pairs:
+    for place, (image, p) in zip(places, pairs):
+        # the mean shape in this image's own pixels: morph() places it back on the canvas, at `back`
+        target = apply_alignment(torch.linalg.inv(place), back)
+        h, w = image.shape[-2:]
+        target = torch.stack([target[:, 0].clamp(-0.5, w - 0.5), target[:, 1].clamp(-0.5, h - 0.5)], -1)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
             result = morph(
-                image, image, p, back.to(p), settings=settings, frames=2, progress=progress, max_memory=max_memory
+                image,
+                image,
+                p,
+                target.to(p),
+                settings=settings,
+                frames=2,
+                blending=Blending(size=canvas),
+                progress=progress,
+                max_memory=max_memory,
             )
-            end = result.render([1.0])  # its forward warp at the end: A in the mean shape
+            end = result.render([1.0])  # its forward warp at the end: A in the mean shape, on the canvas
         warped.append(end.forward[0])
         folded += end.folded / (2 * H * W)
         errors.append(float(result.error.mean()))
