@@ -11,7 +11,7 @@
 * :mod:`~torchfluidwarp.control.alignment`: the similarity/affine pre-alignment of two point sets.
 """
 
-from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, interpolate_alignment
+from torchfluidwarp.control.alignment import apply_alignment, best_shift, estimate_alignment, interpolate_alignment
 from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images
 from torchfluidwarp.control.keyframes import (
     KeyframeFit,
@@ -25,6 +25,7 @@ from torchfluidwarp.control.optim import OptimResult, minimize
 
 __all__ = [
     "apply_alignment",
+    "best_shift",
     "estimate_alignment",
     "interpolate_alignment",
     "ImageFit",

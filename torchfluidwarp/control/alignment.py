@@ -8,6 +8,7 @@ non-rigid rest. Matrices are ``(3, 3)`` homogeneous, acting on pixel coordinates
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Literal
 
 import torch
@@ -15,8 +16,9 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_tensor
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.warp.frames import identity_map, warp_image
 
-__all__ = ["estimate_alignment", "interpolate_alignment", "apply_alignment"]
+__all__ = ["estimate_alignment", "interpolate_alignment", "apply_alignment", "best_shift", "SHIFT_SIDE"]
 
 AlignKind = Literal["similarity", "affine", "none"]
 
@@ -104,3 +106,61 @@ def apply_alignment(matrix: Tensor, points: Tensor) -> Tensor:
     """Apply a ``(3, 3)`` transform to ``(..., 2)`` points."""
     m = matrix.to(points.dtype).to(points.device)
     return points @ m[:2, :2].T + m[:2, 2]
+
+
+SHIFT_SIDE = 256
+"""Pixels: :func:`best_shift` looks for its candidates on copies of the pictures at most this long a side."""
+
+
+def best_shift(
+    source: Tensor, target: Tensor, loss: Callable[[Tensor, Tensor], Tensor], candidates: int = 4
+) -> tuple[Tensor, float]:
+    """The plain translation of ``source`` that matches ``target`` best under ``loss``: the simplest motion there
+    is, against which a fitted flow can be judged (:func:`~torchfluidwarp.control.images.fit_images` warns when it
+    does better than the fit).
+
+    The candidates are the ``candidates`` highest peaks of the zero-mean grey pictures' cross-correlation, each
+    normalised by the overlap it is taken over, on copies at most :data:`SHIFT_SIDE` pixels a side, for shifts of
+    up to half the picture's size; each is scaled back to whole pixels and scored at full size, ``source`` read
+    through the shifted identity map with border padding (as the fits read it).
+
+    Args:
+        source: ``(B, C, H, W)`` the picture to move.
+        target: ``(B, C, H, W)`` the picture to match.
+        loss: ``loss(moved, target) -> scalar``, e.g. :func:`~torchfluidwarp.control.losses.mse_loss`.
+        candidates: how many correlation peaks are scored (``>= 1``).
+
+    Returns:
+        ``(shift, value)``: ``(2,)`` ``(dx, dy)`` whole pixels (``source`` is read at ``x + dx``: the shift moves its
+        content by ``-dx``), shared by the batch, and ``loss`` at that shift, a float; the zero shift is always a
+        candidate, so ``value`` is at most ``loss(source, target)``.
+    """
+    check_tensor("source", source, ndim=4)
+    check_tensor("target", target, shape=list(source.shape))
+    H, W = source.shape[-2:]
+    f = min(1.0, SHIFT_SIDE / max(H, W))
+    h, w = max(2, round(H * f)), max(2, round(W * f))
+
+    def grey(x: Tensor) -> Tensor:  # (h, w), zero mean, the batch averaged
+        g = torch.nn.functional.interpolate(x.mean(1, keepdim=True), size=(h, w), mode="area").mean(0)[0]
+        return g - g.mean()
+
+    a, b = grey(source.detach()), grey(target.detach())
+    size = (2 * h, 2 * w)
+    # c[s] = sum_x b(x) a(x + s): how well source read at x + s matches target at x
+    corr = torch.fft.irfft2(torch.fft.rfft2(a, s=size) * torch.fft.rfft2(b, s=size).conj(), s=size)
+    sy = torch.fft.fftfreq(2 * h, 1 / (2 * h), device=a.device).round().view(-1, 1)  # shifts in rows
+    sx = torch.fft.fftfreq(2 * w, 1 / (2 * w), device=a.device).round().view(1, -1)
+    overlap = (h - sy.abs()).clamp(min=1) * (w - sx.abs()).clamp(min=1)
+    score = torch.where((sy.abs() <= h // 2) & (sx.abs() <= w // 2), corr / overlap, torch.full_like(corr, -math.inf))
+    top = score.flatten().topk(min(candidates, score.numel())).indices
+    shifts = [(0.0, 0.0)] + [(float(sx[0, i % (2 * w)]) / f, float(sy[i // (2 * w), 0]) / f) for i in top.tolist()]
+    ident = identity_map((H, W), device=source.device, dtype=source.dtype)
+    best, value = (0.0, 0.0), math.inf
+    with torch.no_grad():
+        for dx, dy in dict.fromkeys((round(dx), round(dy)) for dx, dy in shifts):
+            moved = warp_image(source, (ident + ident.new_tensor([dx, dy])).expand(source.shape[0], -1, -1, -1))
+            v = float(loss(moved, target))
+            if v < value:
+                best, value = (float(dx), float(dy)), v
+    return source.new_tensor(best), value

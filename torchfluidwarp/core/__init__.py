@@ -10,6 +10,8 @@ Nothing here knows about images, forces' parameters or fits; every layer above b
 * :mod:`~torchfluidwarp.core.spline`: thin-plate splines (the morph's straight paths);
 * :mod:`~torchfluidwarp.core.staggered`: :class:`StaggeredGrid`, the one owner of the staggered layout, its
   constants and the unchecked point kernels (velocity at points, back-trace, carry), points ``(B, N, 2)``;
+* :mod:`~torchfluidwarp.core.fused`: Triton kernels for the back-trace and the velocity's self-advection on
+  CUDA, with hand-written adjoints (:class:`StaggeredGrid` dispatches to them; the torch path is the reference);
 * :mod:`~torchfluidwarp.core.advection`: the checked semi-Lagrangian functions (advect, advect_points, ...);
 * :mod:`~torchfluidwarp.core.fluid`: the pure step functions (diffuse, project, the grid operators);
 * :mod:`~torchfluidwarp.core.simulator`: the steps as ``nn.Module`` s and :class:`FluidSimulator`.

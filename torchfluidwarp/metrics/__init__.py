@@ -11,6 +11,8 @@ fluid's :class:`~torchfluidwarp.morph.MorphResult`, or a thin-plate-spline or De
   the same seen in the pixels with no points: the local displacement between A and B warped to the middle frame
   (:func:`image_ghosting`);
 * **seam figure**: a high quantile of the map's second derivative (:func:`seam_figure`);
+* **border seam**: whether a picture's border shows as a line in a frame, or its edge pixels are smeared beyond
+  it (:func:`border_seam`);
 * **path smoothness**: the distance between neighbouring frames, its total and its variance
   (:func:`path_distances`, :func:`path_smoothness`): a perceptual-path-length-style measure without a network.
 
@@ -20,6 +22,7 @@ pixel centres at integers, as :func:`~torchfluidwarp.warp.warp_image` reads them
 not converge to within ``tolerance`` source pixels (carried out of the frame, say) is reported as not located.
 """
 
+from torchfluidwarp.metrics.edges import BorderSeam, border_seam
 from torchfluidwarp.metrics.ghost import GHOST_SIDE, GHOST_TEXTURE, GHOST_WINDOW, image_ghosting
 from torchfluidwarp.metrics.maps import SEAM_QUANTILE, folded_pixels, seam_figure
 from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
@@ -35,6 +38,8 @@ from torchfluidwarp.metrics.points import (
 from torchfluidwarp.metrics.report import Morph, morph_folds, morph_path, morph_report
 
 __all__ = [
+    "BorderSeam",
+    "border_seam",
     "GHOST_SIDE",
     "GHOST_TEXTURE",
     "GHOST_WINDOW",

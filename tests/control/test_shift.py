@@ -1,0 +1,88 @@
+"""The best plain shift (control.alignment.best_shift), and fit_images' warning when a shift beats its flow (#32:
+no default returns a map farther from the truth than no motion without saying so)."""
+
+import warnings
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torchfluidwarp.control import best_shift, fit_images, mse_loss
+from torchfluidwarp.warp.forces import Brushes
+from torchfluidwarp.warp.frames import identity_map, warp_image
+from torchfluidwarp.warp.layer import FluidWarp
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
+
+
+def _texture(gen: torch.Generator, h: int, w: int) -> torch.Tensor:
+    """A smooth random texture ``(1, 3, h, w)`` float64: noise blurred over about 4 pixels."""
+    noise = torch.rand(1, 3, h // 4 + 2, w // 4 + 2, generator=gen, dtype=torch.float64)
+    return F.interpolate(noise, size=(h, w), mode="bicubic", align_corners=False).clamp(0, 1)
+
+
+def _shifted(image: torch.Tensor, dx: float, dy: float) -> torch.Tensor:
+    """``image`` read at ``x + dx`` (its content moves by ``-dx``), border padding."""
+    ident = identity_map(tuple(image.shape[-2:]), dtype=image.dtype)
+    return warp_image(image, ident + ident.new_tensor([dx, dy]))
+
+
+@pytest.mark.parametrize(
+    "size, shift, tol", [((96, 128), (7, -5), 0), ((96, 128), (-20, 11), 0), ((420, 600), (40, 0), 3)]
+)
+def test_best_shift_finds_a_known_shift(gen, size, shift, tol):
+    source = _texture(gen, *size)
+    target = _shifted(source, *shift)  # source read at x + shift is the target
+    found, value = best_shift(source, target, mse_loss)
+    assert (found - torch.tensor(shift, dtype=found.dtype)).abs().max() <= tol, found
+    assert value <= float(mse_loss(_shifted(source, *found.tolist()), target)) + 1e-12
+    assert value < 0.2 * float(mse_loss(source, target))  # the border padding leaves a strip unmatched, no more
+
+
+def test_best_shift_of_a_picture_against_itself_is_zero(gen):
+    source = _texture(gen, 64, 80)
+    found, value = best_shift(source, source.clone(), mse_loss)
+    assert found.tolist() == [0.0, 0.0] and value == pytest.approx(0.0, abs=1e-20)
+
+
+def _epe(fit, shift: tuple[float, float], size: tuple[int, int]) -> tuple[float, float]:
+    """Mean end-point error of the fit's last map and of no motion against the true map ``identity + shift``, over
+    the pixels whose true source lies inside the picture."""
+    with torch.no_grad():
+        last = fit.warp.maps(fit.forces, size)[0, -1].double()
+    ident = identity_map(size, dtype=torch.float64)[0]
+    truth = ident + ident.new_tensor(shift)
+    inside = (
+        (truth[..., 0] >= 0) & (truth[..., 0] <= size[1] - 1) & (truth[..., 1] >= 0) & (truth[..., 1] <= size[0] - 1)
+    )
+    return float((last - truth).norm(dim=-1)[inside].mean()), float((ident - truth).norm(dim=-1)[inside].mean())
+
+
+def _fit(source, target):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = fit_images(source, target, grid=32, levels=(16,), steps=6, max_iter=(15, 15), progress=False)
+    return fit, [str(w.message) for w in caught if "plain shift" in str(w.message)]
+
+
+def test_a_fit_that_misses_a_large_shift_says_so(gen):
+    # a quarter of the picture's width: the closed, incompressible box cannot carry it, the fit settles on a swirl
+    size, shift = (64, 64), (16.0, 0.0)
+    source = _texture(gen, *size)
+    target = _shifted(source, *shift)
+    fit, said = _fit(source, target)
+    fitted, none = _epe(fit, shift, size)
+    assert fitted > 0.5 * none, (fitted, none)  # the flow did not find the motion (the case this test is about)
+    assert fit.final_loss > 0.1 * fit.initial_loss
+    assert len(said) == 1 and "(+16, +0) px" in said[0], said
+
+
+def test_a_fit_that_finds_the_motion_does_not_warn(gen):
+    # a warp the fluid itself made: the fit finds it, and no plain shift comes near
+    source = _texture(gen, 64, 64)
+    brushes = Brushes([[24.0, 30.0], [44.0, 36.0]], [[1.0, 0.3], [-0.2, -1.0]], radius=9.0, amplitude=0.3).double()
+    with torch.no_grad():
+        target = FluidWarp(32, 6).double()(source, brushes)[:, -1]
+    fit, said = _fit(source, target)
+    assert fit.final_loss < 0.1 * fit.initial_loss, fit.message
+    assert said == []
