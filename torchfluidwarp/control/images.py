@@ -68,6 +68,11 @@ px) the defaults reach 51% of the starting loss with a map 43.6 px from the trut
 px), while a shift by 49 px reaches 63%; fits that find their motion end far below either
 (``tests/control/test_shift.py``)."""
 
+SHIFT_GAIN = 0.75
+"""And only where that shift explains part of the mismatch itself, its loss at most this fraction of the starting
+loss: on pictures that no shift relates (noise against noise), the best shift barely moves the loss, and says
+nothing about the fit."""
+
 
 @dataclass
 class LevelFit:
@@ -245,7 +250,8 @@ def fit_images(
     Warns:
         RuntimeWarning: the fitted map folds; or the fit ends above :data:`SHIFT_CHECK` of its starting loss and a
             plain shift of ``source`` (:func:`~torchfluidwarp.control.alignment.best_shift`) comes within
-            :data:`SHIFT_RIVAL` of it: the map may then be farther from the truth than no motion at all.
+            :data:`SHIFT_RIVAL` of it while removing at least a quarter of the starting loss (:data:`SHIFT_GAIN`):
+            the map may then be farther from the truth than no motion at all.
 
     Example:
         >>> yy, xx = torch.meshgrid(torch.arange(32.0), torch.arange(32.0), indexing="ij")
@@ -367,7 +373,7 @@ def fit_images(
         )
     if final > SHIFT_CHECK * initial:  # much of the mismatch is left: would the simplest motion do as well?
         shift, by_shift = best_shift(src, tgt, objective)
-        if float(shift.abs().max()) >= 2 and by_shift < SHIFT_RIVAL * final:
+        if float(shift.abs().max()) >= 2 and by_shift < min(SHIFT_RIVAL * final, SHIFT_GAIN * initial):
             dx, dy = (float(v) for v in shift)
             warn(
                 f"fit_images: a plain shift of source by ({dx:+.0f}, {dy:+.0f}) px matches target about as well as "
