@@ -365,7 +365,8 @@ def fit_keyframes(
     reached = all(bool(e.max() <= tolerance) for _, e in kf_err)
     err = kf_err[-1][1]
     message = (
-        f"{'reached' if reached else 'did not reach'} the targets: mean error {float(err.mean()):.4f} px, "
+        f"{'reached' if reached else 'did not reach'} the targets (within {tolerance:g} px): mean error "
+        f"{float(err.mean()):.4f} px, "
         f"max {float(err.max()):.4f} px; {how}"
     )
     return KeyframeFit(
