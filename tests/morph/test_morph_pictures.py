@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from discs import aspect, disc, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.io import resize_image, write_animation
@@ -16,30 +17,6 @@ from torchfluidwarp.morph import Blending, NaturalSettings, morph
 from torchfluidwarp.warp import identity_map
 
 FAST = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=False)
-
-
-def _disc(size, centre, radius, band=1.5):
-    """``(H, W)`` a soft disc: 1 inside, 0 outside, a ramp of ``band`` pixels."""
-    H, W = size
-    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
-    r = ((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2).sqrt()
-    return ((radius - r) / band + 0.5).clamp(0, 1)
-
-
-def _marks(centre, radius):
-    """The disc's centre and four points on its rim: ``(5, 2)``."""
-    cx, cy = centre
-    return torch.tensor(
-        [[cx, cy], [cx + radius, cy], [cx, cy + radius], [cx - radius, cy], [cx, cy - radius * 0.8]],
-        dtype=torch.float32,
-    )
-
-
-def _picture(size, centre, radius, colour, gen):
-    """A disc of ``colour`` (a list of channel values) on a faint noisy ground."""
-    disc = _disc(size, centre, radius)
-    ground = 0.2 + 0.05 * torch.rand(len(colour), *size, generator=gen)
-    return torch.lerp(ground, torch.tensor(colour).view(-1, 1, 1).expand(-1, *size), disc)
 
 
 # ------------------------------------------------------------------ colour models
@@ -50,11 +27,11 @@ R_A, R_B = 11.0, 12.0
 
 
 def _models(gen):
-    grey = lambda centre, r: _picture(S, centre, r, [0.9], gen)  # noqa: E731
-    rgb = lambda centre, r: _picture(S, centre, r, [0.9, 0.3, 0.1], gen)  # noqa: E731
+    grey = lambda centre, r: disc_picture(S, centre, r, [0.9], gen)  # noqa: E731
+    rgb = lambda centre, r: disc_picture(S, centre, r, [0.9, 0.3, 0.1], gen)  # noqa: E731
 
     def alpha(image, centre, r):
-        return torch.cat([image, _disc(S, centre, r + 4)[None]])  # opaque around the disc, transparent beyond
+        return torch.cat([image, disc(S, centre, r + 4)[None]])  # opaque around the disc, transparent beyond
 
     return {
         "grey+rgb": (grey(CENTRE_A, R_A), rgb(CENTRE_B, R_B), 3),
@@ -77,7 +54,7 @@ def _as(image, channels):
 @pytest.mark.parametrize("pair", ["grey+rgb", "rgb+grey", "rgba+rgb", "la+rgb"])
 def test_the_richer_colour_model_and_one_mode_in_every_frame(pair, gen, tmp_path):
     a, b, channels = _models(gen)[pair]
-    r = morph(a, b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=5, **FAST)
+    r = morph(a, b, disc_marks(CENTRE_A, R_A), disc_marks(CENTRE_B, R_B), frames=5, **FAST)
     frames = r.frames
     assert frames.shape == (5, channels, *S)
     # same size, so the placement is the identity: the ends are the pictures themselves, converted exactly
@@ -119,23 +96,13 @@ def _box(x, k=4):
 def test_grey_with_alpha_as_two_channels_and_unmatched_channels(gen):
     a, b, _ = _models(gen)["la+rgb"]
     assert a.shape[0] == 2
-    r = morph(a, b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=3, **FAST)
+    r = morph(a, b, disc_marks(CENTRE_A, R_A), disc_marks(CENTRE_B, R_B), frames=3, **FAST)
     assert r.frame(0.5).shape == (4, *S)
     with pytest.raises(ValueError, match="image_a has 5 channels but image_b has 3"):
-        morph(torch.rand(5, *S), b, _marks(CENTRE_A, R_A), _marks(CENTRE_B, R_B), frames=3, **FAST)
+        morph(torch.rand(5, *S), b, disc_marks(CENTRE_A, R_A), disc_marks(CENTRE_B, R_B), frames=3, **FAST)
 
 
 # ------------------------------------------------------------------ aspect ratios
-
-
-def _aspect(frame):
-    """Width over height of the bright disc in ``frame`` ``(C, H, W)``, from its second moments."""
-    w = (frame[0] > 0.55).float()
-    ys, xs = torch.meshgrid(torch.arange(w.shape[0]), torch.arange(w.shape[1]), indexing="ij")
-    n = w.sum()
-    cx, cy = (w * xs).sum() / n, (w * ys).sum() / n
-    vx, vy = (w * (xs - cx) ** 2).sum() / n, (w * (ys - cy) ** 2).sum() / n
-    return float((vx / vy).sqrt())
 
 
 CASES = {
@@ -148,9 +115,9 @@ CASES = {
 @pytest.mark.parametrize("case", list(CASES))
 def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen):
     size_a, centre_a, r_a, size_b, centre_b, r_b = CASES[case]
-    a = _picture(size_a, centre_a, r_a, [0.9, 0.9, 0.9], gen)
-    b = _picture(size_b, centre_b, r_b, [0.9, 0.9, 0.9], gen)
-    pa, pb = _marks(centre_a, r_a), _marks(centre_b, r_b)
+    a = disc_picture(size_a, centre_a, r_a, [0.9, 0.9, 0.9], gen)
+    b = disc_picture(size_b, centre_b, r_b, [0.9, 0.9, 0.9], gen)
+    pa, pb = disc_marks(centre_a, r_a), disc_marks(centre_b, r_b)
     r = morph(a, b, pa, pb, frames=5, **FAST)
     H, W = size_a
     assert r.frames.shape == (5, 3, H, W)  # the canvas is A's size
@@ -170,8 +137,8 @@ def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen)
     torch.testing.assert_close(r.frames[-1], scaled[:, top : top + H, left : left + W], atol=1e-4, rtol=0)
     torch.testing.assert_close(r.frames[0], a, atol=0, rtol=0)
     # B's disc stays a disc (the old resize to A's size made it an ellipse of aspect 1.6 or 0.67)
-    assert _aspect(r.frames[-1]) == pytest.approx(1.0, abs=0.04)
-    assert _aspect(r.frame(0.5)) == pytest.approx(1.0, abs=0.06)
+    assert aspect(r.frames[-1]) == pytest.approx(1.0, abs=0.04)
+    assert aspect(r.frame(0.5)) == pytest.approx(1.0, abs=0.06)
     # B's marks are met in B's own pixels
     in_b = apply_alignment(torch.linalg.inv(place), r.points.double())
     assert float((in_b - pb.double()).norm(dim=-1).mean()) < 1.0
@@ -183,16 +150,14 @@ def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen)
 
 
 def test_the_output_size_is_a_setting(gen):
-    a = _picture((40, 40), (20.0, 20.0), 10.0, [0.9, 0.9, 0.9], gen)
-    b = _picture((60, 30), (15.0, 30.0), 8.0, [0.9, 0.9, 0.9], gen)
-    pa, pb = _marks((20.0, 20.0), 10.0), _marks((15.0, 30.0), 8.0)
+    a = disc_picture((40, 40), (20.0, 20.0), 10.0, [0.9, 0.9, 0.9], gen)
+    b = disc_picture((60, 30), (15.0, 30.0), 8.0, [0.9, 0.9, 0.9], gen)
+    pa, pb = disc_marks((20.0, 20.0), 10.0), disc_marks((15.0, 30.0), 8.0)
     r = morph(a, b, pa, pb, frames=3, blending=Blending(size=(30, 50)), **FAST)
     assert r.frames.shape == (3, 3, 30, 50)
     assert float(r.canvas_from_a[0, 0]) == pytest.approx(
         50 / 40
     )  # A covers the wider canvas, its top and bottom cropped
-    assert _aspect(r.frames[0]) == pytest.approx(1.0, abs=0.04) and _aspect(r.frames[-1]) == pytest.approx(
-        1.0, abs=0.04
-    )
+    assert aspect(r.frames[0]) == pytest.approx(1.0, abs=0.04) and aspect(r.frames[-1]) == pytest.approx(1.0, abs=0.04)
     with pytest.raises(ValueError, match=r"Blending\.size"):
         Blending(size=(0, 10))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from discs import aspect, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.io import resize_image
@@ -63,32 +64,7 @@ def test_the_average_of_two_shifted_images_sits_halfway_without_folds():
 
 
 # ------------------------------------------------------------------ pictures of another aspect ratio (#31)
-# as in tests/morph/test_morph_pictures.py: a bright disc marked by its centre and four rim points
-
-
-def _disc_picture(size, centre, radius, gen):
-    """``(3, H, W)`` a bright soft disc on a faint noisy ground."""
-    H, W = size
-    ys, xs = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
-    disc = ((radius - ((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2).sqrt()) / 1.5 + 0.5).clamp(0, 1)
-    ground = 0.2 + 0.05 * torch.rand(3, H, W, generator=gen)
-    return torch.lerp(ground, torch.full((3, H, W), 0.9), disc)
-
-
-def _rim(centre, radius):
-    """The disc's centre and four points on its rim: ``(5, 2)``."""
-    cx, cy = centre
-    return torch.tensor([[cx, cy], [cx + radius, cy], [cx, cy + radius], [cx - radius, cy], [cx, cy - radius * 0.8]])
-
-
-def _aspect(frame):
-    """Width over height of the bright disc in ``frame`` ``(C, H, W)``, from its second moments."""
-    w = (frame[0] > 0.55).float()
-    ys, xs = torch.meshgrid(torch.arange(w.shape[0]), torch.arange(w.shape[1]), indexing="ij")
-    n = w.sum()
-    cx, cy = (w * xs).sum() / n, (w * ys).sum() / n
-    vx, vy = (w * (xs - cx) ** 2).sum() / n, (w * (ys - cy) ** 2).sum() / n
-    return float((vx / vy).sqrt())
+# a bright disc marked by its centre and four rim points (tests/morph/discs.py, as test_morph_pictures.py uses)
 
 
 SQUARE = ((64, 64), (32.0, 30.0), 14.0)
@@ -99,9 +75,9 @@ FAST = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=Fa
 def test_a_later_picture_of_another_aspect_ratio_is_placed_on_the_first_canvas_not_stretched(gen):
     (size_a, centre_a, r_a), (size_b, centre_b, r_b) = SQUARE, TALL
     centre_c, r_c = (30.0, 32.0), 13.0
-    images = [_disc_picture(size_a, centre_a, r_a, gen), _disc_picture(size_b, centre_b, r_b, gen)]
-    images.append(_disc_picture(size_a, centre_c, r_c, gen))
-    sets = [_rim(centre_a, r_a), _rim(centre_b, r_b), _rim(centre_c, r_c)]
+    images = [disc_picture(size_a, centre_a, r_a, [0.9] * 3, gen), disc_picture(size_b, centre_b, r_b, [0.9] * 3, gen)]
+    images.append(disc_picture(size_a, centre_c, r_c, [0.9] * 3, gen))
+    sets = [disc_marks(centre_a, r_a), disc_marks(centre_b, r_b), disc_marks(centre_c, r_c)]
     seq = morph_sequence(images, sets, frames=7, **FAST)
     frames = seq.frames
     assert frames.shape == (7, 3, 64, 64)  # every segment on the first picture's canvas
@@ -113,9 +89,9 @@ def test_a_later_picture_of_another_aspect_ratio_is_placed_on_the_first_canvas_n
     scaled = resize_image(images[1][None], (h, w))[0][:, top : top + 64, left : left + 64]
     torch.testing.assert_close(joint, scaled, atol=1e-4, rtol=0)
     # so its disc is a disc (resized to the canvas, it was an ellipse twice as wide as tall)
-    assert _aspect(joint) == pytest.approx(1.0, abs=0.04)
+    assert aspect(joint) == pytest.approx(1.0, abs=0.04)
     for segment in seq.segments:  # and on the way to and from it
-        assert _aspect(segment.frame(0.5)) == pytest.approx(1.0, abs=0.06)
+        assert aspect(segment.frame(0.5)) == pytest.approx(1.0, abs=0.06)
     # the segments meet the marks in the canvas's pixels, where the tall picture's are placed
     placed = apply_alignment(placement(size_b, size_a)[0], sets[1].double())
     torch.testing.assert_close(seq.segments[0].points.double(), placed, atol=1.0, rtol=0)
@@ -123,8 +99,8 @@ def test_a_later_picture_of_another_aspect_ratio_is_placed_on_the_first_canvas_n
 
 def test_the_average_places_each_picture_on_the_first_canvas_without_stretching(gen):
     (size_a, centre_a, r_a), (size_b, centre_b, r_b) = SQUARE, TALL
-    images = [_disc_picture(size_a, centre_a, r_a, gen), _disc_picture(size_b, centre_b, r_b, gen)]
-    sets = [_rim(centre_a, r_a), _rim(centre_b, r_b)]
+    images = [disc_picture(size_a, centre_a, r_a, [0.9] * 3, gen), disc_picture(size_b, centre_b, r_b, [0.9] * 3, gen)]
+    sets = [disc_marks(centre_a, r_a), disc_marks(centre_b, r_b)]
     result = average(images, sets, **FAST)
     assert result.warped.shape == (2, 3, 64, 64) and result.image.shape == (3, 64, 64)
     # the mean shape, in the first picture's pixels, of the square's marks and the tall one's as placed on the
@@ -133,5 +109,5 @@ def test_the_average_places_each_picture_on_the_first_canvas_without_stretching(
     torch.testing.assert_close(result.points, 0.5 * (sets[0] + placed), atol=1e-4, rtol=0)
     assert float(result.errors.max()) < 0.5  # each picture's marks reached it (pixels)
     # the tall picture's disc stays a disc, warped to the mean shape, and so does the average's
-    assert _aspect(result.warped[1]) == pytest.approx(1.0, abs=0.04)
-    assert _aspect(result.image) == pytest.approx(1.0, abs=0.04)
+    assert aspect(result.warped[1]) == pytest.approx(1.0, abs=0.04)
+    assert aspect(result.image) == pytest.approx(1.0, abs=0.04)
