@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import pytest
@@ -12,6 +13,7 @@ from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import HalfwaySettings, halfway_alignment, least_area, local_ncc2
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.metrics import folded_pixels
 from torchfluidwarp.morph import morph
 from torchfluidwarp.morph.fit import straight_paths
 from torchfluidwarp.morph.settings import NaturalSettings
@@ -129,9 +131,43 @@ def test_the_morph_carries_the_dense_alignment_without_folding() -> None:
         result = morph(*args, frames=3, progress=False, settings=NaturalSettings(grid=48, dense=dense))
         last = result.maps[-1].double()  # (H, W, 2): output pixel (B's) -> A's pixel
         errors[name] = float((_read(last.permute(2, 0, 1)[None], pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
-        assert result.folded_pixels == 0 if hasattr(result, "folded_pixels") else True
+        assert int(folded_pixels(result.maps).sum() + folded_pixels(result.maps_b).sum()) == 0
         assert float(result.error.mean()) < 1.0
     assert errors["dense"] < 0.6 * errors["spline"]
+
+
+def _held_error(result, pair: dict[str, torch.Tensor]) -> float:
+    """Mean distance from where the last map reads B's held-out points in A to where they truly are, pixels."""
+    last = result.maps[-1].double().permute(2, 0, 1)[None]  # output pixel (B's) -> A's pixel
+    return float((_read(last, pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
+
+
+def test_points_the_pixels_placed_follow_the_pixels(monkeypatch: pytest.MonkeyPatch) -> None:
+    # B's points as a feature matcher might place them, 3 px off in a random direction each: given as marks
+    # (anchored, each one met), the morph lands every one 3 px wrong; found by the morph itself, they only start
+    # the pixels' alignment, which moves B's side to where the pictures agree
+    from torchfluidwarp.correspond import FoundPoints, Note
+
+    morphing = importlib.import_module("torchfluidwarp.morph.morphing")  # the package's name is also a function's
+
+    pair = _known_pair(spread=True)
+    angle = torch.rand(9, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 2 * math.pi
+    wrong_b = pair["pb"] + 3.0 * torch.stack([angle.cos(), angle.sin()], -1)
+    pa, pb = pair["pa"].float(), wrong_b.float()
+    placed = FoundPoints(pa, pb, "features", Note("matched image features (9 pairs), as asked"))
+    monkeypatch.setattr(morphing, "find_points", lambda *args, **kwargs: placed)
+    settings = NaturalSettings(grid=48, dense=HalfwaySettings(levels=(24, 48, 96), iterations=30))
+    a, b = pair["a"].float(), pair["b"].float()
+    given = morph(a, b, pa, pb, frames=3, progress=False, settings=settings)
+    found = morph(a, b, frames=3, progress=False, settings=settings)
+    assert float(given.error.mean()) < 1.0  # the wrong marks are met
+    # A's points keep their places; where they end (B's side) moves from 3 px off to within 1.5 px of the truth
+    assert torch.allclose(found.trajectories[0].double(), pair["pa"], atol=1e-3)
+    assert float((found.points.double() - pair["pb"]).norm(dim=1).mean()) < 1.5
+    assert float(found.error.mean()) < 1.0  # measured against where the pixels placed B's side
+    assert _held_error(found, pair) < 0.6 * _held_error(given, pair)
+    for result in (given, found):
+        assert int(folded_pixels(result.maps).sum() + folded_pixels(result.maps_b).sum()) == 0
 
 
 def test_local_ncc2_ignores_gain_offset_and_sign() -> None:

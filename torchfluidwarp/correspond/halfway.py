@@ -56,16 +56,18 @@ class HalfwaySettings:
         window: the correlation window, pixels of each level's raster (odd, >= 3).
         smoothness: the weight of ``mean |grad R|^2`` (canvas pixels per canvas pixel, squared) against the
             image term (dimensionless, in ``[0, 1]``).
-        anchor: the weight keeping the marks' residual at 0, per (1 % of the canvas's longer side)^2.
+        anchor: the weight keeping the marks' residual at 0, per (1 % of the canvas's longer side)^2. A morph
+            whose points features or a flow placed (``morph(match=...)`` without face landmarks) sets it to 0:
+            those points are the pixels' own guess, and the pixels' alignment may correct them.
         iterations: L-BFGS iterations per level.
         cell: the residual's control points' spacing, pixels of each level's raster (bicubic between them).
         reach: how far the marks hold their spline, as a fraction of their median nearest-neighbour distance:
             the anchor weighs ``|R|^2`` by a Gaussian of that width around each mark.
     """
 
-    levels: tuple[int, ...] = (64, 128, 256)
+    levels: tuple[int, ...] = (32, 64, 128, 256)
     window: int = 7
-    smoothness: float = 1.0
+    smoothness: float = 0.3
     anchor: float = 1.0
     iterations: int = 40
     cell: int = 8

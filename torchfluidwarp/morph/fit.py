@@ -160,7 +160,8 @@ def fit_natural(
     warm_start: KeyframeFit | None,
     progress: bool,
     dense: Callable[[Tensor, Tensor], Callable[[Tensor], Tensor]] | None = None,
-) -> tuple[KeyframeFit, tuple[int, int, int, int]]:
+    found: bool = False,
+) -> tuple[KeyframeFit, tuple[int, int, int, int], Tensor]:
     """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
     :class:`~torchfluidwarp.morph.settings.NaturalSettings`).
 
@@ -174,10 +175,14 @@ def fit_natural(
         dense: given the marks' midpoints and travels ``(M, 2)`` (A's pixels), the residual travel ``R`` between
             them, points ``(N, 2)`` -> ``(N, 2)``, A's pixels
             (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`), which the forces carry.
+        found: the marks were found automatically (``morph(match=...)``), not given: they only start the
+            pixels' alignment, and each of A's marks then travels where the pixels' whole travel ``D + R`` takes
+            it (B's side re-placed), instead of ``R`` bending around marks that may be wrong.
 
     Returns:
-        The fit, in the box's frame, and the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and
-        :data:`PAD` of its longer side around it.
+        The fit, in the box's frame; the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
+        its longer side around it; and ``(M, 2)`` where A's marks must end, A's pixels (``target``, or where the
+        pixels re-placed it when ``found``).
     """
     H, W = size
     steps = settings.steps
@@ -192,8 +197,17 @@ def fit_natural(
     mids, disp = (src + end) / 2, end - src
     residual = None
     if dense is not None:
-        found = dense(mids + offset, disp)
-        residual = lambda p: found(p + offset)  # noqa: E731  (box pixels)
+        pixels = dense(mids + offset, disp)
+        residual = lambda p: pixels(p + offset)  # noqa: E731  (box pixels)
+        if found:  # the marks follow the pixels: the whole travel D + R, re-split into marks and a residual
+            marks = tps_fit(mids, disp)
+            whole = lambda p: marks(p) + pixels(p + offset)  # noqa: E731
+            mids = solve_midpoints(whole, src, -0.5)
+            disp = whole(mids)
+            end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
+            mids, disp = (src + end) / 2, end - src
+            spline = tps_fit(mids, disp)
+            residual = lambda p: whole(p) - spline(p)  # noqa: E731
     forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
@@ -216,7 +230,7 @@ def fit_natural(
         tolerance=settings.tolerance,
         progress=progress,
     )
-    return fit, box
+    return fit, box, mids + disp / 2 + offset
 
 
 def fit_paper(

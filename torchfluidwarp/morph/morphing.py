@@ -18,16 +18,25 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from torchfluidwarp._checks import check_instance, check_int, check_memory, check_size, check_tensor, compute_dtype
+from torchfluidwarp._checks import (
+    check_instance,
+    check_int,
+    check_memory,
+    check_size,
+    check_tensor,
+    compute_dtype,
+    warn,
+)
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
-from torchfluidwarp.correspond import auto_points, halfway_alignment
+from torchfluidwarp.correspond import MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural, fit_paper, paper_flows, pose
@@ -232,7 +241,10 @@ def morph(
             the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
             integers); the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
-            from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says.
+            from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says. Points
+            that features or a flow placed (not face landmarks) only start the natural method's pixel alignment
+            (``NaturalSettings.dense``, then not anchored to them): A's points stay, and B's side follows the
+            pixels' whole travel, which :attr:`MorphResult.error` is then measured against.
         settings: the method and its fluid, fit, pre-alignment and inverse
             (:class:`~torchfluidwarp.morph.settings.NaturalSettings` or
             :class:`~torchfluidwarp.morph.settings.PaperSettings`).
@@ -291,8 +303,12 @@ def morph(
             "give both points_a and points_b, or neither (then match=Matching(...) finds them: "
             "'auto', 'faces', 'features' or 'pixels')"
         )
+    found = False  # marks placed by features or a flow are the pixels' guess: the pixels' alignment may move them
     if points_a is None:
-        points_a, points_b = auto_points(a, b, match=match.mode, face_index=match.face_index)
+        placed = find_points(a, b, match=match.mode, face_index=match.face_index)
+        if placed.reason.notable:
+            warn(MatchNotice(placed.reason))
+        points_a, points_b, found = placed.points_a, placed.points_b, placed.matcher != "faces"
     n = check_int("frames", frames, minimum=2)
     pa = _as_points("points_a", points_a, a)
     pb = _as_points("points_b", points_b, b)
@@ -327,12 +343,13 @@ def morph(
         dense = None
         if settings.dense is not None:
             to_a, to_b = torch.linalg.inv(place_a), torch.linalg.solve(place_b, M.to(place_b))
-            options = settings.dense
+            options = replace(settings.dense, anchor=0.0) if found else settings.dense
 
             def dense(mids: Tensor, disp: Tensor) -> Callable[[Tensor], Tensor]:
                 return halfway_alignment(a, b, to_a, to_b, size, mids, disp, options)
 
-        fit, box = fit_natural(pa_c, target, size, settings, warm_start, progress, dense)
+        fit, box, target = fit_natural(pa_c, target, size, settings, warm_start, progress, dense, found)
+        pb_c = apply_alignment(M, target)  # where found marks end, the pixels placed them
     else:
         if settings.margin is None:
             box = (0, 0, W, H)
