@@ -205,6 +205,10 @@ class _Level:
         self.cb = _on_canvas(image_b, from_b.double(), self.at)
         self.near = _near_marks(self.at, mids, settings.reach).to(self.D.dtype)
         self.floor = min(MIN_AREA, float(least_area(self.D, self.spacing).min()))  # the marks' squeeze is theirs
+        # the solve works in float32 (a raster of a few hundred pixels needs no more; float64 doubled its time)
+        self.at, self.D, self.ca, self.cb, self.near = (
+            t.float() for t in (self.at, self.D, self.ca, self.cb, self.near)
+        )
 
     def up(self, control: Tensor) -> Tensor:
         """The residual ``(1, 2, h, w)`` of control values ``(1, 2, k_y, k_x)``: bicubic between them."""
@@ -283,11 +287,11 @@ def halfway_alignment(
     assert control is not None
     with torch.no_grad():
         start = float(level.image_term(level.D)[0])
-        R = level.up(control.detach())
+        R = level.up(control.detach()).double()
         # what folds anyway is shrunk until it does not: the residual scaled by the largest of 1, 1/2, 1/4 ...
         for _ in range(8):
-            if float(least_area(level.D + R, level.spacing).min()) >= level.floor - 1e-6:
+            if float(least_area(level.D.double() + R, level.spacing).min()) >= level.floor - 1e-6:
                 break
             R = R / 2
-        valid = level.image_term(level.D + R)[1]
+        valid = level.image_term(level.D + R.float())[1].double()
     return HalfwayAlignment(R, size, valid, energy, start)
