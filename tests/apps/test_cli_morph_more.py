@@ -228,6 +228,31 @@ def test_region_masks_and_a_transparent_gif(tmp_path):
     assert webp.read_bytes()[8:12] == b"WEBP"
 
 
+def test_points_the_command_line_found_reach_the_morph_as_found(astronauts, tmp_path, monkeypatch):
+    # the command line finds the points itself (to say which matcher it used); the morph must still know they were
+    # found, so that matched features only start the pixels' alignment, as morph(match=...) takes them, and the
+    # report measures the marks against where the morph aimed them
+    from torchfluidwarp.morph import morph as real_morph
+
+    (a, b), _, _, _ = astronauts
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append((args[2:], kwargs.get("placed")))
+        result = real_morph(*args, **kwargs)
+        seen.append(result)
+        return result
+
+    monkeypatch.setattr("torchfluidwarp.apps.cli_morph.morph", spy)
+    report = tmp_path / "r.json"
+    argv = ["morph", str(a), str(b), "-o", str(tmp_path / "m.gif"), "--frames", "2", "--match", "features"]
+    assert main([*argv, "--report", str(report), *FAST]) == 0
+    (given, placed), result = seen
+    assert given == (None, None) and placed is not None and placed.matcher == "features"
+    marked = json.loads(report.read_text())["marked"]["end"]["mean"]  # read off the last frame's map
+    assert marked == pytest.approx(float(result.error.mean()), abs=0.25)
+
+
 def test_an_existing_output_is_refused_before_the_points_are_searched_for(astronauts, tmp_path, capsys, monkeypatch):
     (a, b), _, _, _ = astronauts
     calls = []

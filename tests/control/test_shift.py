@@ -8,6 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.control import best_shift, fit_images, mse_loss
+from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.warp.forces import Brushes
 from torchfluidwarp.warp.frames import identity_map, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
@@ -43,6 +44,14 @@ def test_best_shift_of_a_picture_against_itself_is_zero(gen):
     source = _texture(gen, 64, 80)
     found, value = best_shift(source, source.clone(), mse_loss)
     assert found.tolist() == [0.0, 0.0] and value == pytest.approx(0.0, abs=1e-20)
+
+
+@pytest.mark.parametrize("candidates, error", [(0, InputError), (2.5, InputTypeError), (True, InputTypeError)])
+def test_best_shift_names_a_bad_candidates(gen, candidates, error):
+    source = _texture(gen, 32, 32)
+    with pytest.raises(error, match="candidates") as caught:
+        best_shift(source, source, mse_loss, candidates=candidates)
+    assert caught.value.argument == "candidates"
 
 
 def _epe(fit, shift: tuple[float, float], size: tuple[int, int]) -> tuple[float, float]:

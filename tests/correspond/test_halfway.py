@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import math
 
 import pytest
@@ -142,32 +141,43 @@ def _held_error(result, pair: dict[str, torch.Tensor]) -> float:
     return float((_read(last, pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
 
 
-def test_points_the_pixels_placed_follow_the_pixels(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_points_the_pixels_placed_follow_the_pixels() -> None:
     # B's points as a feature matcher might place them, 3 px off in a random direction each: given as marks
-    # (anchored, each one met), the morph lands every one 3 px wrong; found by the morph itself, they only start
-    # the pixels' alignment, which moves B's side to where the pictures agree
+    # (anchored, each one met), the morph lands every one 3 px wrong; placed by a matcher other than the face
+    # landmarks, they only start the pixels' alignment, which moves B's side to where the pictures agree
     from torchfluidwarp.correspond import FoundPoints, Note
-
-    morphing = importlib.import_module("torchfluidwarp.morph.morphing")  # the package's name is also a function's
 
     pair = _known_pair(spread=True)
     angle = torch.rand(9, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 2 * math.pi
     wrong_b = pair["pb"] + 3.0 * torch.stack([angle.cos(), angle.sin()], -1)
     pa, pb = pair["pa"].float(), wrong_b.float()
-    placed = FoundPoints(pa, pb, "features", Note("matched image features (9 pairs), as asked"))
-    monkeypatch.setattr(morphing, "find_points", lambda *args, **kwargs: placed)
     settings = NaturalSettings(grid=48, dense=HalfwaySettings(levels=(24, 48, 96), iterations=30))
     a, b = pair["a"].float(), pair["b"].float()
-    given = morph(a, b, pa, pb, frames=3, progress=False, settings=settings)
-    found = morph(a, b, frames=3, progress=False, settings=settings)
+    run = lambda **kw: morph(a, b, frames=3, progress=False, settings=settings, **kw)  # noqa: E731
+    given = run(points_a=pa, points_b=pb)
+    features = run(placed=FoundPoints(pa, pb, "features", Note("matched image features (9 pairs), as asked")))
+    faces = run(placed=FoundPoints(pa, pb, "faces", Note("face landmarks")))
     assert float(given.error.mean()) < 1.0  # the wrong marks are met
+    assert torch.allclose(faces.points, given.points, atol=1e-4)  # face landmarks are held like given points
     # A's points keep their places; where they end (B's side) moves from 3 px off to within 1.5 px of the truth
-    assert torch.allclose(found.trajectories[0].double(), pair["pa"], atol=1e-3)
-    assert float((found.points.double() - pair["pb"]).norm(dim=1).mean()) < 1.5
-    assert float(found.error.mean()) < 1.0  # measured against where the pixels placed B's side
-    assert _held_error(found, pair) < 0.6 * _held_error(given, pair)
-    for result in (given, found):
+    assert torch.allclose(features.trajectories[0].double(), pair["pa"], atol=1e-3)
+    assert float((features.points.double() - pair["pb"]).norm(dim=1).mean()) < 1.5
+    assert float((features.targets.double() - pair["pb"]).norm(dim=1).mean()) < 1.5
+    assert float(features.error.mean()) < 1.0  # measured against where the pixels placed B's side
+    assert _held_error(features, pair) < 0.6 * _held_error(given, pair)
+    for result in (given, features):
         assert int(folded_pixels(result.maps).sum() + folded_pixels(result.maps_b).sum()) == 0
+
+
+def test_placed_points_and_given_points_do_not_mix() -> None:
+    from torchfluidwarp.correspond import FoundPoints, Note
+
+    a = _picture().float()
+    pts = torch.tensor([[10.0, 10.0], [80.0, 12.0], [40.0, 70.0]])
+    placed = FoundPoints(pts, pts, "features", Note("matched image features (3 pairs), as asked"))
+    with pytest.raises(InputError, match="not both") as caught:
+        morph(a, a, pts, pts, placed=placed, frames=2, progress=False)
+    assert caught.value.argument == "placed"
 
 
 def test_local_ncc2_ignores_gain_offset_and_sign() -> None:

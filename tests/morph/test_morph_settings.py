@@ -41,7 +41,7 @@ def test_the_morph_functions_take_fewer_than_15_parameters(fn):
 def test_no_default_is_a_none_sentinel_resolved_per_method():
     # the defaults live on the settings classes, and differ by method
     for name, parameter in inspect.signature(morph).parameters.items():
-        if name not in ("points_a", "points_b", "warm_start", "max_memory"):
+        if name not in ("points_a", "points_b", "placed", "warm_start", "max_memory"):  # optional inputs
             assert parameter.default is not None, name
     assert NaturalSettings().grid.shape == (80, 80) and PaperSettings().grid.shape == (64, 64)
     assert NaturalSettings().compressible is True and PaperSettings().compressible is False

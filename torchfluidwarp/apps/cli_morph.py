@@ -24,6 +24,7 @@ import ctypes
 import sys
 import warnings
 
+import torch
 from torch import Tensor
 
 from torchfluidwarp.apps.batch import morph_pairs, planned_work
@@ -50,7 +51,8 @@ from torchfluidwarp.apps.cli_morph_output import (
     write_result,
 )
 from torchfluidwarp.apps.cli_sequence import run_sequence
-from torchfluidwarp.correspond import MatchNotice, find_points
+from torchfluidwarp.control import apply_alignment
+from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
@@ -233,7 +235,13 @@ def add_demo(commands: argparse._SubParsersAction) -> None:
 
 
 def _run_morph(
-    command: str, args: argparse.Namespace, image_a: Tensor, image_b: Tensor, points_a: Tensor, points_b: Tensor
+    command: str,
+    args: argparse.Namespace,
+    image_a: Tensor,
+    image_b: Tensor,
+    points_a: Tensor,
+    points_b: Tensor,
+    placed: FoundPoints | None = None,
 ) -> int:
     """Morph, write the animation (or ``--frame``) and the report; the output was checked by the caller.
 
@@ -248,11 +256,12 @@ def _run_morph(
         timing, blending = result_options(args)
     progress = not args.quiet and sys.stderr.isatty()
     with clock.part("fit"):
+        given = (points_a, points_b) if placed is None else (None, None)
         result = morph(
             image_a,
             image_b,
-            points_a,
-            points_b,
+            *given,
+            placed=placed,
             settings=morph_settings(args),
             frames=args.frames,
             timing=timing,
@@ -264,6 +273,8 @@ def _run_morph(
         path = write_result(result, args)
     if args.report:
         with clock.part("report"):
+            if placed is not None:  # B's side where the morph aimed, B's pixels (the pixels may have moved it)
+                points_b = apply_alignment(torch.linalg.inv(result.canvas_from_b), result.targets).to(points_b)
             report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
             print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
@@ -381,7 +392,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
             if args.save_points:
                 for path, points in zip(args.save_points, (pa, pb)):
                     print(f"points: {write_points(path, points)}", file=sys.stderr)
-        return _run_morph("morph", args, a, b, pa, pb)
+        return _run_morph("morph", args, a, b, pa, pb, None if files else found)
     except (OSError, ImportError) as exc:  # a file of the user's, or the faces extra missing: one line
         return fail("morph", exc)  # every other error goes to cli.main, which says whose fault it is
 

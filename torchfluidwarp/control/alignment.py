@@ -14,7 +14,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_tensor
+from torchfluidwarp._checks import check_int, check_tensor
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.warp.frames import identity_map, warp_image
 
@@ -137,6 +137,7 @@ def best_shift(
     """
     check_tensor("source", source, ndim=4)
     check_tensor("target", target, shape=list(source.shape))
+    candidates = check_int("candidates", candidates, minimum=1)
     H, W = source.shape[-2:]
     f = min(1.0, SHIFT_SIDE / max(H, W))
     h, w = max(2, round(H * f)), max(2, round(W * f))

@@ -191,10 +191,13 @@ def fit_natural(
     offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
     src = pa.double() - offset
     inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
-    mids, disp = straight_paths(src, target - offset, inside)
-    # the ends stay clear of the walls, where the forces fade out
-    end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
-    mids, disp = (src + end) / 2, end - src
+    far = src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])
+
+    def clear(mids: Tensor, disp: Tensor) -> tuple[Tensor, Tensor]:  # the ends stay clear of the walls' fade
+        end = torch.minimum(mids + disp / 2, far).clamp(min=pad / 2)
+        return (src + end) / 2, end - src
+
+    mids, disp = clear(*straight_paths(src, target - offset, inside))
     residual = None
     if dense is not None:
         pixels = dense(mids + offset, disp)
@@ -203,9 +206,7 @@ def fit_natural(
             marks = tps_fit(mids, disp)
             whole = lambda p: marks(p) + pixels(p + offset)  # noqa: E731
             mids = solve_midpoints(whole, src, -0.5)
-            disp = whole(mids)
-            end = torch.minimum(mids + disp / 2, src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])).clamp(min=pad / 2)
-            mids, disp = (src + end) / 2, end - src
+            mids, disp = clear(mids, whole(mids))
             spline = tps_fit(mids, disp)
             residual = lambda p: whole(p) - spline(p)  # noqa: E731
     forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)

@@ -36,7 +36,7 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
-from torchfluidwarp.correspond import MatchNotice, find_points, halfway_alignment
+from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural, fit_paper, paper_flows, pose
@@ -216,6 +216,7 @@ def morph(
     blending: Blending = Blending(),
     match: Matching = Matching(),
     warm_start: KeyframeFit | None = None,
+    placed: FoundPoints | None = None,
     progress: bool = True,
     max_memory: float | None = None,
 ) -> MorphResult:
@@ -256,6 +257,10 @@ def morph(
         match: how the points are found when none are given (:class:`~torchfluidwarp.morph.settings.Matching`).
         warm_start: a previous morph's ``result.fit`` of the same method and number of points: its forces
             start this fit (the studio's live previews).
+        placed: points that :func:`~torchfluidwarp.correspond.auto.find_points` already found for this pair (the
+            command line finds them first, to say which matcher it used), taken as ``match`` would take its own:
+            face landmarks held like given points, others only starting the pixels' alignment. Give it instead
+            of ``points_a`` and ``points_b``.
         progress: tqdm bars of the fit.
         max_memory: bytes the morph may set out to hold (its fit, and one frame at a time); default
             :data:`torchfluidwarp._checks.MAX_BYTES` (8 GiB). A larger request is refused before any work.
@@ -303,11 +308,18 @@ def morph(
             "give both points_a and points_b, or neither (then match=Matching(...) finds them: "
             "'auto', 'faces', 'features' or 'pixels')"
         )
-    found = False  # marks placed by features or a flow are the pixels' guess: the pixels' alignment may move them
-    if points_a is None:
+    if placed is not None:
+        check_instance("placed", placed, FoundPoints)
+        if points_a is not None or points_b is not None:
+            raise InputError(
+                "give points_a and points_b, or placed (points a matcher found), not both", argument="placed"
+            )
+    elif points_a is None:
         placed = find_points(a, b, match=match.mode, face_index=match.face_index)
         if placed.reason.notable:
             warn(MatchNotice(placed.reason))
+    found = False  # marks placed by features or a flow are the pixels' guess: the pixels' alignment may move them
+    if placed is not None:
         points_a, points_b, found = placed.points_a, placed.points_b, placed.matcher != "faces"
     n = check_int("frames", frames, minimum=2)
     pa = _as_points("points_a", points_a, a)
@@ -383,6 +395,5 @@ def morph(
             for t in range(steps + 1)
         ]
     )  # (T + 1, M, 2)
-    error = (trajectories[-1] - pb_c.to(trajectories.dtype)).norm(dim=-1)  # (M,) pixels of the last frame
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
-    return MorphResult(scene, fit, M, trajectories, error, n, out_dtype, seconds, max_memory)
+    return MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory)

@@ -53,8 +53,12 @@ class MorphResult:
         trajectories: ``(T + 1, M, 2)`` A's points at each fluid step, in the frames' pixels (the fit's paths
             moved to the canvas and pre-aligned by ``M`` interpolated to that step).
         points: ``(M, 2)`` A's points carried to the last frame (``trajectories[-1]``), the frames' pixels.
+        targets: ``(M, 2)`` where A's points were to end, the frames' pixels: B's points placed on the canvas,
+            or, for points that features or a flow placed (``morph(match=...)`` without faces), where the pixels'
+            alignment moved B's side (``apply_alignment(torch.linalg.inv(result.canvas_from_b), result.targets)``
+            gives them in B's own pixels).
         error: ``(M,)`` pixels of the last frame: the distance from each of A's points carried to the last frame
-            to B's point placed on the canvas (divide by B's scale, ``canvas_from_b[0, 0]``, for B's pixels).
+            to its target (divide by B's scale, ``canvas_from_b[0, 0]``, for B's pixels).
         message: the fit's summary, with :attr:`error`'s mean and maximum.
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
             inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
@@ -78,7 +82,7 @@ class MorphResult:
         fit: KeyframeFit,
         alignment: Tensor,
         trajectories: Tensor,
-        error: Tensor,
+        targets: Tensor,
         count: int,
         dtype: torch.dtype,
         seconds: dict[str, float],
@@ -88,7 +92,8 @@ class MorphResult:
         self.fit = fit
         self.alignment = alignment
         self.trajectories = trajectories
-        self.error = error
+        self.targets = targets
+        self.error = (trajectories[-1] - targets.to(trajectories.dtype)).norm(dim=-1)
         self._count = count
         self._dtype = dtype
         self.seconds = seconds
