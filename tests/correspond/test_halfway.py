@@ -122,23 +122,22 @@ def test_a_picture_with_no_counterpart_leaves_the_marks_in_place() -> None:
     assert result.frames.shape == (3, 3, SIZE, SIZE)
 
 
+def _held_error(result, pair: dict[str, torch.Tensor]) -> float:
+    """Mean distance from where the last map reads B's held-out points in A to where they truly are, pixels."""
+    last = result.maps[-1].double().permute(2, 0, 1)[None]  # output pixel (B's) -> A's pixel
+    return float((_read(last, pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
+
+
 def test_the_morph_carries_the_dense_alignment_without_folding() -> None:
     pair = _known_pair()
     args = (pair["a"].float(), pair["b"].float(), pair["pa"].float(), pair["pb"].float())
     errors = {}
     for name, dense in (("spline", None), ("dense", FAST)):
         result = morph(*args, frames=3, progress=False, settings=NaturalSettings(grid=48, dense=dense))
-        last = result.maps[-1].double()  # (H, W, 2): output pixel (B's) -> A's pixel
-        errors[name] = float((_read(last.permute(2, 0, 1)[None], pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
+        errors[name] = _held_error(result, pair)
         assert int(folded_pixels(result.maps).sum() + folded_pixels(result.maps_b).sum()) == 0
         assert float(result.error.mean()) < 1.0
     assert errors["dense"] < 0.6 * errors["spline"]
-
-
-def _held_error(result, pair: dict[str, torch.Tensor]) -> float:
-    """Mean distance from where the last map reads B's held-out points in A to where they truly are, pixels."""
-    last = result.maps[-1].double().permute(2, 0, 1)[None]  # output pixel (B's) -> A's pixel
-    return float((_read(last, pair["hb"], SIZE) - pair["ha"]).norm(dim=1).mean())
 
 
 def test_points_the_pixels_placed_follow_the_pixels() -> None:

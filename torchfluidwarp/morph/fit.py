@@ -201,14 +201,15 @@ def fit_natural(
     residual = None
     if dense is not None:
         pixels = dense(mids + offset, disp)
-        residual = lambda p: pixels(p + offset)  # noqa: E731  (box pixels)
         if found:  # the marks follow the pixels: the whole travel D + R, re-split into marks and a residual
             marks = tps_fit(mids, disp)
-            whole = lambda p: marks(p) + pixels(p + offset)  # noqa: E731
+            whole = lambda p: marks(p) + pixels(p + offset)  # noqa: E731  (box pixels)
             mids = solve_midpoints(whole, src, -0.5)
             mids, disp = clear(mids, whole(mids))
             spline = tps_fit(mids, disp)
             residual = lambda p: whole(p) - spline(p)  # noqa: E731
+        else:
+            residual = lambda p: pixels(p + offset)  # noqa: E731  (box pixels)
     forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
