@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from torchfluidwarp.control.alignment import apply_alignment
-from torchfluidwarp.morph.fit import MIN_POSE_FIT, pose, straight_paths
+from torchfluidwarp.core.spline import tps_fit
+from torchfluidwarp.correspond.halfway import least_area
+from torchfluidwarp.morph.fit import MIN_AREA, MIN_POSE_FIT, pose, straight_paths
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
 
@@ -60,3 +62,27 @@ def test_too_few_distinct_midpoints_are_refused_naming_the_points():
     tgt = src[torch.tensor([1, 0, 2])]  # two of three marks swap: two distinct midpoints are left
     with pytest.raises(ValueError, match="points_a and points_b: .* swap places"):
         straight_paths(src, tgt, (0.0, 0.0, 64.0, 64.0))
+
+
+def test_a_squeeze_between_close_marks_is_seen_and_smoothed():
+    # an eye that closes: two marks 6 px apart in A end 0.2 px apart in B, squeezing the lid to 6% of its middle
+    # height, between the 4-px samples of a 64 x 64 lattice over the 256-px picture
+    ring = torch.tensor(
+        [[x, y] for x in (30.0, 128.0, 226.0) for y in (30.0, 128.0, 226.0) if (x, y) != (128.0, 128.0)]
+    )
+    lids = torch.tensor([[128.0, 125.0], [128.0, 131.0]])
+    src = torch.cat([ring, lids]).double()
+    tgt = torch.cat([ring, torch.tensor([[128.0, 127.9], [128.0, 128.1]])]).double()
+    inside = (0.0, 0.0, 255.0, 255.0)
+    mids, disp = straight_paths(src, tgt, inside)
+    torch.testing.assert_close(mids - disp / 2, src, atol=1e-6, rtol=0)  # each mark still starts at its source
+    # the paths' least area on a 0.25-px raster around the lids, from central differences of the returned motion
+    travel = tps_fit(mids, disp)
+    n, lo, hi = 129, 112.0, 144.0
+    gy, gx = torch.meshgrid(*[torch.linspace(lo, hi, n, dtype=torch.float64)] * 2, indexing="ij")
+    field = travel(torch.stack([gx, gy], -1).reshape(-1, 2)).T.reshape(1, 2, n, n)
+    spacing = (hi - lo) / (n - 1)
+    assert float(least_area(field, (spacing, spacing)).min()) >= MIN_AREA - 0.01
+    # the marks given straight would squeeze the lid far below it (the case the check is for)
+    straight = tps_fit(0.5 * (src + tgt), tgt - src)(torch.stack([gx, gy], -1).reshape(-1, 2)).T.reshape(1, 2, n, n)
+    assert float(least_area(straight, (spacing, spacing)).min()) < 0.5 * MIN_AREA

@@ -176,16 +176,26 @@ def local_ncc2(x: Tensor, y: Tensor, window: int, eps: float = 1e-4) -> Tensor:
     return cov.square() / ((vx + eps) * (vy + eps))
 
 
-def least_area(field: Tensor, spacing: tuple[float, float]) -> Tensor:
-    """``(B, h, w)``: the least of ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` of a displacement field
-    ``(B, 2, h, w)`` (pixels, ``spacing`` = ``(dy, dx)`` pixels between raster points), differentiable."""
-    b, a = torch.gradient(field[:, 0], spacing=spacing, dim=(-2, -1))  # dux/dy, dux/dx
-    d, c = torch.gradient(field[:, 1], spacing=spacing, dim=(-2, -1))  # duy/dy, duy/dx
+def least_area_ratio(jacobian: Tensor) -> Tensor:
+    """``(...)``: the least of ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]``, for Jacobians ``J``
+    ``(..., 2, 2)`` of a displacement (row ``i``: component ``i``, column ``j``: its derivative along ``x_j``,
+    pixels per pixel), differentiable: how far the straight paths ``m + sigma D(m)`` squeeze an area, relative to
+    its size at ``sigma = 0``."""
+    a, b, c, d = jacobian[..., 0, 0], jacobian[..., 0, 1], jacobian[..., 1, 0], jacobian[..., 1, 1]
     trace, det = a + d, a * d - b * c
+    # det(I + sigma J) = 1 + sigma trace + sigma^2 det: a parabola; its least value is at an end or its vertex
     ends = torch.minimum(1 + 0.5 * trace + 0.25 * det, 1 - 0.5 * trace + 0.25 * det)
     safe = torch.where(det > 0, det, torch.ones_like(det))
     inner = (det > 0) & ((trace / (2 * safe)).abs() < 0.5)
     return torch.where(inner, torch.minimum(ends, 1 - trace.square() / (4 * safe)), ends)
+
+
+def least_area(field: Tensor, spacing: tuple[float, float]) -> Tensor:
+    """``(B, h, w)``: :func:`least_area_ratio` of a displacement field ``(B, 2, h, w)`` (pixels, ``spacing`` =
+    ``(dy, dx)`` pixels between raster points), its Jacobian by central differences, differentiable."""
+    b, a = torch.gradient(field[:, 0], spacing=spacing, dim=(-2, -1))  # dux/dy, dux/dx
+    d, c = torch.gradient(field[:, 1], spacing=spacing, dim=(-2, -1))  # duy/dy, duy/dx
+    return least_area_ratio(torch.stack([torch.stack([a, b], -1), torch.stack([c, d], -1)], -2))
 
 
 class _Level:

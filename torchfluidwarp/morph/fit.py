@@ -20,6 +20,7 @@ from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimat
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
 from torchfluidwarp.core.grid import mean_pixels_per_cell
 from torchfluidwarp.core.spline import tps_fit
+from torchfluidwarp.correspond.halfway import least_area_ratio
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph.settings import MorphSettings, NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints
@@ -93,20 +94,39 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
             )
 
 
-def _least_area(travel: Tensor, spacing: float) -> float:
-    """The least area ratio ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` of a field ``(n, n, 2)`` of
-    displacements ``D`` sampled ``spacing`` pixels apart: how far the straight paths ``m + sigma D(m)`` of the
-    natural morph squeeze the picture, relative to its middle frame."""
-    dux_dy, dux_dx = torch.gradient(travel[..., 0], spacing=spacing)
-    duy_dy, duy_dx = torch.gradient(travel[..., 1], spacing=spacing)
-    trace, det = dux_dx + duy_dy, dux_dx * duy_dy - dux_dy * duy_dx
-    # det(I + sigma J) = 1 + sigma trace + sigma^2 det: a parabola; its least value is at an end or its vertex
-    safe = torch.where(det > 0, det, torch.ones_like(det))
-    vertex = -trace / (2 * safe)
-    inner = (det > 0) & (vertex.abs() < 0.5)
-    ends = torch.minimum(1 + 0.5 * trace + 0.25 * det, 1 - 0.5 * trace + 0.25 * det)
-    least = torch.where(inner, 1 - trace.square() / (4 * safe), ends)
-    return float(least.min())
+def _squeeze_points(mids: Tensor, inside: tuple[float, float, float, float]) -> Tensor:
+    """``(N, 2)``: where :func:`straight_paths` looks for a squeeze: a 64 x 64 lattice over the rectangle
+    ``inside``, and between each of the marks' midpoints ``mids`` ``(M, 2)`` and its six nearest, 7 points along
+    the segment and 7 on each side of it, a quarter of its length away. Marks close together squeeze the picture
+    between them at scales a lattice misses: eyelids that close, a few pixels apart."""
+    x0, y0, x1, y1 = inside
+    gy, gx = torch.meshgrid(
+        torch.linspace(y0, y1, 64, dtype=torch.float64, device=mids.device),
+        torch.linspace(x0, x1, 64, dtype=torch.float64, device=mids.device),
+        indexing="ij",
+    )
+    gaps = torch.cdist(mids, mids).fill_diagonal_(math.inf)
+    near = gaps.topk(min(6, mids.shape[0] - 1), largest=False).indices  # (M, k)
+    start, step = mids[:, None, None], (mids[near] - mids[:, None])[:, :, None]  # (M, 1, 1, 2), (M, k, 1, 2)
+    along = start + step * torch.arange(1, 8, dtype=torch.float64, device=mids.device).view(1, 1, -1, 1) / 8
+    side = 0.25 * torch.stack([-step[..., 1], step[..., 0]], -1)
+    points = torch.cat(
+        [torch.stack([gx, gy], -1).reshape(-1, 2), *(p.reshape(-1, 2) for p in (along, along + side, along - side))]
+    )
+    low, high = points.new_tensor([x0, y0]), points.new_tensor([x1, y1])
+    return points[((points >= low) & (points <= high)).all(1)]
+
+
+def _least_area(travel: Callable[[Tensor], Tensor], at: Tensor) -> float:
+    """The least area ratio ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` and the points ``at``
+    ``(N, 2)`` of a displacement field ``travel`` (pixels): how far the straight paths ``m + sigma D(m)`` of the
+    natural morph squeeze the picture, relative to its middle frame. ``J`` is exact (autograd), not differenced."""
+    x = at.detach().clone().requires_grad_(True)
+    with torch.enable_grad():
+        u = travel(x)
+        rows = [torch.autograd.grad(u[:, i].sum(), x, retain_graph=i == 0)[0] for i in range(2)]
+    least = least_area_ratio(torch.stack(rows, -2))
+    return float(least[torch.isfinite(least)].min())
 
 
 def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> tuple[Tensor, Tensor]:
@@ -118,20 +138,12 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     spline's smoothing (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until
     none does, and each mark travels as that spline says; the marks it then misses show in the morph's ``result.error``.
     """
-    x0, y0, x1, y1 = inside
-    n = 64
-    spacing = max(x1 - x0, y1 - y0) / (n - 1)
-    gy, gx = torch.meshgrid(
-        torch.linspace(y0, y1, n, dtype=torch.float64, device=src.device),
-        torch.linspace(x0, x1, n, dtype=torch.float64, device=src.device),
-        indexing="ij",
-    )
-    at = torch.stack([gx, gy], -1).reshape(-1, 2)
     mids, disp = 0.5 * (src + tgt), tgt - src
+    at = _squeeze_points(mids, inside)
 
     def least(smoothing: float) -> float:
         try:
-            return _least_area(tps_fit(mids, disp, smoothing)(at).view(n, n, 2), spacing)
+            return _least_area(tps_fit(mids, disp, smoothing), at)
         except InputError:  # marks that swap places share a midpoint: no spline interpolates both
             return -math.inf
 
