@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
-from torchfluidwarp.core.grid import mean_pixels_per_cell
+from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area_ratio
 from torchfluidwarp.errors import InputError
@@ -164,6 +164,34 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     return m, travel(m)
 
 
+WALL_CLEARANCE = 1.75
+"""The natural morph's margin (:data:`PAD`) is widened, with the fluid's cells kept their size, to this many
+times the farthest the picture's edge travels towards the walls. The forces fade to zero across the margin (a
+half cosine, steepest at ``pi / 2`` per margin width), so the particles between the edge and the walls travel
+less than the edge, and the margin shrinks by up to ``pi / 2`` times the edge's travel over the margin's width:
+at 1.75 it keeps a tenth of its area (:data:`MIN_AREA`), instead of being crushed against the walls until it
+folds (turned heads, whose marks' spline carries the face's stretch on to the picture's edge)."""
+
+
+def _margin_for(
+    travel: Callable[[Tensor], Tensor], inside: tuple[float, float, float, float], device: torch.device
+) -> int:
+    """Pixels of margin (:data:`WALL_CLEARANCE`) that the ``travel`` ``(N, 2) -> (N, 2)`` (box pixels) of the
+    picture's edge, the rectangle ``inside``, needs: from 64 points per side, each side's outward component."""
+    x0, y0, x1, y1 = inside
+    t = torch.linspace(0, 1, 64, dtype=torch.float64, device=device)
+    far = 0.0
+    for (ax, ay), (bx, by), outward in (
+        ((x0, y0), (x1, y0), (0.0, -1.0)),
+        ((x1, y0), (x1, y1), (1.0, 0.0)),
+        ((x0, y1), (x1, y1), (0.0, 1.0)),
+        ((x0, y0), (x0, y1), (-1.0, 0.0)),
+    ):
+        side = torch.stack([ax + t * (bx - ax), ay + t * (by - ay)], -1)
+        far = max(far, float((travel(side) * side.new_tensor(outward)).sum(-1).max()))
+    return math.ceil(WALL_CLEARANCE * far)
+
+
 def fit_natural(
     pa: Tensor,
     target: Tensor,
@@ -215,13 +243,27 @@ def fit_natural(
         pixels = dense(mids + offset, disp)
         if found:  # the marks follow the pixels: the whole travel D + R, re-split into marks and a residual
             marks = tps_fit(mids, disp)
-            whole = lambda p: marks(p) + pixels(p + offset)  # noqa: E731  (box pixels)
+            whole = lambda p, o=offset: marks(p) + pixels(p + o)  # noqa: E731  (box pixels)
             mids = solve_midpoints(whole, src, -0.5)
             mids, disp = clear(mids, whole(mids))
             spline = tps_fit(mids, disp)
             residual = lambda p: whole(p) - spline(p)  # noqa: E731
         else:
-            residual = lambda p: pixels(p + offset)  # noqa: E731  (box pixels)
+            residual = lambda p, o=offset: pixels(p + o)  # noqa: E731  (box pixels)
+    grid = FluidGrid.of(settings.grid).shape
+    marks_travel = tps_fit(mids, disp)
+    wider = _margin_for(lambda p: marks_travel(p) + (0 if residual is None else residual(p)), inside, mids.device)
+    if wider > pad:  # the walls move out, and the fluid's cells keep their size
+        shift = wider - pad
+        grid = (
+            math.ceil(grid[0] * (H + 2 * wider) / (H + 2 * pad)),
+            math.ceil(grid[1] * (W + 2 * wider) / (W + 2 * pad)),
+        )
+        pad, offset, src, mids = wider, offset - shift, src + shift, mids + shift
+        box, inside = (-pad, -pad, W + pad, H + pad), (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+        if residual is not None:  # it reads the canvas through the offset it was made with
+            moved = residual
+            residual = lambda p: moved(p - shift)  # noqa: E731
     forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
@@ -236,7 +278,7 @@ def fit_natural(
         steps=steps,
         forces=forces,
         image_size=(H + 2 * pad, W + 2 * pad),
-        grid=settings.grid,
+        grid=grid,
         viscosity=settings.viscosity,
         compressible=settings.compressible,
         regularization=settings.straightness,

@@ -84,8 +84,9 @@ class LandmarkForces(nn.Module):
         steps: ``T``.
         batch: number of independent problems ``B``.
         inside: optional ``(x0, y0, x1, y1)`` pixels: the forces act fully inside this rectangle and fade to
-            zero (a half cosine) at the image's edges, where the fluid's walls are. A morph puts the walls
-            outside the picture and the picture inside, so the walls leave no seam.
+            zero (a half cosine) at the image's edges, where the fluid's walls are; beyond it the travel is that
+            of its nearest point, not the spline's extrapolation, which grows without bound. A morph puts the
+            walls outside the picture and the picture inside, so the walls leave no seam.
         residual: optional ``R``: points ``(N, 2)`` -> ``(N, 2)`` pixels, a correction to the spline's travel
             between the marks (0 at the marks), so that every particle travels ``x(s) = m + (s - 1/2) (D + R)(m)``;
             found by the pixels (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`). The kick at step 0
@@ -145,7 +146,11 @@ class LandmarkForces(nn.Module):
                     ]
                 spline = tps_fit(mids, disp)  # D
                 residual = self.residual
-                travel = spline if residual is None else (lambda p: spline(p) + residual(p))  # noqa: E731
+                held = lambda p: p  # noqa: E731
+                if self.inside is not None:  # beyond the rectangle, the travel of its nearest point
+                    lo, hi = cells.new_tensor(self.inside[:2]), cells.new_tensor(self.inside[2:])
+                    held = lambda p: torch.maximum(torch.minimum(p, hi), lo)  # noqa: E731
+                travel = lambda p: spline(held(p)) + (0 if residual is None else residual(held(p)))  # noqa: E731
                 cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
                 T = self.weight.shape[1]
                 rows, at = [], cells
@@ -153,9 +158,9 @@ class LandmarkForces(nn.Module):
                 for t in range(T):
                     # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
                     at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
-                    rows.append(fade * cardinal(at))
+                    rows.append(fade * cardinal(held(at)))
                     if t == 0 and residual is not None:
-                        extra = fade * residual(at)
+                        extra = fade * residual(held(at))
                 dtype = self.weight.dtype
                 self._basis[key] = (torch.stack(rows).to(dtype), extra.to(dtype))
         return self._basis[key]
