@@ -114,7 +114,8 @@ class NaturalSettings:
 
     Attributes:
         grid: fluid cells ``(h, w)`` (an int: square) over the picture and its margin: 80 x 80 cells are about
-            8 pixels each of a 512-pixel picture.
+            8 pixels each of a 512-pixel picture. Where the margin widens
+            (:data:`~torchfluidwarp.morph.fit.WALL_CLEARANCE`) the fluid gets more cells of the same size.
         steps: fluid steps ``T`` of the roll-out (time steps).
         viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
             ``(1, 1, h, w)`` or module (see :class:`~torchfluidwarp.warp.layer.FluidWarp`).
