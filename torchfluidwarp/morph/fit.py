@@ -221,8 +221,8 @@ def fit_natural(
 
     Returns:
         The fit, in the box's frame; the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
-        its longer side around it; and ``(M, 2)`` where A's marks must end, A's pixels (``target``, or where the
-        pixels re-placed it when ``found``).
+        its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where A's marks must end,
+        A's pixels (``target``, or where the pixels re-placed it when ``found``).
     """
     H, W = size
     steps = settings.steps

@@ -226,7 +226,7 @@ def morph(
 
     * :class:`~torchfluidwarp.morph.settings.NaturalSettings` (default): every marked point travels on a straight
       line at constant speed, and the rest of the picture moves as a thin-plate spline between the points says,
-      in a compressible, inviscid fluid over the whole picture (its walls lie :data:`PAD` beyond the edges).
+      in a compressible, inviscid fluid over the whole picture (its walls lie :data:`PAD` or more beyond the edges).
       Regions change size as the marks say; the maps never fold where the spline does not, and no box edge shows.
     * :class:`~torchfluidwarp.morph.settings.PaperSettings`: the paper's keyframe fit of a control grid of forces,
       so that the points reach their targets at the last step, in an incompressible fluid (every region keeps its

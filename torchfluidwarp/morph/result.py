@@ -49,7 +49,7 @@ class MorphResult:
         alignment: ``(3, 3)`` pre-alignment ``M`` in the canvas's pixels: from A's place on the canvas to B's
             (B's pixels are ``canvas_from_b^-1 M`` of A's on the canvas).
         box: ``(x0, y0, x1, y1)`` the fluid's box in the canvas's pixels (``x1``, ``y1`` exclusive); it may reach beyond
-            the picture (the natural method's does, by :data:`~torchfluidwarp.morph.fit.PAD` on each side).
+            the picture (the natural method's does, by :data:`~torchfluidwarp.morph.fit.PAD` on each side or more).
         trajectories: ``(T + 1, M, 2)`` A's points at each fluid step, in the frames' pixels (the fit's paths
             moved to the canvas and pre-aligned by ``M`` interpolated to that step).
         points: ``(M, 2)`` A's points carried to the last frame (``trajectories[-1]``), the frames' pixels.

@@ -107,7 +107,7 @@ class NaturalSettings:
     spline between the points says, in a compressible, inviscid fluid over the whole picture.
 
     Each marked point travels on a straight line at constant speed. The fluid covers the picture and a margin of
-    :data:`~torchfluidwarp.morph.fit.PAD` around it (its walls lie outside the picture); one kick at step 0
+    :data:`~torchfluidwarp.morph.fit.PAD` around it, or more (its walls lie outside the picture); one kick at step 0
     (:class:`~torchfluidwarp.warp.landmarks.LandmarkForces`) sets it moving, after which every particle coasts on
     a straight line (Burgers' equation), and ``max_iter`` L-BFGS iterations correct the kicks so that the points
     stay on their paths at every step. Needs at least 3 points, not all on one line.
