@@ -390,6 +390,13 @@ def test_an_edge_that_travels_towards_the_walls_widens_the_margin_and_nothing_is
     r = morph(a, b, pa, pb, frames=7, settings=NaturalSettings(grid=32, steps=6), progress=False)
     x0, _, x1, _ = r.box
     assert -x0 > 2 * fit.PAD * 96 and x1 - 96 > 2 * fit.PAD * 96  # the walls moved out
+    h, w = r.fit.warp.grid.shape  # and the cells kept their size: 120 px over 32 cells before
+    assert abs((x1 - x0) / w - 120 / 32) < 0.1 and h == w
     assert r.folded == 0 and jacobian_determinant(r.maps).min() > 0
     assert jacobian_determinant(r.maps_b).min() > 3 * fit.MIN_AREA
     assert float(r.error.mean()) < 0.5  # and the marks are met
+    # a viscosity field is given over the user's grid: the margin is kept, and the morph still runs
+    field = torch.zeros(1, 1, 32, 32)
+    kept = morph(a, b, pa, pb, frames=3, settings=NaturalSettings(grid=32, steps=6, viscosity=field), progress=False)
+    assert kept.box == (-12, -12, 108, 108)  # PAD of 96 px on each side
+    assert kept.fit.warp.grid.shape == (32, 32)

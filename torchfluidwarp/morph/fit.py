@@ -170,7 +170,9 @@ times the farthest the picture's edge travels towards the walls. The forces fade
 half cosine, steepest at ``pi / 2`` per margin width), so the particles between the edge and the walls travel
 less than the edge, and the margin shrinks by up to ``pi / 2`` times the edge's travel over the margin's width:
 at 1.75 it keeps a tenth of its area (:data:`MIN_AREA`), instead of being crushed against the walls until it
-folds (turned heads, whose marks' spline carries the face's stretch on to the picture's edge)."""
+folds (turned heads, whose marks' spline carries the face's stretch on to the picture's edge). The travel it
+answers is capped at the picture's longer side. A viscosity field or module (``NaturalSettings.viscosity``) is
+given over the user's grid, so the margin then keeps its :data:`PAD`."""
 
 
 def _margin_for(
@@ -189,7 +191,7 @@ def _margin_for(
     ):
         side = torch.stack([ax + t * (bx - ax), ay + t * (by - ay)], -1)
         far = max(far, float((travel(side) * side.new_tensor(outward)).sum(-1).max()))
-    return math.ceil(WALL_CLEARANCE * far)
+    return math.ceil(WALL_CLEARANCE * min(far, max(x1 - x0, y1 - y0)))
 
 
 def fit_natural(
@@ -253,7 +255,10 @@ def fit_natural(
     grid = FluidGrid.of(settings.grid).shape
     marks_travel = tps_fit(mids, disp)
     wider = _margin_for(lambda p: marks_travel(p) + (0 if residual is None else residual(p)), inside, mids.device)
-    if wider > pad:  # the walls move out, and the fluid's cells keep their size
+    uniform = not isinstance(settings.viscosity, nn.Module) and torch.as_tensor(settings.viscosity).ndim == 0
+    # the walls move out, and the fluid's cells keep their size (a viscosity field or module is given over the
+    # user's grid: then the margin is kept)
+    if wider > pad and uniform:
         shift = wider - pad
         grid = (
             math.ceil(grid[0] * (H + 2 * wider) / (H + 2 * pad)),
@@ -338,7 +343,7 @@ def paper_flows(fit: KeyframeFit, size: tuple[int, int], settings: MorphSettings
                 target,
                 steps=1,
                 image_size=size,
-                grid=settings.grid,
+                grid=fit.warp.grid,  # the forward fit's, over the same box (its margin may have widened)
                 viscosity=settings.viscosity,
                 compressible=settings.compressible,
                 max_iter=settings.max_iter,

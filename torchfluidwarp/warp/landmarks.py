@@ -147,8 +147,9 @@ class LandmarkForces(nn.Module):
                 spline = tps_fit(mids, disp)  # D
                 residual = self.residual
                 held = lambda p: p  # noqa: E731
-                if self.inside is not None:  # beyond the rectangle, the travel of its nearest point
-                    lo, hi = cells.new_tensor(self.inside[:2]), cells.new_tensor(self.inside[2:])
+                if self.inside is not None:  # beyond the rectangle (and the marks), the travel of its nearest point
+                    lo = torch.minimum(cells.new_tensor(self.inside[:2]), mids.min(0).values)
+                    hi = torch.maximum(cells.new_tensor(self.inside[2:]), mids.max(0).values)
                     held = lambda p: torch.maximum(torch.minimum(p, hi), lo)  # noqa: E731
                 travel = lambda p: spline(held(p)) + (0 if residual is None else residual(held(p)))  # noqa: E731
                 cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
