@@ -255,7 +255,7 @@ def fit_natural(
     grid = FluidGrid.of(settings.grid).shape
     marks_travel = tps_fit(mids, disp)
     wider = _margin_for(lambda p: marks_travel(p) + (0 if residual is None else residual(p)), inside, mids.device)
-    uniform = not isinstance(settings.viscosity, nn.Module) and torch.as_tensor(settings.viscosity).ndim == 0
+    uniform = not isinstance(settings.viscosity, (nn.Module, Tensor)) or settings.viscosity.ndim == 0
     # the walls move out, and the fluid's cells keep their size (a viscosity field or module is given over the
     # user's grid: then the margin is kept)
     if wider > pad and uniform:
