@@ -52,6 +52,19 @@ def _smoothstep(t: Tensor) -> Tensor:
     return t * t * (3 - 2 * t)
 
 
+def _power(x: Tensor, k: int) -> Tensor:
+    """``x ** k`` for a whole ``k >= 1`` by repeated squaring (``pow`` with a float exponent costs 10x more)."""
+    out = None
+    while k:
+        if k & 1:
+            out = x if out is None else out * x
+        k >>= 1
+        if k:
+            x = x * x
+    assert out is not None
+    return out
+
+
 def _coverage(
     coords: Tensor, size: tuple[int, int], canvas: tuple[int, int], top: int, feather: float = FEATHER
 ) -> tuple[Tensor, Tensor]:
@@ -80,36 +93,45 @@ def _coverage(
     """
     h, w = size
     H, W = canvas
+    n = coords.shape[1]
     d_row, d_col = torch.gradient(coords[0], dim=(0, 1))  # (n, W, 2): d/d(row) and d/d(column) of the read point
-    cols = torch.arange(W, device=coords.device, dtype=coords.dtype).view(1, 1, W)
-    rows = torch.arange(top, top + coords.shape[1], device=coords.device, dtype=coords.dtype).view(1, -1, 1)
-    coverage = torch.ones_like(coords[..., 0])  # (1, n, W)
+    cols = torch.arange(W, device=coords.device, dtype=coords.dtype).expand(n, W)
+    rows = torch.arange(top, top + n, device=coords.device, dtype=coords.dtype).view(-1, 1).expand(n, W)
+    coverage = torch.ones_like(coords[0, ..., 0])  # (n, W)
     inside = torch.full_like(coverage, float("inf"))
     for axis, extent_src in ((0, w), (1, h)):  # the left and right sides, then the top and bottom
-        grad = torch.stack([d_col[..., axis], d_row[..., axis]], -1)[None]  # (1, n, W, 2): output gradient
-        norm = grad.norm(dim=-1).clamp(min=1e-12)
-        ux, uy = grad[..., 0] / norm, grad[..., 1] / norm
-        extent = extent_src / norm  # the picture's width (or height) in output pixels
-        for sign, to_edge in ((-1, coords[..., axis] + 0.5), (1, extent_src - 0.5 - coords[..., axis])):
+        gx, gy = d_col[..., axis], d_row[..., axis]  # (n, W): the output gradient of the read point's coordinate
+        norm = (gx * gx + gy * gy).sqrt().clamp(min=1e-12)
+        for sign, to_edge in ((-1, coords[0, ..., axis] + 0.5), (1, extent_src - 0.5 - coords[0, ..., axis])):
             d = to_edge / norm  # output pixels inside this side
             inside = torch.minimum(inside, d)
             if feather <= 0:
                 continue
-            vx, vy = sign * ux, sign * uy  # the output direction towards this side's edge
+            # a pixel at least the feather inside this side is covered fully by it (its band is no wider): the
+            # rest is worked out only over the rows and columns where it can fall short of 1, a strip along the side
+            near = d < feather
+            rows_near, cols_near = near.any(1).nonzero(), near.any(0).nonzero()
+            if rows_near.numel() == 0:
+                continue
+            box = (slice(int(rows_near[0]), int(rows_near[-1]) + 1), slice(int(cols_near[0]), int(cols_near[-1]) + 1))
+            g, dn = norm[box], d[box]
+            vx, vy = sign * gx[box] / g, sign * gy[box] / g  # the output direction towards this side's edge
             # the distances to the canvas's borders on the far side of the edge, along that direction, weighted by
             # how squarely the edge faces each (cos^FACING): the one it faces counts, one it only grazes does not
             ax, ay = vx.abs().clamp(min=1e-6), vy.abs().clamp(min=1e-6)
-            fx, fy = ax.pow(FACING), ay.pow(FACING)
-            to_x = torch.where(vx < 0, cols + 0.5, W - 0.5 - cols) / ax
-            to_y = torch.where(vy < 0, rows + 0.5, H - 0.5 - rows) / ay
-            depth = ((fx * to_x + fy * to_y) / (fx + fy) - d).clamp(min=0)  # how far inside the canvas the edge lies
+            fx, fy = _power(ax, FACING), _power(ay, FACING)
+            c, r = cols[box], rows[box]
+            to_x = torch.where(vx < 0, c + 0.5, W - 0.5 - c) / ax
+            to_y = torch.where(vy < 0, r + 0.5, H - 0.5 - r) / ay
+            depth = ((fx * to_x + fy * to_y) / (fx + fy) - dn).clamp(min=0)  # how far inside the canvas the edge lies
+            extent = extent_src / g  # the picture's width (or height) in output pixels
             band = torch.minimum(EDGE_DEPTH * depth, EDGE_SHARE * extent).clamp(max=feather, min=1e-12)
             # a strip beyond the edge that is thin on the canvas and in the picture: the picture mirrored
-            mirror = _smoothstep(1 - depth * norm.clamp(min=1) / (EDGE_MIRROR * feather))
-            coverage = coverage * (mirror + (1 - mirror) * _smoothstep(d / band))
+            mirror = _smoothstep(1 - depth * g.clamp(min=1) / (EDGE_MIRROR * feather))
+            coverage[box] *= mirror + (1 - mirror) * _smoothstep(dn / band)
     if feather <= 0:  # no band: the hand-over happens at the edge itself
-        return (inside >= 0).to(coords.dtype).unsqueeze(1), inside
-    return coverage.unsqueeze(1), inside
+        return (inside >= 0).to(coords.dtype)[None, None], inside[None]
+    return coverage[None, None], inside[None]
 
 
 def _reflect(coords: Tensor, size: tuple[int, int]) -> Tensor:
@@ -168,9 +190,10 @@ def _dissolve(
     cb, ib = _coverage(map_b, sizes[1], canvas, top, feather)
     neither = (ca == 0) & (cb == 0)
     tiny = torch.finfo(ca.dtype).tiny
-    out_a, out_b = (-ia).clamp(min=tiny).unsqueeze(1), (-ib).clamp(min=tiny).unsqueeze(1)  # output pixels beyond
-    ca = torch.where(neither, out_b.pow(BEYOND_SHARPNESS), ca)  # the nearer one's share: the other's distance
-    cb = torch.where(neither, out_a.pow(BEYOND_SHARPNESS), cb)
+    if bool(neither.any()):  # the nearer one's share: the other's distance beyond its edge (output pixels)
+        ca, cb = ca.clone(), cb.clone()
+        ca[neither] = (-ib.unsqueeze(1)[neither]).clamp(min=tiny).pow(BEYOND_SHARPNESS)
+        cb[neither] = (-ia.unsqueeze(1)[neither]).clamp(min=tiny).pow(BEYOND_SHARPNESS)
     weight = torch.where(cb <= ca, w * cb / ca.clamp(min=tiny), 1 - (1 - w) * ca / cb.clamp(min=tiny))  # (1, 1, n, W)
     fa = _mirrored(images[0], fa, map_a, sizes[0], (ia < 0) & (weight[:, 0] < 1))
     fb = _mirrored(images[1], fb, map_b, sizes[1], (ib < 0) & (weight[:, 0] > 0))
