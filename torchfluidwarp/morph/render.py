@@ -380,27 +380,48 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     return [frame, fa, fb, map_a, map_b, folded]
 
 
-def render(scene: Scene, ts: list[float], keep: bool = True) -> MorphFrames:
+def raster_maps(scene: Scene, ts: list[float]) -> tuple[Tensor, Tensor | None]:
+    """The maps of the frames at the morph's times ``ts`` on their working rasters over the fluid's box, minus the
+    identity (box pixels): ``g_s`` and, for ``inverse="flow"``, ``K_s``, ``(n, 2, h_r, w_r)`` each (``K_s`` is
+    ``None`` for ``inverse="paper"``, whose maps :func:`render` builds itself). One pass of the fluid's maps
+    through time serves the whole list, so a caller that renders many frames a few at a time passes each few
+    their share of one call instead of paying a pass per few."""
+    times = [scene.steps * scene.motion(t) for t in ts]  # fluid times, steps
+    g = raster_displacements(scene.velocities, scene.roi, scene.dt, times)[0]
+    if scene.inverse != "flow":
+        return g, None
+    return g, raster_displacements(scene.velocities, scene.roi, scene.dt, times, to_end=True)[0]
+
+
+def raster_bytes(scene: Scene) -> int:
+    """Bytes of one frame's :func:`raster_maps`."""
+    g = raster_displacements(scene.velocities, scene.roi, scene.dt, [0.0])[0]  # time 0: no step to take
+    return g.nbytes * (2 if scene.inverse == "flow" else 1)
+
+
+def render(
+    scene: Scene, ts: list[float], keep: bool = True, rasters: tuple[Tensor, Tensor | None] | None = None
+) -> MorphFrames:
     """Render the frames of a fitted morph at the morph's times ``ts`` (increasing, in ``[0, 1]``).
 
     Frame ``t`` shows the fluid at time ``motion(t) T`` (steps) and image B with weight ``blend(t)``.
     ``keep=False`` keeps the frames only (the warped images and maps come back empty), for streaming.
+    ``rasters``: the frames' :func:`raster_maps`, when the caller has them.
 
     Cost: one pass of the fluid's maps through time (``T`` raster steps) for the whole list, and per frame two
     resamplings of the images and two of the maps; memory grows with ``len(times)`` only, so callers render long
     morphs a few frames at a time. Frames over :data:`BAND_PIXELS` are rendered in bands of rows.
     """
     a, steps = scene.a, scene.steps
-    roi, (H, W), dt = scene.roi, scene.size, scene.dt
+    roi, (H, W) = scene.roi, scene.size
     times = [steps * scene.motion(t) for t in ts]  # fluid times, steps
     # the maps live on the fluid's box (box pixels), as displacements: resized once from their working rasters
     # to the box's pixels, or, for a box over MAP_PIXELS, read from the rasters themselves (a few MB whatever the
     # picture's size); each frame reads them where its pixels come from
     box_maps = roi[0] * roi[1] <= MAP_PIXELS
-    g = raster_displacements(scene.velocities, roi, dt, times)[0]  # (n, 2, h_r, w_r)
+    g, k = raster_maps(scene, ts) if rasters is None else rasters
     g = (upsample_raster(g, roi) if box_maps else g).unsqueeze(1)  # (n, 1, 2, h, w)
-    if scene.inverse == "flow":
-        k = raster_displacements(scene.velocities, roi, dt, times, to_end=True)[0]
+    if k is not None:
         k = (upsample_raster(k, roi) if box_maps else k).unsqueeze(1)
     else:
         assert scene.flows is not None

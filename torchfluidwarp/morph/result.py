@@ -20,7 +20,12 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_memory, check_real, warn
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.morph.render import MorphFrames, Scene, render
+from torchfluidwarp.morph.render import MorphFrames, Scene, raster_bytes, raster_maps, render
+
+RASTER_BYTES = 2**26
+"""How many bytes of the maps' working rasters :meth:`MorphResult.iter_frames` computes in one pass through time
+(64 MB: about 60 frames' maps at the default grid): each pass serves that many frames, rendered ``chunk`` at a
+time, instead of one pass per ``chunk``."""
 
 __all__ = ["MorphResult"]
 
@@ -184,12 +189,20 @@ class MorphResult:
             yield from self._all.frames.to(self._dtype).unbind(0)
             return
         folded = 0
-        for start in range(0, self._count, chunk):
-            part = self._render(self.frame_ts(start, start + chunk), keep=False)
-            folded += part.folded
-            frames = part.frames.to(self._dtype)
-            del part  # hold the frames only while they are handed out
-            yield from frames.unbind(0)
+        with torch.no_grad():
+            group = max(chunk, RASTER_BYTES // raster_bytes(self._scene))  # frames whose maps one pass makes
+        for first in range(0, self._count, group):
+            ts = self.frame_ts(first, first + group)
+            with torch.no_grad():
+                g, k = raster_maps(self._scene, ts)
+            for start in range(0, len(ts), chunk):
+                rasters = (g[start : start + chunk], None if k is None else k[start : start + chunk])
+                with torch.no_grad():
+                    part = render(self._scene, ts[start : start + chunk], keep=False, rasters=rasters)
+                folded += part.folded
+                frames = part.frames.to(self._dtype)
+                del part  # hold the frames only while they are handed out
+                yield from frames.unbind(0)
         self._set_folded(folded)
 
     def _set_folded(self, count: int) -> None:
