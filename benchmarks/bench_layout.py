@@ -2,8 +2,9 @@
 
 Checks out ``--base`` into a temporary git worktree and times the same public top-level calls in fresh
 subprocesses alternating between the two trees; prints medians and new / old. The workloads use only arguments
-that every version since the flat layout accepts. Figures: docs/benchmarks.md, "Package layout: no cost"
-(issue #18) and "One shape: no cost" (issue #30).
+that every version since the flat layout accepts; ``--only TEXT`` times those whose name holds ``TEXT`` (the
+30-frame 512^2 morph of issue #32: ``--only "30 frames"``). Figures: docs/benchmarks.md, "Package layout: no cost"
+(issue #18), "One shape: no cost" (issue #30) and "A 30-frame morph" (issue #32).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import json, sys, time, warnings
 import torch
 warnings.simplefilter("ignore")
 torch.set_num_threads(int(sys.argv[1]))
+only = sys.argv[2]
 import torchfluidwarp as tfw
 from torchfluidwarp.data import load_sample, load_sample_points
 
@@ -37,26 +39,29 @@ def timed(fn, repeats=3):
 
 g = torch.Generator().manual_seed(0)
 out = {}
+def bench(name, fn, repeats=3):
+    if only in name:
+        out[name] = timed(fn, repeats)
 sim = tfw.FluidSimulator(64)
 forces = 0.05 * torch.randn(1, 60, 2, 64, 64, generator=g)
-out["simulate 60 steps 64^2"] = timed(lambda: sim(forces))
+bench("simulate 60 steps 64^2", lambda: sim(forces))
 warp = tfw.FluidWarp(64, 20)
 image = torch.rand(1, 3, 256, 256, generator=g)
 wf = 0.05 * torch.randn(1, 20, 2, 64, 64, generator=g)
-out["FluidWarp 256^2 x 20 steps"] = timed(lambda: warp(image, wf))
+bench("FluidWarp 256^2 x 20 steps", lambda: warp(image, wf))
 warp10 = tfw.FluidWarp(64, 10)
 image600 = torch.rand(1, 3, 600, 600, generator=g)
 wf10 = 0.2 * torch.randn(1, 10, 2, 64, 64, generator=g)
 with torch.no_grad():
-    out["FluidWarp 600^2 x 10 steps"] = timed(lambda: warp10(image600, wf10))
+    bench("FluidWarp 600^2 x 10 steps", lambda: warp10(image600, wf10))
 src = torch.rand(14, 2, generator=g) * 40 + 12
 tgt = src + torch.randn(14, 2, generator=g) * 3
-out["fit_keyframes paper set-up"] = timed(
+bench("fit_keyframes paper set-up",
     lambda: tfw.fit_keyframes(src, tgt, steps=10, grid=64, image_size=(64, 64), progress=False), repeats=2
 )
 yy, xx = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
 blob = lambda cx, cy: torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 60.0)[None, None]
-out["fit_images 64^2"] = timed(
+bench("fit_images 64^2",
     lambda: tfw.fit_images(
         blob(28, 30), blob(34, 32), grid=16, levels=(8, 16), steps=4, max_iter=15, progress=False
     ),
@@ -71,21 +76,31 @@ def small(im, p):
     return out, ((p + 0.5) * scale - 0.5).clamp(0, 127)
 a128, pa128 = small(a, pa)
 b128, pb128 = small(b, pb)
-out["morph 128^2 x 10 frames"] = timed(
+bench("morph 128^2 x 10 frames",
     lambda: tfw.morph(a128, b128, pa128, pb128, frames=10, progress=False), repeats=2
 )
 from torchfluidwarp.augment import FluidWarpAugment
 aug = FluidWarpAugment(generator=torch.Generator().manual_seed(1))
 batch = torch.rand(8, 3, 64, 64, generator=g)
-out["augment 8 x 64^2"] = timed(lambda: aug(batch))
+bench("augment 8 x 64^2", lambda: aug(batch))
+def stream(frames):
+    r = tfw.morph(a, b, pa, pb, frames=frames, progress=False)
+    for _ in r.iter_frames():
+        pass
+bench("morph 512^2 x 30 frames, streamed", lambda: stream(30), repeats=1)
 print(json.dumps(out))
 """
 
 
-def run(tree: pathlib.Path, threads: int) -> dict[str, float]:
+def run(tree: pathlib.Path, threads: int, only: str = "") -> dict[str, float]:
     env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": str(threads), "MPLBACKEND": "Agg"}
     done = subprocess.run(
-        [sys.executable, "-c", WORKLOADS, str(threads)], cwd=tree, env=env, capture_output=True, text=True, check=False
+        [sys.executable, "-c", WORKLOADS, str(threads), only],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
     )
     if done.returncode:
         raise SystemExit(f"workloads failed in {tree}:\n{done.stderr[-3000:]}")
@@ -97,6 +112,7 @@ def main() -> None:
     parser.add_argument("--base", default="2e9f7a8", help="the commit to compare against (default: the flat layout)")
     parser.add_argument("--repeats", type=int, default=5, help="subprocess pairs (old, new) to alternate")
     parser.add_argument("--threads", type=int, default=2, help="torch threads of each subprocess (default 2)")
+    parser.add_argument("--only", default="", help="time only the workloads whose name holds this text")
     args = parser.parse_args()
     print(machine())
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,7 +122,7 @@ def main() -> None:
             runs: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
             for i in range(args.repeats):
                 for name, tree in (("old", old), ("new", ROOT)):
-                    runs[name].append(run(tree, args.threads))
+                    runs[name].append(run(tree, args.threads, args.only))
                     print(f"pair {i + 1}/{args.repeats} {name} done", flush=True)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)], check=False)

@@ -118,7 +118,7 @@ def _coverage(
             vx, vy = sign * gx[box] / g, sign * gy[box] / g  # the output direction towards this side's edge
             # the distances to the canvas's borders on the far side of the edge, along that direction, weighted by
             # how squarely the edge faces each (cos^FACING): the one it faces counts, one it only grazes does not
-            ax, ay = vx.abs().clamp(min=1e-6), vy.abs().clamp(min=1e-6)
+            ax, ay = vx.abs().clamp(min=1e-4), vy.abs().clamp(min=1e-4)  # 1e-4 ** FACING is no float32 zero
             fx, fy = _power(ax, FACING), _power(ay, FACING)
             c, r = cols[box], rows[box]
             to_x = torch.where(vx < 0, c + 0.5, W - 0.5 - c) / ax
@@ -161,6 +161,10 @@ is read, to this power: the one read nearer its own interior takes over within a
 are equally far out (the weights there are the colour's schedule)."""
 
 
+FAR = 1e30
+"""Output pixels: a distance beyond a picture's edge counts as at most this (a crushed map's distance is infinite)."""
+
+
 def _dissolve(
     images: tuple[Tensor, Tensor],
     fa: Tensor,
@@ -192,8 +196,13 @@ def _dissolve(
     tiny = torch.finfo(ca.dtype).tiny
     if bool(neither.any()):  # the nearer one's share: the other's distance beyond its edge (output pixels)
         ca, cb = ca.clone(), cb.clone()
-        ca[neither] = (-ib.unsqueeze(1)[neither]).clamp(min=tiny).pow(BEYOND_SHARPNESS)
-        cb[neither] = (-ia.unsqueeze(1)[neither]).clamp(min=tiny).pow(BEYOND_SHARPNESS)
+        out_a = (-ia.unsqueeze(1)[neither]).clamp(min=tiny, max=FAR)
+        out_b = (-ib.unsqueeze(1)[neither]).clamp(min=tiny, max=FAR)
+        # only their ratio counts: relative to the larger, so that a map that crushes a picture (its stretch near
+        # 0, its distances beyond the edge near infinite) cannot overflow the power into inf / inf
+        farther = torch.maximum(out_a, out_b)
+        ca[neither] = (out_b / farther).pow(BEYOND_SHARPNESS)
+        cb[neither] = (out_a / farther).pow(BEYOND_SHARPNESS)
     weight = torch.where(cb <= ca, w * cb / ca.clamp(min=tiny), 1 - (1 - w) * ca / cb.clamp(min=tiny))  # (1, 1, n, W)
     fa = _mirrored(images[0], fa, map_a, sizes[0], (ia < 0) & (weight[:, 0] < 1))
     fb = _mirrored(images[1], fb, map_b, sizes[1], (ib < 0) & (weight[:, 0] > 0))
