@@ -35,8 +35,11 @@ def machine() -> dict[str, Any]:
     model = platform.processor()
     try:
         with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
+            info = dict(line.split(":", 1) for line in f.read().split("\n\n")[0].splitlines() if ":" in line)
+        info = {k.strip(): v.strip() for k, v in info.items()}
+        # one brand name covers several generations (EPYC family 25 is model 1 and model 17): name the model
+        model = f"{info['model name']} (family {info.get('cpu family', '?')}, model {info.get('model', '?')})"
+    except (OSError, KeyError):
         pass
     return {
         "cpu": model,

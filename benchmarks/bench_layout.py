@@ -3,8 +3,10 @@
 Checks out ``--base`` into a temporary git worktree and times the same public top-level calls in fresh
 subprocesses alternating between the two trees; prints medians and new / old. The workloads use only arguments
 that every version since the flat layout accepts; ``--only TEXT`` times those whose name holds ``TEXT`` (the
-30-frame 512^2 morph of issue #32: ``--only "30 frames"``). Figures: docs/benchmarks.md, "Package layout: no cost"
-(issue #18), "One shape: no cost" (issue #30) and "A 30-frame morph" (issue #32).
+30-frame 512^2 morph of issue #32: ``--only "30 frames"``), ``--skip TEXT`` leaves them out, and ``--new COMMIT``
+times a commit instead of the checkout. The 128^2 morph is the marks alone in every tree (since #32 the default
+also aligns the pixels; the 30-frame morph keeps each tree's default). Figures: docs/benchmarks.md, "Package
+layout: no cost" (issue #18), "One shape: no cost" (issue #30) and "A 30-frame morph" (issue #32).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import json, sys, time, warnings
 import torch
 warnings.simplefilter("ignore")
 torch.set_num_threads(int(sys.argv[1]))
-only = sys.argv[2]
+only, skip = sys.argv[2], sys.argv[3]
 import torchfluidwarp as tfw
 from torchfluidwarp.data import load_sample, load_sample_points
 
@@ -40,7 +42,7 @@ def timed(fn, repeats=3):
 g = torch.Generator().manual_seed(0)
 out = {}
 def bench(name, fn, repeats=3):
-    if only in name:
+    if only in name and not (skip and skip in name):
         out[name] = timed(fn, repeats)
 sim = tfw.FluidSimulator(64)
 forces = 0.05 * torch.randn(1, 60, 2, 64, 64, generator=g)
@@ -76,8 +78,12 @@ def small(im, p):
     return out, ((p + 0.5) * scale - 0.5).clamp(0, 127)
 a128, pa128 = small(a, pa)
 b128, pb128 = small(b, pb)
-bench("morph 128^2 x 10 frames",
-    lambda: tfw.morph(a128, b128, pa128, pb128, frames=10, progress=False), repeats=2
+import dataclasses
+natural = getattr(tfw, "NaturalSettings", None)  # trees since #32 align the pixels by default: not here
+dense = natural is not None and "dense" in {f.name for f in dataclasses.fields(natural)}
+marks = {"settings": natural(dense=None)} if dense else {}
+bench("morph 128^2 x 10 frames (marks alone)",
+    lambda: tfw.morph(a128, b128, pa128, pb128, frames=10, progress=False, **marks), repeats=2
 )
 from torchfluidwarp.augment import FluidWarpAugment
 aug = FluidWarpAugment(generator=torch.Generator().manual_seed(1))
@@ -92,10 +98,10 @@ print(json.dumps(out))
 """
 
 
-def run(tree: pathlib.Path, threads: int, only: str = "") -> dict[str, float]:
+def run(tree: pathlib.Path, threads: int, only: str = "", skip: str = "") -> dict[str, float]:
     env = {"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": str(threads), "MPLBACKEND": "Agg"}
     done = subprocess.run(
-        [sys.executable, "-c", WORKLOADS, str(threads), only],
+        [sys.executable, "-c", WORKLOADS, str(threads), only, skip],
         cwd=tree,
         env=env,
         capture_output=True,
@@ -113,26 +119,32 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="subprocess pairs (old, new) to alternate")
     parser.add_argument("--threads", type=int, default=2, help="torch threads of each subprocess (default 2)")
     parser.add_argument("--only", default="", help="time only the workloads whose name holds this text")
+    parser.add_argument("--skip", default="", help="leave out the workloads whose name holds this text")
+    parser.add_argument("--new", default=None, help="a commit to time instead of this checkout (default: the checkout)")
     args = parser.parse_args()
     print(machine())
     with tempfile.TemporaryDirectory() as tmp:
-        old = pathlib.Path(tmp) / "old"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(old), args.base], check=True)
+        trees = {"old": pathlib.Path(tmp) / "old", "new": ROOT if args.new is None else pathlib.Path(tmp) / "new"}
+        made = [(trees[k], c) for k, c in (("old", args.base), ("new", args.new)) if c is not None]
+        for tree, commit in made:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit], check=True)
         try:
             runs: dict[str, list[dict[str, float]]] = {"old": [], "new": []}
             for i in range(args.repeats):
-                for name, tree in (("old", old), ("new", ROOT)):
-                    runs[name].append(run(tree, args.threads, args.only))
+                for name, tree in trees.items():
+                    runs[name].append(run(tree, args.threads, args.only, args.skip))
                     print(f"pair {i + 1}/{args.repeats} {name} done", flush=True)
         finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)], check=False)
+            for tree, _ in made:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=False)
     rows = []
     for key in runs["old"][0]:
         o = statistics.median(r[key] for r in runs["old"])
         n = statistics.median(r[key] for r in runs["new"])
         rows.append([key, f"{1000 * o:.1f}", f"{1000 * n:.1f}", f"{n / o:.2f}"])
-    print(f"base {args.base} vs this checkout, {args.threads} threads, median of {args.repeats} subprocesses each (ms)")
-    print(table(["workload", f"old ({args.base})", "new", "new / old"], rows))
+    new = "this checkout" if args.new is None else args.new
+    print(f"base {args.base} vs {new}, {args.threads} threads, median of {args.repeats} subprocesses each (ms)")
+    print(table(["workload", f"old ({args.base})", f"new ({new})", "new / old"], rows))
     print(describe_load(machine_load()))
 
 

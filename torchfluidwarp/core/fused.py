@@ -391,6 +391,18 @@ def _advect_faces_adjoint(velocity, grad_out, grad_velocity, h, w, dt_hi, dt_lo,
     _trace_adjoint(sample, grad_sample, size, px, py, h, w, dt, gfx, gfy, face, True)
 
 
+@_jit
+def _points(points, n, ps_b, ps_n, ps_c, blocks, BLOCK: tl.constexpr):
+    """This program's sample ``b``, the indices ``k`` of its ``BLOCK`` points, which of them exist, and their
+    positions ``(px, py)``, read through the strides ``ps_*`` of ``points`` ``(B, N, 2)``."""
+    pid = tl.program_id(0)
+    b = (pid // blocks).to(tl.int64)
+    k = ((pid % blocks) * BLOCK + tl.arange(0, BLOCK)).to(tl.int64)
+    inside = k < n
+    p = points + b * ps_b + k * ps_n
+    return b, k, inside, tl.load(p, mask=inside, other=0.0), tl.load(p + ps_c, mask=inside, other=0.0)
+
+
 @_kernel("n", "h", "w", "ps_b", "ps_n", "ps_c", "fs_b", "fs_n", "fs_c", "blocks")
 def _backtrace(
     velocity, points, feet, n, h, w, ps_b, ps_n, ps_c, fs_b, fs_n, fs_c, dt_hi, dt_lo, blocks, BLOCK: tl.constexpr
@@ -399,13 +411,7 @@ def _backtrace(
     dtype = velocity.dtype.element_ty
     dt = tl.cast(dt_hi, dtype) + tl.cast(dt_lo, dtype)
     size = (h + 1) * (w + 1)
-    pid = tl.program_id(0)
-    b = (pid // blocks).to(tl.int64)
-    k = ((pid % blocks) * BLOCK + tl.arange(0, BLOCK)).to(tl.int64)
-    inside = k < n
-    p = points + b * ps_b + k * ps_n
-    px = tl.load(p, mask=inside, other=0.0)
-    py = tl.load(p + ps_c, mask=inside, other=0.0)
+    b, k, inside, px, py = _points(points, n, ps_b, ps_n, ps_c, blocks, BLOCK)
     _, _, qx, qy = _trace(velocity + b * 2 * size, size, px, py, h, w, dt, inside)
     f = feet + b * fs_b + k * fs_n
     tl.store(f, tl.minimum(tl.maximum(qx, -0.5), w - 0.5), mask=inside)
@@ -421,13 +427,7 @@ def _backtrace_adjoint(
     dtype = velocity.dtype.element_ty
     dt = tl.cast(dt_hi, dtype) + tl.cast(dt_lo, dtype)
     size = (h + 1) * (w + 1)
-    pid = tl.program_id(0)
-    b = (pid // blocks).to(tl.int64)
-    k = ((pid % blocks) * BLOCK + tl.arange(0, BLOCK)).to(tl.int64)
-    inside = k < n
-    p = points + b * ps_b + k * ps_n
-    px = tl.load(p, mask=inside, other=0.0)
-    py = tl.load(p + ps_c, mask=inside, other=0.0)
+    b, k, inside, px, py = _points(points, n, ps_b, ps_n, ps_c, blocks, BLOCK)
     g = grad_feet + (b * n + k) * 2
     gx = tl.load(g, mask=inside, other=0.0)
     gy = tl.load(g + 1, mask=inside, other=0.0)

@@ -194,6 +194,17 @@ def _margin_for(
     return math.ceil(WALL_CLEARANCE * min(far, max(x1 - x0, y1 - y0)))
 
 
+def _frame(
+    pad: int, size: tuple[int, int], device: torch.device
+) -> tuple[tuple[int, int, int, int], Tensor, tuple[float, float, float, float]]:
+    """The natural morph's fluid box around a picture of ``size`` ``(H, W)`` with ``pad`` pixels of margin: the
+    box ``(x0, y0, x1, y1)`` in A's pixels, the offset ``(2,)`` float64 from box pixels to A's, and the picture's
+    rectangle ``inside`` in box pixels (its pixels' outer edges)."""
+    H, W = size
+    offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=device)
+    return (-pad, -pad, W + pad, H + pad), offset, (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+
+
 def fit_natural(
     pa: Tensor,
     target: Tensor,
@@ -229,10 +240,8 @@ def fit_natural(
     H, W = size
     steps = settings.steps
     pad = max(1, round(PAD * max(H, W)))
-    box = (-pad, -pad, W + pad, H + pad)
-    offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=pa.device)
+    box, offset, inside = _frame(pad, size, pa.device)
     src = pa.double() - offset
-    inside = (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
     far = src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])
 
     def clear(mids: Tensor, disp: Tensor) -> tuple[Tensor, Tensor]:  # the ends stay clear of the walls' fade
@@ -248,8 +257,7 @@ def fit_natural(
             whole = lambda p, o=offset: marks(p) + pixels(p + o)  # noqa: E731  (box pixels)
             mids = solve_midpoints(whole, src, -0.5)
             mids, disp = clear(mids, whole(mids))
-            spline = tps_fit(mids, disp)
-            residual = lambda p: whole(p) - spline(p)  # noqa: E731
+            residual = lambda p: whole(p) - marks_travel(p)  # noqa: E731  (the spline through the re-placed marks)
         else:
             residual = lambda p, o=offset: pixels(p + o)  # noqa: E731  (box pixels)
     grid = FluidGrid.of(settings.grid).shape
@@ -264,8 +272,8 @@ def fit_natural(
             math.ceil(grid[0] * (H + 2 * wider) / (H + 2 * pad)),
             math.ceil(grid[1] * (W + 2 * wider) / (W + 2 * pad)),
         )
-        pad, offset, src, mids = wider, offset - shift, src + shift, mids + shift
-        box, inside = (-pad, -pad, W + pad, H + pad), (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+        pad, src, mids = wider, src + shift, mids + shift
+        box, offset, inside = _frame(pad, size, pa.device)
         if residual is not None:  # it reads the canvas through the offset it was made with
             moved = residual
             residual = lambda p: moved(p - shift)  # noqa: E731
