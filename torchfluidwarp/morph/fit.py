@@ -62,6 +62,21 @@ def pose(pa: Tensor, pb: Tensor, align: AlignKind | None) -> Tensor:
     return torch.eye(3, dtype=torch.float64, device=a.device)
 
 
+def crossing_pairs(pa: Tensor, pb: Tensor) -> Tensor:
+    """``(K, 2)`` int64: the pairs ``i < j`` of marks ``pa``, ``pb`` ``(M, 2)`` (M >= 3) whose order crosses. After a
+    similarity that best maps ``pa`` onto ``pb``, the segment between the two turns by more than 90 degrees (both
+    longer than 2 % of B's spread), or marks close in A (under a tenth of the spread) end far apart in B (over
+    half): what no smooth, fold-free map does."""
+    M = estimate_alignment(pa.double(), pb.double(), "similarity")
+    qa, qb = apply_alignment(M, pa.double()), pb.double()
+    da, db = qa[:, None] - qa[None], qb[:, None] - qb[None]  # (M, M, 2)
+    spread = float((qb - qb.mean(0)).norm(dim=-1).max())
+    la, lb = da.norm(dim=-1), db.norm(dim=-1)
+    turned = ((da * db).sum(-1) < 0) & (la > 0.02 * spread) & (lb > 0.02 * spread)
+    torn = (la < 0.1 * spread) & (lb > 0.5 * spread)
+    return torch.triu(turned | torn, diagonal=1).nonzero()
+
+
 def check_marks(pa: Tensor, pb: Tensor) -> None:
     """Refuse marks that cannot be morphed, and warn about marks whose order crosses."""
     for name, p in (("points_a", pa), ("points_b", pb)):
@@ -74,17 +89,8 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
                 f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
                 "position; each feature must be marked once"
             )
-    # a pair of marks crosses when the segment between them turns by more than 90 degrees relative to the
-    # rest of the marks, or when close marks (under a tenth of the spread) end up far apart (over half)
     if pa.shape[0] >= 3:
-        M = estimate_alignment(pa.double(), pb.double(), "similarity")
-        qa, qb = apply_alignment(M, pa.double()), pb.double()
-        da, db = qa[:, None] - qa[None], qb[:, None] - qb[None]  # (M, M, 2)
-        spread = float((qb - qb.mean(0)).norm(dim=-1).max())
-        la, lb = da.norm(dim=-1), db.norm(dim=-1)
-        turned = ((da * db).sum(-1) < 0) & (la > 0.02 * spread) & (lb > 0.02 * spread)
-        torn = (la < 0.1 * spread) & (lb > 0.5 * spread)
-        bad = torch.triu(turned | torn, diagonal=1).nonzero().tolist()
+        bad = crossing_pairs(pa, pb).tolist()
         if bad:
             listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
             warn(
@@ -117,16 +123,19 @@ def _squeeze_points(mids: Tensor, inside: tuple[float, float, float, float]) -> 
     return points[((points >= low) & (points <= high)).all(1)]
 
 
-def _least_area(travel: Callable[[Tensor], Tensor], at: Tensor) -> float:
+def _least_area(travel: Callable[[Tensor], Tensor], at: Tensor) -> tuple[float, Tensor]:
     """The least area ratio ``det(I + sigma J)`` over ``sigma`` in ``[-1/2, 1/2]`` and the points ``at``
     ``(N, 2)`` of a displacement field ``travel`` (pixels): how far the straight paths ``m + sigma D(m)`` of the
-    natural morph squeeze the picture, relative to its middle frame. ``J`` is exact (autograd), not differenced."""
+    natural morph squeeze the picture, relative to its middle frame, and the point ``(2,)`` where it is least.
+    ``J`` is exact (autograd), not differenced."""
     x = at.detach().clone().requires_grad_(True)
     with torch.enable_grad():
         u = travel(x)
         rows = [torch.autograd.grad(u[:, i].sum(), x, retain_graph=i == 0)[0] for i in range(2)]
     least = least_area_ratio(torch.stack(rows, -2))
-    return float(least[torch.isfinite(least)].min())
+    least = torch.where(torch.isfinite(least), least, math.inf)
+    i = int(least.argmin())
+    return float(least[i]), at[i]
 
 
 def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, float]) -> tuple[Tensor, Tensor]:
@@ -134,34 +143,77 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
 
     The marks travel from ``src`` to ``tgt`` on straight lines, ``m = (src + tgt) / 2``, ``d = tgt - src``,
     unless the spline ``D`` through them would squeeze part of the picture (the rectangle ``inside``) below
-    :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Then the
-    spline's smoothing (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until
-    none does, and each mark travels as that spline says; the marks it then misses show in the morph's ``result.error``.
+    :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Where marks cross
+    or squeeze (a head that turns: the far jaw line passes behind the nose, the far cheek shrinks to a sliver),
+    marks are released one at a time until the spline through the others squeezes no part below
+    :data:`MIN_AREA`: first the marks of crossing pairs (:func:`crossing_pairs`), then those around the worst
+    squeeze, the most shrunken first (:func:`_shrink`), at most :data:`RELEASE` of them. The marks kept still
+    travel straight, so the features that both pictures show meet at every frame, and the released ones follow
+    the spline (the hidden side compresses). Where that is not enough, the spline's smoothing
+    (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until no part is
+    squeezed, and each mark travels as that spline says. The marks not met show in the morph's ``result.error``.
     """
     mids, disp = 0.5 * (src + tgt), tgt - src
     at = _squeeze_points(mids, inside)
+    n = mids.shape[0]
+    keep = torch.ones(n, dtype=torch.bool, device=mids.device)
 
-    def least(smoothing: float) -> float:
+    def least(smoothing: float) -> tuple[float, Tensor | None]:
         try:
-            return _least_area(tps_fit(mids, disp, smoothing), at)
+            return _least_area(tps_fit(mids[keep], disp[keep], smoothing), at)
         except InputError:  # marks that swap places share a midpoint: no spline interpolates both
-            return -math.inf
+            return -math.inf, None
 
-    if least(0.0) >= MIN_AREA:
+    area, where = least(0.0)
+    if area >= MIN_AREA:
         return mids, disp
-    lo, hi = -8.0, 4.0  # log10 of the smoothing: from interpolating to nearly affine
-    for _ in range(14):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if least(10.0**mid) >= MIN_AREA else (mid, hi)
+    shrink = _shrink(src, tgt)
+    live = crossing_pairs(src, tgt).tolist() if n >= 3 else []
+    while area < MIN_AREA and int(keep.sum()) - 1 >= max(3, (1 - RELEASE) * n):
+        live = [pair for pair in live if bool(keep[pair[0]] & keep[pair[1]])]
+        if live:  # first the marks that cross
+            candidates = sorted({i for pair in live for i in pair})
+        elif where is not None:  # then those around the worst squeeze
+            kept = keep.nonzero()[:, 0]
+            nearest = (mids[kept] - where).norm(dim=-1).topk(min(4, len(kept)), largest=False).indices
+            candidates = kept[nearest].tolist()
+        else:
+            break
+        keep[min(candidates, key=lambda i: float(shrink[i]))] = False
+        area, where = least(0.0)
+    smoothing = 0.0
+    if area < MIN_AREA:
+        lo, hi = -8.0, 4.0  # log10 of the smoothing: from interpolating to nearly affine
+        for _ in range(14):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if least(10.0**mid)[0] >= MIN_AREA else (mid, hi)
+        smoothing = 10.0**hi
     try:
-        travel = tps_fit(mids, disp, 10.0**hi)
+        travel = tps_fit(mids[keep], disp[keep], smoothing)
     except InputError as exc:
         raise InputError(
             "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
             "places meet halfway) to guide the morph; check that both list the same features in the same order"
         ) from exc
     m = solve_midpoints(travel, src, -0.5)
+    if smoothing == 0.0:  # the kept marks travel straight, exactly
+        m[keep] = mids[keep]
     return m, travel(m)
+
+
+RELEASE = 0.5
+"""At most this share of the marks is released from their straight paths (:func:`straight_paths`); beyond it the
+spline through those kept is smoothed instead."""
+
+
+def _shrink(src: Tensor, tgt: Tensor) -> Tensor:
+    """``(M,)``: how much each mark's neighbourhood (its 4 nearest in ``src``) changes size between ``src`` and
+    ``tgt`` ``(M, 2)``, as the ratio of the mean distances taken below 1 either way: 1 where it keeps its size,
+    small where it shrinks away (the side of a turning head that goes out of sight in B, or comes into sight from
+    A). :func:`straight_paths` releases the most shrunken first."""
+    near = torch.cdist(src, src).fill_diagonal_(math.inf).topk(min(4, len(src) - 1), largest=False).indices
+    ratio = (tgt[near] - tgt[:, None]).norm(dim=-1).mean(1) / (src[near] - src[:, None]).norm(dim=-1).mean(1)
+    return torch.minimum(ratio, 1 / ratio).nan_to_num(0.0)
 
 
 WALL_CLEARANCE = 1.75
@@ -250,6 +302,7 @@ def fit_natural(
 
     mids, disp = clear(*straight_paths(src, target - offset, inside))
     residual = None
+    marks_travel: Callable[[Tensor], Tensor]  # the spline through the marks, set below
     if dense is not None:
         pixels = dense(mids + offset, disp)
         if found:  # the marks follow the pixels: the whole travel D + R, re-split into marks and a residual
