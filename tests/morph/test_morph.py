@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.core.spline import tps_interpolate
+from torchfluidwarp.correspond.auto import FoundPoints, Note
 from torchfluidwarp.morph import Blending, NaturalSettings, PaperSettings, Timing
 from torchfluidwarp.morph.morphing import morph
 from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
@@ -245,6 +246,20 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(pair):
     # the swapped points are the ones not reached
     err = r.error
     assert float(err[[0, 4]].min()) > float(err[[1, 2, 3]].max())
+
+
+def test_points_the_library_placed_that_cross_are_not_the_users_order_to_check(pair):
+    a, b = pair
+    pb = POINTS_B.clone()
+    pb[[0, 4]] = pb[[4, 0]]
+    placed = FoundPoints(POINTS_A, pb, "faces", Note("face landmarks"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, placed=placed, frames=3, progress=False)
+    texts = [str(w.message) for w in caught if "cross" in str(w.message)]
+    assert len(texts) == 1 and "the points the faces matcher placed cross: points " in texts[0]
+    assert "0 and 4" in texts[0] and "check their order" not in texts[0]
+    assert float(r.error[[0, 4]].min()) > float(r.error[[1, 2, 3]].max())  # the crossing pair was let go
 
 
 def test_marks_that_swap_places_meet_halfway_and_are_morphed_without_a_pre_alignment(pair):

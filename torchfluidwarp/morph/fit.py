@@ -77,8 +77,9 @@ def crossing_pairs(pa: Tensor, pb: Tensor) -> Tensor:
     return torch.triu(turned | torn, diagonal=1).nonzero()
 
 
-def check_marks(pa: Tensor, pb: Tensor) -> None:
-    """Refuse marks that cannot be morphed, and warn about marks whose order crosses."""
+def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
+    """Refuse marks that cannot be morphed, and warn about marks whose order crosses: the user's marks, or, with
+    ``placed_by`` (the matcher's name), points the library placed, which are nobody's order to check."""
     for name, p in (("points_a", pa), ("points_b", pb)):
         d = torch.cdist(p.double(), p.double())
         d.fill_diagonal_(math.inf)
@@ -93,11 +94,19 @@ def check_marks(pa: Tensor, pb: Tensor) -> None:
         bad = crossing_pairs(pa, pb).tolist()
         if bad:
             listed = ", ".join(f"{a} and {b}" for a, b in bad[:5]) + (" ..." if len(bad) > 5 else "")
-            warn(
-                f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth morph "
-                "can do without folding; check their order (result.error shows which points were not reached)",
-                RuntimeWarning,
-            )
+            if placed_by is None:
+                text = (
+                    f"the marks cross: points {listed} swap sides or tear apart between A and B, which no smooth "
+                    "morph can do without folding; check their order (result.error shows which points were not "
+                    "reached)"
+                )
+            else:
+                text = (
+                    f"the points the {placed_by} matcher placed cross: points {listed} swap sides or tear apart "
+                    "between A and B (as where a head turns and hides part of one side); the morph lets them go "
+                    "and keeps the others on their paths (result.error shows how far each ended from its target)"
+                )
+            warn(text, RuntimeWarning)
 
 
 def _squeeze_points(mids: Tensor, inside: tuple[float, float, float, float]) -> Tensor:

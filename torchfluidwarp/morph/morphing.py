@@ -341,7 +341,7 @@ def morph(
     check_memory(
         f"morph(frames={n}, steps={steps}, grid={settings.grid})", estimate, max_memory, "morph(max_memory=...)"
     )
-    check_marks(pa, pb)
+    check_marks(pa, pb, None if placed is None else placed.matcher)
     # each picture keeps its aspect ratio: placed on the canvas by one scale factor; the morph works in the
     # canvas's pixels and reads each picture through its placement, at (up to antialiasing) its own resolution
     (place_a, scale_a), (place_b, scale_b) = placement(size_a, size), placement(size_b, size)
