@@ -103,8 +103,8 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
             else:
                 text = (
                     f"the points the {placed_by} matcher placed cross: points {listed} swap sides or tear apart "
-                    "between A and B (as where a head turns and hides part of one side); the morph lets them go "
-                    "and keeps the others on their paths (result.error shows how far each ended from its target)"
+                    "between A and B (as where a head turns and hides part of one side); the morph meets them as "
+                    "far as it can without folding (result.error shows how far each ended from its target)"
                 )
             warn(text, RuntimeWarning)
 
