@@ -129,8 +129,8 @@ def registration_pair(n: int = 128) -> tuple[Tensor, Tensor, Tensor, Tensor]:
 def bench_registration(max_iter: tuple[int, ...]) -> dict[str, Any]:
     src, tgt, marks, truth = registration_pair()
     torch.optim.LBFGS([torch.zeros(1, requires_grad=True)])  # the first LBFGS in a process imports torch._dynamo
-    fit = fit_images(src, tgt, loss="ncc", grid=32, levels=(8, 16, 32), steps=8, control=(5, 5), max_iter=max_iter,
-                     progress=False)  # fmt: skip
+    fit = fit_images(src, tgt, loss="ncc", compressible=False, grid=32, levels=(8, 16, 32), steps=8, control=(5, 5),
+                     max_iter=max_iter, progress=False)  # fmt: skip
     with torch.no_grad():
         err = (fit.warp.carry_points(marks[None], fit.forces, tuple(src.shape[-2:]))[0, -1] - truth).norm(dim=-1)
     row = dict(initial_loss=fit.initial_loss, final_loss=fit.final_loss, seconds=fit.seconds,

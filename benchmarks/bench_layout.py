@@ -65,7 +65,8 @@ yy, xx = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
 blob = lambda cx, cy: torch.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 60.0)[None, None]
 bench("fit_images 64^2",
     lambda: tfw.fit_images(
-        blob(28, 30), blob(34, 32), grid=16, levels=(8, 16), steps=4, max_iter=15, progress=False
+        blob(28, 30), blob(34, 32), loss="mse", compressible=False, grid=16, levels=(8, 16), steps=4, max_iter=15,
+        progress=False,
     ),
     repeats=2,
 )

@@ -178,7 +178,7 @@ def images_case(d: Draw) -> Case:
         B = {"shift": lambda: torch.roll(A, (d.i(-4, 5), d.i(-4, 5)), (-2, -1)), "blobs": smooth}.get(
             kind, lambda: A.flip(-1)
         )()
-    opts: dict = dict(progress=False, loss=d.pick(["mse", "ncc", "ssim"]))
+    opts: dict = dict(progress=False, loss=d.pick(["mse", "ncc", "ssim", "lncc"]))
     if d.u() < 0.4:
         opts["levels"] = None
     if d.u() < 0.3:

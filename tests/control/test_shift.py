@@ -67,10 +67,13 @@ def _epe(fit, shift: tuple[float, float], size: tuple[int, int]) -> tuple[float,
     return float((last - truth).norm(dim=-1)[inside].mean()), float((ident - truth).norm(dim=-1)[inside].mean())
 
 
-def _fit(source, target):
+def _fit(source, target, **settings):
+    """The paper's incompressible fluid and the MSE unless ``settings`` say otherwise (the defaults were both
+    until the eighth session; a closed, incompressible box is the fluid that cannot carry a shift)."""
+    settings = {"loss": "mse", "compressible": False, **settings}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        fit = fit_images(source, target, grid=32, levels=(16,), steps=6, max_iter=(15, 15), progress=False)
+        fit = fit_images(source, target, grid=32, levels=(16,), steps=6, max_iter=(15, 15), progress=False, **settings)
     return fit, [str(w.message) for w in caught if "plain shift" in str(w.message)]
 
 
@@ -84,6 +87,24 @@ def test_a_fit_that_misses_a_large_shift_says_so(gen):
     assert fitted > 0.5 * none, (fitted, none)  # the flow did not find the motion (the case this test is about)
     assert fit.final_loss > 0.1 * fit.initial_loss
     assert len(said) == 1 and "(+16, +0) px" in said[0], said
+
+
+@pytest.mark.parametrize("shift", [(4.0, -3.0), (-6.0, 2.0), (8.0, 0.0), (16.0, 0.0)])
+def test_the_defaults_never_end_farther_than_no_motion_in_silence(gen, shift):
+    # fit_images' own loss and fluid (the local correlation, compressible): a shift of up to a quarter of the
+    # picture, which a closed box can carry only in part; wherever the map is not closer to the truth than no
+    # motion, the fit says so
+    size = (64, 64)
+    source = _texture(gen, *size)
+    target = _shifted(source, *shift)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = fit_images(source, target, grid=32, levels=(16,), steps=6, max_iter=(15, 15), progress=False)
+    fitted, none = _epe(fit, shift, size)
+    said = [str(w.message) for w in caught if "plain shift" in str(w.message)]
+    assert fitted < none or said, (fitted, none)
+    if shift == (4.0, -3.0):  # a shift of 5 px: the compressible fluid carries it (the incompressible one ends
+        assert fitted < 0.6 * none, (fitted, none)  # 6.6 px off, farther than no motion, 5 px)
 
 
 def test_a_fit_that_finds_the_motion_does_not_warn(gen):

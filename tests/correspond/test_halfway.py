@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.core.spline import tps_fit
-from torchfluidwarp.correspond.halfway import HalfwaySettings, box_mean, halfway_alignment, least_area, local_ncc2
+from torchfluidwarp.correspond.halfway import HalfwaySettings, halfway_alignment, least_area
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.metrics import folded_pixels
@@ -179,14 +179,6 @@ def test_placed_points_and_given_points_do_not_mix() -> None:
     assert caught.value.argument == "placed"
 
 
-def test_local_ncc2_ignores_gain_offset_and_sign() -> None:
-    x = torch.rand(1, 1, 32, 32, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
-    y = x.roll(1, -1)
-    base = local_ncc2(x, y, 5, eps=0)
-    assert torch.allclose(local_ncc2(x, 3 - 2 * y, 5, eps=0), base, atol=1e-9)
-    assert torch.allclose(local_ncc2(x, x, 5, eps=0)[..., 3:-3, 3:-3], torch.ones(1, 1, 26, 26, dtype=torch.float64))
-
-
 def test_least_area_of_a_known_field() -> None:
     # u = (k x, 0): det(I + sigma J) = 1 + sigma k, least at sigma = -1/2
     k = 0.8
@@ -209,17 +201,3 @@ def test_least_area_of_a_known_field() -> None:
 def test_settings_name_the_field(kwargs: dict, field: str) -> None:
     with pytest.raises(InputError, match=f"HalfwaySettings.{field}"):
         HalfwaySettings(**kwargs)
-
-
-@pytest.mark.parametrize("window", [1, 3, 7, 9])
-@pytest.mark.parametrize("shape", [(1, 1, 16, 16), (2, 3, 9, 23), (1, 2, 30, 5)])
-def test_box_mean_is_the_window_mean_of_the_pixels_inside(window, shape) -> None:
-    x = torch.rand(shape, generator=torch.Generator().manual_seed(window), dtype=torch.float64) * 5 - 1
-    expected = F.avg_pool2d(x, window, stride=1, padding=window // 2, count_include_pad=False)
-    assert torch.allclose(box_mean(x, window), expected, atol=1e-12)
-    # and its gradient is avg_pool2d's
-    w = torch.rand(shape, generator=torch.Generator().manual_seed(7), dtype=torch.float64)
-    x.requires_grad_(True)
-    (g_box,) = torch.autograd.grad((box_mean(x, window) * w).sum(), x)
-    (g_pool,) = torch.autograd.grad((F.avg_pool2d(x, window, 1, window // 2, count_include_pad=False) * w).sum(), x)
-    assert torch.allclose(g_box, g_pool, atol=1e-12)

@@ -20,7 +20,7 @@ from torchfluidwarp.control.keyframes import (
     keyframe_loss,
     velocity_gradient_energy,
 )
-from torchfluidwarp.control.losses import image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.losses import image_loss, lncc_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.control.optim import OptimResult, minimize
 
 __all__ = [
@@ -35,6 +35,7 @@ __all__ = [
     "mse_loss",
     "ncc_loss",
     "ssim_loss",
+    "lncc_loss",
     "KeyframeFit",
     "check_points",
     "fit_keyframes",

@@ -11,14 +11,25 @@ from typing import Literal
 
 import kornia.losses
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive, describe
 from torchfluidwarp.errors import InputError, InputTypeError
 
-__all__ = ["LossName", "ImageLoss", "image_loss", "mse_loss", "ncc_loss", "ssim_loss"]
+__all__ = [
+    "LossName",
+    "ImageLoss",
+    "image_loss",
+    "mse_loss",
+    "ncc_loss",
+    "ssim_loss",
+    "lncc_loss",
+    "local_ncc2",
+    "box_mean",
+]
 
-LossName = Literal["mse", "ncc", "ssim"]
+LossName = Literal["mse", "ncc", "ssim", "lncc"]
 ImageLoss = Callable[[Tensor, Tensor], Tensor]
 
 
@@ -76,8 +87,79 @@ def ssim_loss(warped: Tensor, target: Tensor, window_size: int = 11, data_range:
     return dssim.flatten(1).mean(1).sum()
 
 
+def _along(x: Tensor, dim: int, r: int) -> Tensor:
+    """The mean over ``2 r + 1`` neighbours along ``dim`` (``-1`` or ``-2``) of those inside the raster."""
+    n = x.shape[dim]
+    pad = (r + 1, r, 0, 0) if dim == -1 else (0, 0, r + 1, r)
+    running = F.pad(x, pad).cumsum(dim)
+    sums = running.narrow(dim, 2 * r + 1, n) - running.narrow(dim, 0, n)
+    i = torch.arange(n, device=x.device, dtype=x.dtype)
+    count = (i + r).clamp(max=n - 1) - (i - r).clamp(min=0) + 1  # the neighbours inside the raster
+    return sums / (count if dim == -1 else count.unsqueeze(-1))
+
+
+def box_mean(x: Tensor, window: int) -> Tensor:
+    """The mean of ``x`` ``(B, C, h, w)`` over the ``window x window`` pixels (odd) centred on each pixel, of those
+    inside the raster at its edges, ``(B, C, h, w)``: ``avg_pool2d(x, window, stride=1, padding=window // 2,
+    count_include_pad=False)`` to round-off, by running sums (``cumsum`` along each axis), so that neither its cost
+    nor its backward's grows with the window (``avg_pool2d``'s backward was half of an alignment step's time).
+    Round-off: about ``eps * w * max|x - mean x|`` (x is centred first), a few ``1e-6`` in float32 at 512 pixels."""
+    r = window // 2
+    centre = x.mean((-2, -1), keepdim=True)
+    return _along(_along(x - centre, -1, r), -2, r) + centre
+
+
+def local_ncc2(x: Tensor, y: Tensor, window: int, eps: float = 1e-4) -> Tensor:
+    """The squared normalised cross-correlation of ``x`` and ``y`` ``(B, 1, h, w)`` over ``window x window``
+    pixels around each pixel, ``(B, 1, h, w)`` in ``[0, 1]``; ``eps`` (intensity^2) keeps flat windows at 0."""
+    mx, my, xx, yy, xy = box_mean(torch.cat([x, y, x * x, y * y, x * y], 1), window).split(x.shape[1], 1)
+    vx = (xx - mx * mx).clamp(min=0)
+    vy = (yy - my * my).clamp(min=0)
+    cov = xy - mx * my
+    return cov.square() / ((vx + eps) * (vy + eps))
+
+
+LNCC_WINDOW = 9
+""":func:`lncc_loss`'s window, pixels a side, at every level of a coarse-to-fine fit (VoxelMorph's and ANTs' usual
+size; Liao et al.'s halfway morph uses 5-9)."""
+
+
+def lncc_loss(warped: Tensor, target: Tensor, window: int = LNCC_WINDOW) -> Tensor:
+    """``1 - NCC_w^2`` per sample: one minus the squared local normalised cross-correlation over ``window x window``
+    pixels around each pixel (:func:`local_ncc2`), averaged over the pixels, summed over the batch.
+
+    The images are compared by their channels' mean (grey), window by window, so a change of brightness, contrast
+    or even contrast sign between them, slow across the picture, does not matter; a flat window counts as a
+    mismatch that no motion improves (no gradient). Windows keep their size in pixels at every level of a
+    coarse-to-fine fit, so the coarse levels compare large structures and the fine levels small ones.
+
+    Args:
+        warped: ``(B, C, H, W)``.
+        target: ``(B, C, H, W)``.
+        window: odd width of the window in pixels (shrunk to the image's shorter side on tiny images).
+
+    Returns:
+        a scalar in ``[0, B]``: about 0 where every textured window matches.
+
+    Example:
+        >>> x = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> float(lncc_loss(1 - 2 * x, x)) < 0.01
+        True
+        >>> float(lncc_loss(x.roll(3, -1), x)) > 0.5
+        True
+    """
+    check_int("window", window)
+    if window % 2 == 0:
+        raise InputError(f"window must be odd, got {window}", argument="window")
+    side = min(warped.shape[-2:])
+    window = min(window, side - 1 + side % 2)
+    ncc2 = local_ncc2(warped.mean(1, keepdim=True), target.mean(1, keepdim=True), window)
+    return (1 - ncc2).flatten(1).mean(1).sum()
+
+
 def image_loss(loss: LossName | ImageLoss) -> ImageLoss:
-    """The image term for a name (``"mse"``, ``"ncc"``, ``"ssim"``) or a callable ``loss(warped, target) -> scalar``."""
+    """The image term for a name (``"mse"``, ``"ncc"``, ``"ssim"``, ``"lncc"``) or a callable
+    ``loss(warped, target) -> scalar``."""
     if callable(loss):
         return loss
     if loss == "mse":
@@ -86,8 +168,10 @@ def image_loss(loss: LossName | ImageLoss) -> ImageLoss:
         return ncc_loss
     if loss == "ssim":
         return ssim_loss
+    if loss == "lncc":
+        return lncc_loss
     kind = InputError if isinstance(loss, str) else InputTypeError
     raise kind(
-        f"loss must be 'mse', 'ncc', 'ssim' or a callable (warped, target) -> scalar, got {describe(loss)}",
+        f"loss must be 'mse', 'ncc', 'ssim', 'lncc' or a callable (warped, target) -> scalar, got {describe(loss)}",
         argument="loss",
     )

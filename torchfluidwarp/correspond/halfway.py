@@ -34,6 +34,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive
 from torchfluidwarp.control.alignment import apply_alignment
+from torchfluidwarp.control.losses import local_ncc2
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.sampling import sample
 from torchfluidwarp.core.spline import tps_fit
@@ -163,38 +164,6 @@ def _near_marks(at: Tensor, mids: Tensor, reach: float, chunk: int = 4096) -> Te
     flat = at.reshape(-1, 2)
     out = torch.cat([torch.cdist(flat[i : i + chunk], mids).min(1).values for i in range(0, flat.shape[0], chunk)])
     return torch.exp(-out.square() / (2 * sigma**2)).view(1, 1, *at.shape[:2])
-
-
-def _along(x: Tensor, dim: int, r: int) -> Tensor:
-    """The mean over ``2 r + 1`` neighbours along ``dim`` (``-1`` or ``-2``) of those inside the raster."""
-    n = x.shape[dim]
-    pad = (r + 1, r, 0, 0) if dim == -1 else (0, 0, r + 1, r)
-    running = F.pad(x, pad).cumsum(dim)
-    sums = running.narrow(dim, 2 * r + 1, n) - running.narrow(dim, 0, n)
-    i = torch.arange(n, device=x.device, dtype=x.dtype)
-    count = (i + r).clamp(max=n - 1) - (i - r).clamp(min=0) + 1  # the neighbours inside the raster
-    return sums / (count if dim == -1 else count.unsqueeze(-1))
-
-
-def box_mean(x: Tensor, window: int) -> Tensor:
-    """The mean of ``x`` ``(B, C, h, w)`` over the ``window x window`` pixels (odd) centred on each pixel, of those
-    inside the raster at its edges, ``(B, C, h, w)``: ``avg_pool2d(x, window, stride=1, padding=window // 2,
-    count_include_pad=False)`` to round-off, by running sums (``cumsum`` along each axis), so that neither its cost
-    nor its backward's grows with the window (``avg_pool2d``'s backward was half of an alignment step's time).
-    Round-off: about ``eps * w * max|x - mean x|`` (x is centred first), a few ``1e-6`` in float32 at 512 pixels."""
-    r = window // 2
-    centre = x.mean((-2, -1), keepdim=True)
-    return _along(_along(x - centre, -1, r), -2, r) + centre
-
-
-def local_ncc2(x: Tensor, y: Tensor, window: int, eps: float = 1e-4) -> Tensor:
-    """The squared normalised cross-correlation of ``x`` and ``y`` ``(B, 1, h, w)`` over ``window x window``
-    pixels around each pixel, ``(B, 1, h, w)`` in ``[0, 1]``; ``eps`` (intensity^2) keeps flat windows at 0."""
-    mx, my, xx, yy, xy = box_mean(torch.cat([x, y, x * x, y * y, x * y], 1), window).split(x.shape[1], 1)
-    vx = (xx - mx * mx).clamp(min=0)
-    vy = (yy - my * my).clamp(min=0)
-    cov = xy - mx * my
-    return cov.square() / ((vx + eps) * (vy + eps))
 
 
 def least_area_ratio(jacobian: Tensor) -> Tensor:
