@@ -262,6 +262,27 @@ def test_points_the_library_placed_that_cross_are_not_the_users_order_to_check(p
     assert float(r.error[[0, 4]].min()) > float(r.error[[1, 2, 3]].max())  # the crossing pair was let go
 
 
+def test_points_the_library_placed_twice_are_used_once_not_refused(pair):
+    # a matcher that puts a point where an earlier one is: the library's doing, so the morph drops the repeat and
+    # says so, instead of telling the user to mark each feature once
+    a, b = pair
+    pa = torch.cat([POINTS_A, POINTS_A[1:2]])
+    pb = torch.cat([POINTS_B, POINTS_B[1:2] + 3.0])  # the same position in A only
+    placed = FoundPoints(pa, pb, "features", Note("image features"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = morph(a, b, placed=placed, frames=3, progress=False)
+    said = [str(w.message) for w in caught if "placed" in str(w.message)]
+    assert said == [
+        "the features matcher placed 1 point(s) where an earlier one already is (indices 5); the morph uses each "
+        "position once"
+    ]
+    assert r.error.shape == (POINTS_A.shape[0],)
+    given = morph(a, b, placed=FoundPoints(POINTS_A, POINTS_B, "features", Note("image features")), frames=3,
+                  progress=False)  # fmt: skip
+    torch.testing.assert_close(r.frames, given.frames, atol=1e-5, rtol=0)  # the same morph as without the repeat
+
+
 def test_marks_that_swap_places_meet_halfway_and_are_morphed_without_a_pre_alignment(pair):
     # without a pre-alignment, swapped marks' straight paths share their midpoint: no spline interpolates both,
     # and the interpolating spline's singular system used to end the morph with an error about its centres

@@ -77,18 +77,41 @@ def crossing_pairs(pa: Tensor, pb: Tensor) -> Tensor:
     return torch.triu(turned | torn, diagonal=1).nonzero()
 
 
+def _repeats(points: Tensor) -> list[tuple[int, int]]:
+    """The pairs ``i < j`` of points ``(M, 2)`` at the same position (within ``1e-6`` px)."""
+    d = torch.cdist(points.double(), points.double())
+    d.fill_diagonal_(math.inf)
+    i, j = torch.nonzero(d < 1e-6, as_tuple=True)
+    return [(int(a), int(b)) for a, b in zip(i, j) if a < b]
+
+
+def drop_repeats(pa: Tensor, pb: Tensor, placed_by: str) -> tuple[Tensor, Tensor]:
+    """Points ``(M, 2)`` that the ``placed_by`` matcher put where an earlier one already is, in either picture,
+    dropped with a warning: a matcher's doing, not the user's, and the later point adds nothing to the morph."""
+    later = sorted({j for p in (pa, pb) for _, j in _repeats(p)})
+    if not later:
+        return pa, pb
+    keep = torch.ones(pa.shape[0], dtype=torch.bool, device=pa.device)
+    keep[later] = False
+    warn(
+        f"the {placed_by} matcher placed {len(later)} point(s) where an earlier one already is (indices "
+        f"{', '.join(map(str, later[:5]))}{' ...' if len(later) > 5 else ''}); the morph uses each position once",
+        RuntimeWarning,
+    )
+    return pa[keep], pb[keep]
+
+
 def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
     """Refuse marks that cannot be morphed, and warn about marks whose order crosses: the user's marks, or, with
-    ``placed_by`` (the matcher's name), points the library placed, which are nobody's order to check."""
+    ``placed_by`` (the matcher's name), points the library placed, which are nobody's order to check (points it
+    placed twice are dropped before, by :func:`drop_repeats`)."""
     for name, p in (("points_a", pa), ("points_b", pb)):
-        d = torch.cdist(p.double(), p.double())
-        d.fill_diagonal_(math.inf)
-        i, j = torch.nonzero(d < 1e-6, as_tuple=True)
-        pairs = [(int(a), int(b)) for a, b in zip(i, j) if a < b]
+        pairs = _repeats(p)
         if pairs:
             raise InputError(
                 f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
-                "position; each feature must be marked once"
+                "position; each feature must be marked once",
+                argument=name,
             )
     if pa.shape[0] >= 3:
         bad = crossing_pairs(pa, pb).tolist()

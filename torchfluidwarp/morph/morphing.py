@@ -39,7 +39,16 @@ from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph.fit import MIN_AREA, PAD, check_marks, fit_natural, fit_paper, paper_flows, pose
+from torchfluidwarp.morph.fit import (
+    MIN_AREA,
+    PAD,
+    check_marks,
+    drop_repeats,
+    fit_natural,
+    fit_paper,
+    paper_flows,
+    pose,
+)
 from torchfluidwarp.morph.regions import hull_mask
 from torchfluidwarp.morph.render import Scene
 from torchfluidwarp.morph.result import MorphResult
@@ -326,6 +335,8 @@ def morph(
     pb = _as_points("points_b", points_b, b)
     if pa.shape[0] != pb.shape[0]:
         raise InputError(f"points_a has {pa.shape[0]} points but points_b has {pb.shape[0]}")
+    if placed is not None:
+        pa, pb = drop_repeats(pa, pb, placed.matcher)
     if isinstance(settings, NaturalSettings) and pa.shape[0] < 3:
         raise InputError(
             f"the natural method (NaturalSettings) needs at least 3 points, got {pa.shape[0]}; PaperSettings "
