@@ -122,9 +122,12 @@ def peak_mib(base_kib: float | None = None) -> float:
 # ----------------------------------------------------------------------------------------------- command line
 
 
-def parser(doc: str | None, quick: str | None = None, threads: int | None = 1) -> argparse.ArgumentParser:
+def parser(
+    doc: str | None, quick: str | None = None, threads: int | None = 1, child: bool = False
+) -> argparse.ArgumentParser:
     """An argument parser with the options every script shares: ``--json PATH``, ``--threads`` (unless
-    ``threads`` is ``False``) and, given its help text, ``--quick`` (a smoke run, not for figures)."""
+    ``threads`` is ``False``), given its help text ``--quick`` (a smoke run, not for figures), and with ``child``
+    the hidden ``--_child SPEC`` of :func:`run_child`."""
     p = argparse.ArgumentParser(
         description=(doc or "").split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -139,6 +142,8 @@ def parser(doc: str | None, quick: str | None = None, threads: int | None = 1) -
         )
     if quick:
         p.add_argument("--quick", action="store_true", help=f"smoke run, not for figures: {quick}")
+    if child:
+        p.add_argument("--_child", help=argparse.SUPPRESS)
     return p
 
 
@@ -240,6 +245,11 @@ def yes(b: bool) -> str:
     return "yes" if b else "no"
 
 
+def fmt(x: float | None, digits: int = 2) -> str:
+    """``x`` with ``digits`` decimals; ``"—"`` for ``None`` or NaN (a figure that could not be taken)."""
+    return "—" if x is None or x != x else f"{x:.{digits}f}"
+
+
 def write_json(path: str, result: Any, default: Any = None) -> None:
     """Write ``result`` as indented JSON to ``path`` through a temporary file, so a crash never leaves half a file."""
     tmp = path + ".tmp"
@@ -248,13 +258,21 @@ def write_json(path: str, result: Any, default: Any = None) -> None:
     os.replace(tmp, path)
 
 
-def save_figure(fig: Any, path: str) -> None:
-    """Save a matplotlib figure to ``path`` through a temporary file, and close it."""
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (files only, no display)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def save_figure(fig: Any, path: str) -> None:
+    """Save a matplotlib figure to ``path`` through a temporary file, and close it."""
     tmp = path + ".tmp.png"
     fig.savefig(tmp)
-    plt.close(fig)
+    pyplot().close(fig)
     os.replace(tmp, path)
 
 
@@ -267,6 +285,15 @@ def run_child(script: str, spec: dict[str, Any]) -> dict[str, Any]:
     if proc.returncode != 0:
         return {**spec, "failed": True, "returncode": proc.returncode, "stderr_tail": proc.stderr[-2000:]}
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def as_child(args: argparse.Namespace, fn: Callable[[dict[str, Any]], dict[str, Any]]) -> bool:
+    """In a process :func:`run_child` started (``parser(..., child=True)``): print ``fn(spec)`` as its JSON result
+    and return ``True``; in any other, ``False``."""
+    if not args._child:
+        return False
+    print(json.dumps(fn(json.loads(args._child))))
+    return True
 
 
 # ----------------------------------------------------------------------------------------------- sample problems
@@ -411,6 +438,15 @@ def make_image(size: tuple[int, int], seed: int = 1234) -> Tensor:
     """A smooth random RGB float32 image ``(1, 3, H, W)`` in ``[0, 1]`` (content does not change the cost)."""
     coarse = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(seed))
     return torch.nn.functional.interpolate(coarse, size=size, mode="bilinear", align_corners=False)
+
+
+def stirred(size: tuple[int, int], steps: int, device: Any = "cpu") -> tuple[Any, Any, Tensor]:
+    """The warp benchmarks' set-up for an image of ``size``: ``FluidWarp`` on the :data:`FLUID` grid over ``steps``
+    (``dt = 1``), :func:`make_brushes` and :func:`make_image`, on ``device``."""
+    from torchfluidwarp.warp import FluidWarp
+
+    warp = FluidWarp(FLUID, steps=steps, dt=1.0).to(device)
+    return warp, make_brushes(size).to(device), make_image(size).to(device)
 
 
 # ----------------------------------------------------------------------------------------------- morph

@@ -28,15 +28,14 @@ from _common import (
     flow_instance,
     load_pair,
     log,
-    make_brushes,
-    make_image,
     parser,
     start,
+    stirred,
     table,
     write_json,
 )
 
-from torchfluidwarp import FluidWarp, fit_keyframes, morph
+from torchfluidwarp import fit_keyframes, morph
 from torchfluidwarp.core import graphs
 from torchfluidwarp.warp import iter_backward_maps
 
@@ -208,8 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     for size in cfg["frame_sizes"] if "frames" in args.only else []:
 
         def setup(d: torch.device, size: tuple[int, int] = size) -> dict[str, Any]:
-            s = dict(warp=FluidWarp(FLUID, steps=T, dt=1.0).to(d), brushes=make_brushes(size).to(d),
-                     image=make_image(size).to(d), grid=smooth_grid(size, d))  # fmt: skip
+            s = dict(zip(("warp", "brushes", "image"), stirred(size, T, d)), grid=smooth_grid(size, d))
             frames_once(d, s)
             return s
 

@@ -11,10 +11,7 @@ tighter tolerance (target: unchanged). Set-up and figures: docs/benchmarks.md, "
 
 from __future__ import annotations
 
-import argparse
 import gc
-import json
-import math
 import resource
 import statistics
 import sys
@@ -25,7 +22,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import finish, log, parser, reset_peak, rows_table, run_child, save_figure, start, status_kib, verdict
+from _common import as_child, finish, log, parser, peak_mib, pyplot, rows_table, run_child, save_figure, start, verdict
 from torch import Tensor
 
 from torchfluidwarp import CGConfig, FluidSimulator
@@ -124,8 +121,8 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
     del sim, forces, points
     sim, forces, points, mu = build(spec["grid"], spec["steps"])
     gc.collect()
-    hwm_reset = reset_peak()
-    base_maxrss, base_now = _maxrss_kib(), status_kib("VmRSS")
+    base_now = peak_mib()  # VmRSS, with VmHWM reset to it (0 where the reset failed)
+    base_maxrss = _maxrss_kib()
     saved_bytes, seen = 0, set()
 
     def pack(t: Tensor) -> Tensor | None:
@@ -147,7 +144,7 @@ def memory_child(spec: dict[str, Any]) -> dict[str, Any]:
         if not count_only:
             loss_of(out).backward()
         t_bwd = time.perf_counter() - t1
-    peak = (status_kib("VmHWM") - base_now) / 1024 if hwm_reset else math.nan
+    peak = peak_mib(base_now)
     result = {**spec, "saved_for_backward_mib": saved_bytes / 2**20, "forward_s": t_fwd,
               "viscosity_iters_per_step": statistics.mean(i for i, _ in out.iterations),
               "pressure_iters_per_step": statistics.mean(p for _, p in out.iterations)}  # fmt: skip
@@ -242,12 +239,7 @@ def report_memory(mem: dict[str, Any]) -> None:
 
 def plot_scaling(path: str, rows: list[dict[str, Any]], title: str) -> None:
     """ms per step against grid size, forward and forward + backward, log-log, written to ``path`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+    fig, ax = pyplot().subplots(figsize=(6.4, 4.4), dpi=120)
     grids = sorted({r["grid"] for r in rows})
     for mu, color in zip(sorted({r["visc"] for r in rows}), ["#1b9e77", "#d95f02", "#7570b3"]):
         rs = sorted((r for r in rows if r["visc"] == mu), key=lambda r: r["grid"])
@@ -266,14 +258,12 @@ def plot_scaling(path: str, rows: list[dict[str, Any]], title: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = parser(__doc__, quick="grids 16^2 to 64^2, few steps and repeats; a 32^2 memory run")
+    p = parser(__doc__, quick="grids 16^2 to 64^2, few steps and repeats; a 32^2 memory run", child=True)
     p.add_argument("--plot", metavar="PATH.png", help="also plot ms per step against grid size to PATH.png")
     p.add_argument("--unrolled-steps", type=int, default=3, help="steps of the whole unrolled-CG memory run (default "
                    "3: 50 steps would need some 100 GiB)")  # fmt: skip
-    p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    if args._child:
-        print(json.dumps(memory_child(json.loads(args._child))))
+    if as_child(args, memory_child):
         return 0
     # (grid, steps, repeats) of the timings; the backward overhead's grid; the memory runs' grid and steps
     plan, overhead_grid, mem = ([(16, 6, 3), (32, 4, 3), (64, 2, 2)], 16, (32, 6)) if args.quick else (

@@ -9,7 +9,6 @@ warm one (target <= 1.2x). Set-up and figures: docs/benchmarks.md, "Keyframe con
 
 from __future__ import annotations
 
-import argparse
 import math
 import statistics
 import sys
@@ -21,6 +20,7 @@ import torch
 from _common import (
     FRAME,
     Instance,
+    as_child,
     finish,
     flow_instance,
     interleaved,
@@ -146,7 +146,7 @@ def parse_control(text: str) -> tuple[int, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = parser(__doc__, quick="32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat")
+    p = parser(__doc__, quick="32x32 fluid, 5 steps, 6 points, 2 flow seeds, one repeat", child=True)
     p.add_argument("--seeds", type=int, help="number of flow instances (default 5; --quick 2)")
     p.add_argument("--repeats", type=int, help="repeats of each fit (default 3; --quick 1)")
     p.add_argument("--grad-repeats", type=int, help="repeats of the gradient timing (default 9; --quick 3)")
@@ -157,12 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS), help="fit_keyframes methods")
     p.add_argument("--viscosity", type=float, default=0.0, help="the fits' viscosity (default 0, the paper's)")
     p.add_argument("--compressible", type=float, default=0.0, help="the fits' compressible weight (default 0)")
-    p.add_argument("--_child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    if args._child:
-        import json
-
-        print(json.dumps(child(json.loads(args._child))))
+    if as_child(args, child):
         return 0
     q = args.quick
     cfg = dict(grid=(32, 32) if q else (64, 64), steps=5 if q else 10, points=6 if q else 14,

@@ -24,7 +24,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import FRAME, Instance, finish, flow_instance, log, parser, rows_table, save_figure, start
+from _common import FRAME, Instance, finish, flow_instance, log, parser, pyplot, rows_table, save_figure, start
 from bench_keyframes import PAPER_SECONDS
 from torch import Tensor
 
@@ -262,11 +262,6 @@ def summary(runs: list[FitRun], label: str) -> dict[str, Any]:
 
 def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], title: str) -> None:
     """Bar chart of fit wall time (log axis): the paper's quoted 5 minutes, PhiFlow and torchfluidwarp."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     labels = ["paper\n(5 min, quoted,\nnot measured)"] + list(names.values())
     secs = [PAPER_SECONDS] + [rows[k]["seconds"] for k in names]
     notes = ["300 s"] + [
@@ -275,7 +270,7 @@ def plot(path: str, rows: dict[str, dict[str, Any]], names: dict[str, str], titl
         + ("" if r["reached"].startswith(str(r["repeats"])) else f" (not reached: {r['stopped']})")
         for r in (rows[k] for k in names)
     ]
-    fig, ax = plt.subplots(figsize=(8.0, 0.9 * len(labels) + 1.3), dpi=120)
+    fig, ax = pyplot().subplots(figsize=(8.0, 0.9 * len(labels) + 1.3), dpi=120)
     bars = ax.barh(range(len(labels)), secs, color=["#9e9e9e", "#d95f02", "#1b9e77"][: len(labels)])
     for bar, note in zip(bars, notes):
         ax.text(bar.get_width() * 1.1, bar.get_y() + bar.get_height() / 2, note, va="center", fontsize=8)

@@ -8,14 +8,13 @@ resampling), and ``forward`` and ``iter_frames`` against the floor, one ``grid_s
 
 from __future__ import annotations
 
-import inspect
 import statistics
 import sys
 import time
 from typing import Any
 
 import torch
-from _common import FLUID, finish, log, make_brushes, make_image, parser, rows_table, save_figure, start, verdict
+from _common import FLUID, finish, log, parser, pyplot, rows_table, save_figure, start, stirred, verdict
 from torch import Tensor
 
 from torchfluidwarp.core.grid import cell_scale, pixel_to_normalized, rescale_points
@@ -24,10 +23,8 @@ from torchfluidwarp.core.staggered import StaggeredGrid
 from torchfluidwarp.warp import FluidWarp, identity_map, iter_backward_maps, warp_image
 from torchfluidwarp.warp.maps import TRACE_OVERSAMPLE
 
-# iter_frames' prefetch worker may be removed (issue 30): then the serial loop is the only one
-PREFETCH = "prefetch" in inspect.signature(FluidWarp.iter_frames).parameters
 TARGET_SIZE, TARGET_FPS = (600, 600), 60.0
-PIECES = ("fluid", "maps", "resample", "public", "backtrace", "end_to_end", "serial", "floor", "forward")
+PIECES = ("fluid", "maps", "resample", "public", "backtrace", "end_to_end", "floor", "forward")
 
 
 @torch.no_grad()
@@ -59,9 +56,6 @@ def one_repeat(warp: FluidWarp, brushes: Any, image: Tensor) -> dict[str, tuple[
     cells = rescale_points(identity_map(raster).reshape(1, -1, 2), cell_scale(raster, warp.grid))
     timed("backtrace", lambda: [sg.backtrace(sg.extend(vel[:, t]), cells, warp.dt) for t in range(T)])
     n = timed("end_to_end", lambda: sum(1 for _ in warp.iter_frames(image, brushes)))
-    timed(
-        "serial", lambda: sum(1 for _ in warp.iter_frames(image, brushes, **({"prefetch": False} if PREFETCH else {})))
-    )
     floor = lambda: torch.nn.functional.grid_sample(image, grid, padding_mode="border", align_corners=False)
     timed("floor", lambda: [floor() for _ in range(T)])
     timed("forward", warp, image, brushes)
@@ -75,7 +69,7 @@ def summarise(size: tuple[int, int], threads: int, steps: int, samples: list[dic
     c = {k + "_cpu": statistics.median(s[k][1] for s in samples) / steps * 1e3 for k in PIECES}
     return dict(image=f"{size[1]}x{size[0]}", size=size, threads=threads, steps=steps, repeats=len(samples), **w, **c,
                 compose=w["maps"] - w["backtrace"], sum=w["fluid"] + w["maps"] + w["resample"],
-                fps=1e3 / w["end_to_end"], serial_fps=1e3 / w["serial"], fps_cpu=1e3 / c["end_to_end_cpu"],
+                fps=1e3 / w["end_to_end"], fps_cpu=1e3 / c["end_to_end_cpu"],
                 fwd_floor=w["forward"] / w["floor"], iter_floor=w["end_to_end"] / w["floor"],
                 max_disp=max_disp)  # fmt: skip
 
@@ -102,12 +96,7 @@ def profile_ops(warp: FluidWarp, brushes: Any, image: Tensor, top: int = 10) -> 
 
 def plot_fps(path: str, rows: list[dict], subtitle: str) -> None:
     """Frames per second (end to end) and the split per frame against image size, one line per thread count."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=120)
+    fig, (ax, bx) = pyplot().subplots(1, 2, figsize=(10, 4.2), dpi=120)
     for n in sorted({r["threads"] for r in rows}):
         rs = sorted((r for r in rows if r["threads"] == n), key=lambda r: r["size"][0] * r["size"][1])
         mp = [r["size"][0] * r["size"][1] / 1e6 for r in rs]
@@ -143,8 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     profiles: dict[str, list] = {}
     for size in sizes:
-        warp = FluidWarp(FLUID, steps=frames, dt=1.0)
-        brushes, image = make_brushes(size), make_image(size)
+        warp, brushes, image = stirred(size, frames)
         torch.set_num_threads(args.threads[0])
         one_repeat(warp, brushes, image)  # warm-up
         samples: dict[int, list] = {n: [] for n in args.threads}
@@ -162,8 +150,8 @@ def main(argv: list[str] | None = None) -> int:
           "the public function on the same maps, input checks included")  # fmt: skip
     print(rows_table(rows, "image {image} | threads {threads} | frames {steps} | reps {repeats} | (a) fluid "
           "{fluid:.2f} | (b) map {maps:.2f} | (b) back-trace {backtrace:.2f} | (b) compose {compose:.2f} | (c) "
-          "resample {resample:.2f} | a+b+c {sum:.2f} | end to end {end_to_end:.2f} | fps {fps:.1f} | fps, "
-          "prefetch=False {serial_fps:.1f} | warp_image {public:.2f} | max disp px {max_disp:.1f}"))  # fmt: skip
+          "resample {resample:.2f} | a+b+c {sum:.2f} | end to end {end_to_end:.2f} | fps {fps:.1f} | warp_image "
+          "{public:.2f} | max disp px {max_disp:.1f}"))  # fmt: skip
     print("\nThe same in this process's CPU time per frame (all its threads)")
     print(rows_table(rows, "image {image} | threads {threads} | (a) fluid {fluid_cpu:.2f} | (b) map {maps_cpu:.2f} "
           "| (c) resample {resample_cpu:.2f} | end to end {end_to_end_cpu:.2f} | fps by CPU {fps_cpu:.1f} | "
