@@ -83,19 +83,20 @@ def elastic_maps(alpha: float, sigma: float, n: int, draws: int) -> Tensor:
     return identity_map((n, n)) + disp * torch.tensor([n / 2, n / 2])
 
 
-def bench_folds(n: int, draws: int) -> list[dict[str, Any]]:
-    """Folds and mean displacement of each fluid setting, and of ElasticTransform at its defaults and at alphas
-    that match each setting's displacement (linear in alpha) at sigma 5 and 15."""
+def bench_folds(n: int, draws: int, device: str | None = None) -> list[dict[str, Any]]:
+    """Folds and mean displacement of each fluid setting (drawn on ``device``), and of ElasticTransform at its
+    defaults and at alphas that match each setting's displacement (linear in alpha) at sigma 5 and 15."""
     torch.manual_seed(SEED)  # ElasticTransform draws from torch's global RNG
     unit = {s: map_stats(elastic_maps(1.0, s, n, draws))[0] for s in (5.0, 15.0)}  # mean px per unit alpha
     stats = lambda method, setting, maps, retried="": dict(zip(("mean_disp", "folded", "min_det"), map_stats(maps)),
                                                            method=method, setting=setting, retried=retried)  # fmt: skip
     rows = [stats("ElasticTransform", "defaults: alpha 50, sigma 5", elastic_maps(50.0, 5.0, n, draws))]
     for name, kw in SETTINGS.items():
-        params = RandomFluidWarp(generator=torch.Generator().manual_seed(SEED), **kw).make_params(draws, (n, n))
+        draw = RandomFluidWarp(generator=torch.Generator().manual_seed(SEED), **kw)
+        params = draw.make_params(draws, (n, n), device=device)
         retried = f"{float((params.force_scale < 1).double().mean()):.1%}"
         desc = ", ".join(f"{k} {v}" for k, v in kw.items()) or "defaults"
-        rows.append(fluid := stats("RandomFluidWarp", desc, fluid_warp_map(params), retried))
+        rows.append(fluid := stats("RandomFluidWarp", desc, fluid_warp_map(params).cpu(), retried))
         for sigma in (5.0, 15.0):
             alpha = fluid["mean_disp"] / unit[sigma]
             setting = f"alpha {alpha:.1f}, sigma {sigma:g} (matches '{name}')"

@@ -9,6 +9,7 @@ scale".
 from __future__ import annotations
 
 import sys
+from functools import partial
 from typing import Any
 
 import torch
@@ -23,8 +24,9 @@ from torchfluidwarp.augment.transforms import RandomFluidWarp
 BASELINE = "ElasticTransform, per image"
 
 
-def bench(device: str, batch: int, size: int, repeats: int) -> list[dict[str, Any]]:
-    """The four ways of warping a batch, each timed on all of it: ms per batch, images/s, ratio to the baseline."""
+def bench(device: str, batch: int, size: int, repeats: int, extra: dict | None = None) -> list[dict[str, Any]]:
+    """The four ways of warping a batch, and any ``extra`` ``{label: fn(images)}``, each timed on all of it: ms per
+    batch, images/s, ratio to the baseline."""
     images = photo(size, batch).to(device)
     tensor_level = FluidWarpAugment(generator=torch.Generator().manual_seed(SEED))
     transform = RandomFluidWarp(generator=torch.Generator().manual_seed(SEED))
@@ -34,6 +36,7 @@ def bench(device: str, batch: int, size: int, repeats: int) -> list[dict[str, An
              "RandomFluidWarp (v2), per image": lambda: [transform(x) for x in singles],
              BASELINE: lambda: [elastic(x) for x in singles],
              "ElasticTransform, batch in one call (one shared warp)": lambda: elastic(images)}  # fmt: skip
+    cases.update({label: partial(fn, images) for label, fn in (extra or {}).items()})
     with torch.no_grad():
         ms = medians_ms(interleaved(cases, repeats, sync=torch.cuda.synchronize if images.is_cuda else None))
     rate = {k: batch / (t / 1e3) for k, t in ms.items()}

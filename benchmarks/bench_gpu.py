@@ -5,11 +5,10 @@ CUDA only: without a CUDA device it says so and exits (status 0). Float32, no gr
 fluid stirred by ``bench_warp.py``'s brushes, at 1920x1080: ms and CUDA kernels (``torch.profiler``) per fluid step
 (``FluidWarp.rollout`` over ``--steps`` steps), per frame of ``iter_frames`` and of ``forward``, with the fused
 kernels (the default on CUDA) and without them (``TORCHFLUIDWARP_FUSED=0``), against the floor: one
-``grid_sample`` of the frame. (2) ``FluidWarpAugment`` (default settings) on batches of 64 and 256 images of
-224x224 against ``v2.ElasticTransform()`` per image (a draw each: the same augmentation) and on the whole batch
-(one draw shared), images per second; then folded pixels and mean displacement of the fluid's maps, drawn on the
-GPU, and of ElasticTransform at the alpha that matches each fluid setting's mean displacement (as
-``bench_augment.py``). Figures: docs/benchmarks.md, "GPU kernels (issue #33)".
+``grid_sample`` of the frame. (2) ``bench_augment_scale.py``'s batches (default settings) on the GPU, 64 and 256
+images of 224x224, with ``FluidWarpAugment`` fused and unfused: images per second; then ``bench_augment.py``'s
+folds at matched displacement, the fluid's maps drawn on the GPU. Figures: docs/benchmarks.md, "GPU kernels (issue
+#33)".
 """
 
 from __future__ import annotations
@@ -20,17 +19,15 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import bench_augment_scale
 import torch
 import torch.nn.functional as F
-from _common import FLUID, finish, interleaved, make_brushes, make_image, medians_ms, parser, rows_table, start
-from bench_augment import SEED, SETTINGS, elastic_maps, map_stats, photo
+from _common import FLUID, finish, interleaved, medians_ms, parser, rows_table, start, stirred
+from bench_augment import SEED, bench_folds
 from bench_device import smooth_grid
 from torch.profiler import ProfilerActivity, profile
-from torchvision import tv_tensors
-from torchvision.transforms import v2
 
-from torchfluidwarp import FluidWarp
-from torchfluidwarp.augment import FluidWarpAugment, fluid_warp_map
+from torchfluidwarp.augment import FluidWarpAugment
 from torchfluidwarp.core.fused import ENVIRONMENT
 
 
@@ -48,10 +45,10 @@ def fused(on: bool) -> Iterator[None]:
             os.environ[ENVIRONMENT] = before
 
 
-def with_kernels(fn: Callable[[], Any], on: bool) -> Callable[[], Any]:
-    def run() -> Any:
+def with_kernels(fn: Callable[..., Any], on: bool) -> Callable[..., Any]:
+    def run(*args: Any) -> Any:
         with fused(on):
-            return fn()
+            return fn(*args)
 
     return run
 
@@ -67,8 +64,7 @@ def kernels(fn: Callable[[], Any]) -> int:
 def bench_frames(size: tuple[int, int], steps: int, repeats: int) -> list[dict[str, Any]]:
     """ms and kernels per step and per frame, fused and unfused, and of the floor."""
     dev = torch.device("cuda")
-    warp = FluidWarp(FLUID, steps=steps, image_size=size).to(dev)
-    brushes, image, grid = make_brushes(size).to(dev), make_image(size).to(dev), smooth_grid(size, dev)
+    (warp, brushes, image), grid = stirred(size, steps, dev), smooth_grid(size, dev)
     paths: dict[str, Callable[[], Any]] = {
         "fluid step": lambda: warp.rollout(brushes, size),
         "frame of iter_frames": lambda: sum(1 for _ in warp.iter_frames(image, brushes)),
@@ -90,43 +86,11 @@ def bench_frames(size: tuple[int, int], steps: int, repeats: int) -> list[dict[s
 
 
 def bench_throughput(batch: int, size: int, repeats: int) -> list[dict[str, Any]]:
-    """Images per second of each way to warp a batch, and the ratio to ElasticTransform per image."""
-    images = photo(size, batch).cuda()
-    aug = FluidWarpAugment(generator=torch.Generator().manual_seed(SEED))
-    elastic = v2.ElasticTransform()
-    singles = [tv_tensors.Image(x) for x in images]
-    cases = {
-        "FluidWarpAugment, batch in one call, fused": with_kernels(lambda: aug(images), True),
-        "FluidWarpAugment, batch in one call, unfused": with_kernels(lambda: aug(images), False),
-        "ElasticTransform, per image": lambda: [elastic(x) for x in singles],
-        "ElasticTransform, batch in one call (one shared warp)": lambda: elastic(images),
-    }
-    with torch.no_grad():
-        ms = medians_ms(interleaved(cases, repeats, sync=torch.cuda.synchronize))
-    base = ms["ElasticTransform, per image"]
-    return [dict(batch=batch, method=k, ms=t, rate=batch / t * 1e3, ratio=base / t) for k, t in ms.items()]
-
-
-def bench_folds(size: int, draws: int) -> list[dict[str, Any]]:
-    """Folds and mean displacement of the fluid's maps (drawn on the GPU, fused) and of ElasticTransform at the
-    alpha that matches each setting's displacement (``bench_augment.py``'s method)."""
-    torch.manual_seed(SEED)  # ElasticTransform draws from torch's global RNG
-    unit = {s: map_stats(elastic_maps(1.0, s, size, draws))[0] for s in (5.0, 15.0)}  # mean px per unit alpha
-    rows = []
-    for name, kw in SETTINGS.items():
-        aug = FluidWarpAugment(generator=torch.Generator().manual_seed(SEED), **kw)
-        with torch.no_grad():
-            maps = fluid_warp_map(aug.make_params(draws, (size, size), device="cuda")).cpu()
-        disp, folded, min_det = map_stats(maps)
-        rows.append(dict(method="RandomFluidWarp", setting=name, mean_disp=disp, folded=folded, min_det=min_det))
-        for sigma in (5.0, 15.0):
-            alpha = disp / unit[sigma]
-            stats = map_stats(elastic_maps(alpha, sigma, size, draws))
-            setting = f"alpha {alpha:.1f}, sigma {sigma:g} (matches '{name}')"
-            rows.append(
-                dict(zip(("mean_disp", "folded", "min_det"), stats), method="ElasticTransform", setting=setting)
-            )
-    return rows
+    """``bench_augment_scale.py``'s batch on the GPU (``FluidWarpAugment`` fused, the default there), and
+    ``FluidWarpAugment`` unfused: images per second and the ratio to ElasticTransform per image."""
+    unfused = with_kernels(FluidWarpAugment(generator=torch.Generator().manual_seed(SEED)), False)
+    extra = {"FluidWarpAugment, batch in one call, unfused": unfused}
+    return [dict(r, batch=batch) for r in bench_augment_scale.bench("cuda", batch, size, repeats, extra)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -154,13 +118,11 @@ def main(argv: list[str] | None = None) -> int:
 
     result["augment"] = [r for b in batches for r in bench_throughput(b, 224, args.repeats)]
     print(f"\nAugmentation, 224x224 float32 images; medians of {args.repeats}")
-    print(rows_table(result["augment"], "batch {batch} | method {method} | ms per batch {ms:.1f} | images/s "
-                     "{rate:.0f} | x ElasticTransform per image {ratio:.2f}"))  # fmt: skip
+    print(rows_table(result["augment"], "batch {batch} | method {method} | ms per batch {ms_per_batch:.1f} | "
+                     "images/s {images_per_s:.0f} | x ElasticTransform per image {ratio:.2f}"))  # fmt: skip
 
-    result["folds"] = bench_folds(224, args.draws)
-    print(f"\nFolds at matched displacement, 224x224, {args.draws} draws per setting")
-    print(rows_table(result["folds"], "method {method} | setting {setting} | mean displacement px {mean_disp:.2f} | "
-                     "folded {folded:.4%} | min det {min_det:.3f}"))  # fmt: skip
+    print(f"\nFolds at matched displacement, 224x224, {args.draws} draws per setting, the fluid's drawn on the GPU")
+    result["folds"] = bench_folds(224, args.draws, device="cuda")
     finish(info, result, args.json)
     return 0
 
