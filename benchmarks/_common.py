@@ -487,6 +487,25 @@ def load_pair(size: int | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return resize_pair(a, b, pa, pb, size)
 
 
+def write_samples(folder: pathlib.Path, size: int, mode: str = "bilinear") -> dict[str, Tensor]:
+    """The bundled astronaut and cat resized to ``size x size`` (``mode``, antialiased when bilinear) as
+    ``folder/<name>.png``; returns their points, float64, moved along (pixel centres at integers)."""
+    from torchfluidwarp.core.grid import rescale_points, scale_factor
+    from torchfluidwarp.data import load_sample, load_sample_points
+    from torchfluidwarp.io import write_image
+
+    points = {}
+    for name in ("astronaut", "cat"):
+        image = load_sample(name)
+        resized = torch.nn.functional.interpolate(
+            image, size=(size, size), mode=mode, align_corners=False, antialias=mode == "bilinear"
+        )
+        write_image(folder / f"{name}.png", resized[0].clamp(0, 1))
+        scale = scale_factor(tuple(image.shape[-2:]), (size, size), dtype=torch.float64)
+        points[name] = rescale_points(load_sample_points(name).double(), scale)
+    return points
+
+
 def resize_pair(
     a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, size: int | None
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:

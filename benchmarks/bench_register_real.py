@@ -7,13 +7,13 @@ is scored against the true one pixel by pixel. Details: benchmarks/README.md; fi
 
 from __future__ import annotations
 
-import argparse
-import json
+import sys
 import time
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+from _common import finish, parser, start
 
 from torchfluidwarp.control import fit_images
 from torchfluidwarp.warp import identity_map, jacobian_determinant
@@ -62,78 +62,47 @@ def score(coords: torch.Tensor, disp: torch.Tensor, margin: int) -> dict[str, fl
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scale", type=float, default=0.5, help="working resolution (default 0.5: 250 px high)")
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-
+def main(argv: list[str] | None = None) -> int:
+    p = parser(__doc__)
+    p.add_argument("--scale", type=float, default=0.5, help="working resolution (default 0.5: 250 px high)")
+    args = p.parse_args(argv)
+    info = start("bench_register_real", args.threads)
     left, right, disp, shift = load(args.scale)
     H, W = left.shape[-2:]
     margin = max(4, round(0.05 * min(H, W)))
     print(f"stereo motorcycle at {W}x{H} (scale {args.scale}); global shift taken out: {shift} px at full size")
     d = disp[torch.isfinite(disp)]
-    print(
-        f"residual disparity over {d.numel()} valid pixels: mean {float(d.mean()):.2f} px, "
-        f"|d| mean {float(d.abs().mean()):.2f} px, range {float(d.min()):.1f} to {float(d.max()):.1f} px"
-    )
+    print(f"residual disparity over {d.numel()} valid pixels: mean {float(d.mean()):.2f} px, |d| mean "
+          f"{float(d.abs().mean()):.2f} px, range {float(d.min()):.1f} to {float(d.max()):.1f} px")  # fmt: skip
     before = score(identity_map((H, W), dtype=torch.float64), disp, margin)
     grid = (48, round(48 * W / H))
     print(f"\nfit_images: grid {grid[0]}x{grid[1]}, levels (12, 24, {max(grid)}), 8 steps, control 6x8, NCC loss")
     print(f"{'map':>28}  1 - NCC  x err mean px  x err median px  y err mean px  min det  evals  time s")
-    print(
-        f"{'identity (before)':>28}  {'':7}  {before['x_mean_px']:13.2f}  {before['x_median_px']:15.2f}  "
-        f"{before['y_mean_px']:13.2f}"
-    )
+    print(f"{'identity (before)':>28}  {'':7}  {before['x_mean_px']:13.2f}  {before['x_median_px']:15.2f}  "
+          f"{before['y_mean_px']:13.2f}")  # fmt: skip
     results = []
     for compressible in (False, True):
         t0 = time.perf_counter()
-        fit = fit_images(
-            right,
-            left,
-            loss="ncc",
-            grid=grid,
-            levels=(12, 24, max(grid)),
-            steps=8,
-            control=(6, 8),
-            max_iter=(30, 30, 30),
-            compressible=compressible,
-            progress=False,
-        )
+        fit = fit_images(right, left, loss="ncc", grid=grid, levels=(12, 24, max(grid)), steps=8, control=(6, 8),
+                         max_iter=(30, 30, 30), compressible=compressible, progress=False)  # fmt: skip
         seconds = time.perf_counter() - t0
         with torch.no_grad():
             coords = fit.warp.maps(fit.forces, (H, W))[:, -1]
         after = score(coords, disp, margin)
         min_det = float(jacobian_determinant(coords).min())
         name = f"fluid fit, compressible={compressible}"
-        print(
-            f"{name:>28}  {fit.final_loss:7.4f}  {after['x_mean_px']:13.2f}  {after['x_median_px']:15.2f}  "
-            f"{after['y_mean_px']:13.2f}  {min_det:7.3f}  {fit.evaluations:5d}  {seconds:6.1f}"
-        )
-        loss_ratio = fit.final_loss / fit.initial_loss
-        x_ratio = after["x_mean_px"] / before["x_mean_px"]
+        print(f"{name:>28}  {fit.final_loss:7.4f}  {after['x_mean_px']:13.2f}  {after['x_median_px']:15.2f}  "
+              f"{after['y_mean_px']:13.2f}  {min_det:7.3f}  {fit.evaluations:5d}  {seconds:6.1f}")  # fmt: skip
         folds = "no folds" if min_det > 0 else "FOLDS"
-        print(
-            f"{'':>28}  1 - NCC {fit.initial_loss:.4f} -> {fit.final_loss:.4f} ({loss_ratio:.1%}); "
-            f"x error {x_ratio:.1%} of before; {folds}; {after['pixels']} pixels scored"
-        )
-        results.append(
-            {
-                "compressible": compressible,
-                "after": after,
-                "initial_loss": fit.initial_loss,
-                "final_loss": fit.final_loss,
-                "min_det": min_det,
-                "evaluations": fit.evaluations,
-                "seconds": seconds,
-            }
-        )
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"size": [H, W], "shift": shift, "grid": grid, "before": before, "fits": results}, f, indent=2)
+        print(f"{'':>28}  1 - NCC {fit.initial_loss:.4f} -> {fit.final_loss:.4f} "
+              f"({fit.final_loss / fit.initial_loss:.1%}); x error {after['x_mean_px'] / before['x_mean_px']:.1%} of "
+              f"before; {folds}; {after['pixels']} pixels scored")  # fmt: skip
+        results.append(dict(compressible=compressible, after=after, initial_loss=fit.initial_loss,
+                            final_loss=fit.final_loss, min_det=min_det, evaluations=fit.evaluations,
+                            seconds=seconds))  # fmt: skip
+    finish(info, {"size": [H, W], "shift": shift, "grid": grid, "before": before, "fits": results}, args.json)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,13 +1,12 @@
 """Benchmark of memory at scale (#21): peak RSS of the command line as the frame count and the image size grow.
 
 Each configuration in a fresh process (``VmHWM`` reset after importing torch): ``torchfluidwarp demo --frames 30``
-against ``--frames --long`` (target: within 10%), and a 6000 x 6000 pair, ``--frames 3`` (target: under 3 GB;
-``--profile`` lists the operators that allocate most). Figures: docs/benchmarks.md, "Scale".
+against ``--frames --long`` (target: within 10%), and a 6000 x 6000 pair, ``--frames 3`` (target: under 3 GB).
+Figures: docs/benchmarks.md, "Scale".
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -15,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import describe_load, machine, machine_load, table, verdict
+from _common import finish, parser, start, table, verdict, write_samples
 
 HERE = Path(__file__).resolve().parent
 
@@ -28,20 +27,6 @@ from torchfluidwarp.apps.cli import main
 t0 = time.perf_counter()
 rc = main(sys.argv[1:])
 print(json.dumps({{"rc": rc, "seconds": time.perf_counter() - t0, "peak_kib": status_kib("VmHWM")}}))
-"""
-
-PROFILE = """
-import sys, torch
-from torch.profiler import ProfilerActivity, profile
-from torchfluidwarp.io import read_image, read_points
-from torchfluidwarp.morph import morph
-a, b = read_image(sys.argv[1]), read_image(sys.argv[2])
-pa, pb = read_points(sys.argv[3]), read_points(sys.argv[4])
-result = morph(a, b, pa, pb, frames=3, max_memory=64 * 2**30)
-with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
-    for frame in result.iter_frames(chunk=1):
-        del frame
-print(prof.key_averages().table(sort_by="self_cpu_memory_usage", row_limit=12))
 """
 
 
@@ -63,90 +48,51 @@ def run(argv: list[str]) -> dict:
 
 
 def large_pair(folder: Path, size: int) -> list[str]:
-    """The bundled samples upscaled to ``size x size`` with their points; returns the ``morph`` arguments."""
-    import torch.nn.functional as F
+    """The bundled samples upscaled to ``size x size`` (bicubic) with their points; returns the ``morph`` arguments."""
+    from torchfluidwarp.io import write_points
 
-    from torchfluidwarp.core.grid import rescale_points, scale_factor
-    from torchfluidwarp.data import load_sample, load_sample_points
-    from torchfluidwarp.io import write_image, write_points
-
-    paths = []
-    for name in ("astronaut", "cat"):
-        image = load_sample(name)
-        big = F.interpolate(image, size=(size, size), mode="bicubic", align_corners=False).clamp(0, 1)
-        write_image(folder / f"{name}.png", big[0])
-        scale = scale_factor(tuple(image.shape[-2:]), (size, size), dtype=torch_float64())
-        write_points(folder / f"{name}.json", rescale_points(load_sample_points(name).double(), scale))
-        paths.append(folder / name)
-        del big
-    a, b = paths
+    for name, points in write_samples(folder, size, "bicubic").items():
+        write_points(folder / f"{name}.json", points)
+    a, b = folder / "astronaut", folder / "cat"
     return [f"{a}.png", f"{b}.png", "--points-a", f"{a}.json", "--points-b", f"{b}.json"]
 
 
-def torch_float64():
-    import torch
-
-    return torch.float64
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--long", type=int, default=3000, help="frames of the long demo (default 3000)")
-    parser.add_argument("--size", type=int, default=6000, help="side of the large pair (default 6000)")
-    parser.add_argument("--skip-large", action="store_true", help="only the 512 x 512 runs")
-    parser.add_argument("--profile", action="store_true", help="profile the large morph's render")
-    args = parser.parse_args()
-    info = machine()
-    print(f"# {info['cpu']} ({info['cpu_count']} CPUs, {info['torch_threads']} torch threads), torch {info['torch']}")
-    print(f"# {describe_load(machine_load())}")
+def main(argv: list[str] | None = None) -> int:
+    p = parser(__doc__, threads=None)
+    p.add_argument("--long", type=int, default=3000, help="frames of the long demo (default 3000)")
+    p.add_argument("--size", type=int, default=6000, help="side of the large pair (default 6000)")
+    p.add_argument("--skip-large", action="store_true", help="only the 512 x 512 runs")
+    args = p.parse_args(argv)
+    info = start("bench_scale", args.threads)
     rows, figures = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for frames in (30, args.long):
             argv = ["demo", "--frames", str(frames), "-o", str(folder / f"demo{frames}.gif"), "--quiet"]
-            figures[frames] = r = run(argv)
-            rows.append(
-                [
-                    "torchfluidwarp " + " ".join(argv[:3]),
-                    f"{r['peak_kib'] / 2**20:.2f} GiB",
-                    f"{r['seconds']:.1f} s",
-                    f"{frames / r['seconds']:.1f}",
-                ]
-            )
-        small, long = figures[30], figures[args.long]
-        ratio = long["peak_kib"] / small["peak_kib"]
-        rate = (args.long - 30) / max(long["seconds"] - small["seconds"], 1e-9)
+            r = figures[frames] = run(argv)
+            rows.append([f"torchfluidwarp {' '.join(argv[:3])}", f"{r['peak_kib'] / 2**20:.2f} GiB",
+                         f"{r['seconds']:.1f} s", f"{frames / r['seconds']:.1f}"])  # fmt: skip
         if not args.skip_large:
             (folder / "big").mkdir()
-            pair = large_pair(folder / "big", args.size)
-            argv = ["morph", *pair, "--frames", "3", "--max-memory", "64", "-o", str(folder / "big.gif"), "--quiet"]
             t0 = time.perf_counter()
-            big = run(argv)
-            rows.append(
-                [
-                    f"morph {args.size}x{args.size} --frames 3",
-                    f"{big['peak_kib'] / 2**20:.2f} GiB",
-                    f"{big['seconds']:.1f} s",
-                    f"{3 / big['seconds']:.2f}",
-                ]
-            )
+            argv = ["morph", *large_pair(folder / "big", args.size), "--frames", "3", "--max-memory", "64", "-o",
+                    str(folder / "big.gif"), "--quiet"]  # fmt: skip
+            big = figures["large"] = run(argv)
+            rows.append([f"morph {args.size}x{args.size} --frames 3", f"{big['peak_kib'] / 2**20:.2f} GiB",
+                         f"{big['seconds']:.1f} s", f"{3 / big['seconds']:.2f}"])  # fmt: skip
             print(f"# large pair written and morphed in {time.perf_counter() - t0:.0f} s")
-            if args.profile:
-                prof = subprocess.run(
-                    [sys.executable, "-c", PROFILE, *pair[:2], pair[3], pair[5]], capture_output=True, text=True
-                )
-                print(prof.stdout or prof.stderr[-3000:])
     print(table(["command", "peak RSS", "wall", "frames/s"], rows))
-    print(
-        f"\n30 vs {args.long} frames: peak RSS ratio {ratio:.3f} "
-        f"(target within 10%: {verdict(abs(ratio - 1) <= 0.10)}); marginal rate {rate:.1f} frames/s"
-    )
+    small, long = figures[30], figures[args.long]
+    ratio = long["peak_kib"] / small["peak_kib"]
+    rate = (args.long - 30) / max(long["seconds"] - small["seconds"], 1e-9)
+    print(f"\n30 vs {args.long} frames: peak RSS ratio {ratio:.3f} (target within 10%: "
+          f"{verdict(abs(ratio - 1) <= 0.10)}); marginal rate {rate:.1f} frames/s")  # fmt: skip
     if not args.skip_large:
-        print(
-            f"{args.size} x {args.size}, 3 frames: {big['peak_kib'] / 2**20:.2f} GiB "
-            f"(target < 3 GB: {verdict(big['peak_kib'] * 1024 < 3e9)})"
-        )
+        print(f"{args.size} x {args.size}, 3 frames: {big['peak_kib'] / 2**20:.2f} GiB (target < 3 GB: "
+              f"{verdict(big['peak_kib'] * 1024 < 3e9)})")  # fmt: skip
+    finish(info, {"args": vars(args), "runs": {str(k): v for k, v in figures.items()}}, args.json)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
