@@ -43,9 +43,8 @@ def _read(field: Tensor, points: Tensor) -> Tensor:
 def known_pair(name: str, size: int, seed: int, marks: str, tone: tuple[float, float]) -> dict[str, Tensor]:
     a = F.interpolate(load_sample(name), size=(size, size), mode="bilinear", antialias=True, align_corners=False)
     gen = torch.Generator().manual_seed(seed)
-    yy, xx = torch.meshgrid(
-        torch.arange(size, dtype=torch.float64), torch.arange(size, dtype=torch.float64), indexing="ij"
-    )
+    axis = torch.arange(size, dtype=torch.float64)
+    yy, xx = torch.meshgrid(axis, axis, indexing="ij")
     u = torch.zeros(size, size, 2, dtype=torch.float64)
     for _ in range(10):
         cx, cy = (0.1 + 0.8 * torch.rand(2, generator=gen, dtype=torch.float64)) * size
@@ -89,16 +88,8 @@ def main(argv: list[str] | None = None) -> int:
                              f"{folded_s} / {folded_d}"])  # fmt: skip
                 results.append({"name": name, "marks": marks, "tone": tone, "none": none, "spline": spline,
                                 "dense": dense, "folded": [folded_s, folded_d], "seconds": seconds})  # fmt: skip
-    head = [
-        "picture",
-        "marks",
-        "tone",
-        "no motion",
-        "marks alone",
-        "with pixels",
-        "ratio",
-        "folded px (alone / pixels)",
-    ]
+    head = ["picture", "marks", "tone", "no motion", "marks alone", "with pixels", "ratio"]
+    head.append("folded px (alone / pixels)")
     print(f"\nheld-out end error, px ({size} x {size}, 12 x 12 held-out points)\n")
     print(table(head, rows, markdown=True))
     timing = {}
@@ -116,9 +107,8 @@ def main(argv: list[str] | None = None) -> int:
                 best.append((t1 - t0, time.perf_counter() - t1))
             call, frames = min(best, key=sum)
             timing[label] = dict(call=call, frames=frames, total=call + frames)
-            print(
-                f"30-frame 512 x 512 morph, {label}: call {call:.2f} s + frames {frames:.2f} s = {call + frames:.2f} s"
-            )
+            print(f"30-frame 512 x 512 morph, {label}: call {call:.2f} s + frames {frames:.2f} s = "
+                  f"{call + frames:.2f} s")  # fmt: skip
     finish(info, {"size": size, "pairs": results, "timing": timing}, args.json)
     return 0
 

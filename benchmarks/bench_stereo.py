@@ -22,17 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from _common import finish, fmt, log, parser, start, table
-from bench_morph_quality import (
-    Pair,
-    config_arg,
-    covered,
-    picture_ghost,
-    run_method,
-    settings_arg,
-    sheet_frames,
-    write_sheet,
-)
+from _common import finish, fmt, log, parser, settings_arg, start, table
+from bench_morph_quality import Pair, config_arg, covered, picture_ghost, run_method, sheet_frames, write_sheet
 from torch import Tensor
 
 from torchfluidwarp.control import fit_images

@@ -68,22 +68,11 @@ def fit_case(d: Draw) -> Case:
 
     def run() -> tuple[str, str]:
         res = {}
+        kwargs = dict(image_size=(H, W), grid=(g, gw), steps=steps, control=k, viscosity=visc, compressible=comp,
+                      dtype=dtype, progress=False, max_iter=200)  # fmt: skip
         for method in ("auto", "lbfgs"):
             t0 = time.perf_counter()
-            fit = fit_keyframes(
-                src,
-                target,
-                image_size=(H, W),
-                grid=(g, gw),
-                steps=steps,
-                control=k,
-                viscosity=visc,
-                compressible=comp,
-                dtype=dtype,
-                progress=False,
-                method=method,
-                max_iter=200,
-            )
+            fit = fit_keyframes(src, target, method=method, **kwargs)
             err = max(float(e.max()) for _, e in fit.keyframe_errors)
             res[method] = (err, time.perf_counter() - t0, fit.forwards, fit.evaluations)
         (ea, ta, fw, ev), (el, tl, _, evl) = res["auto"], res["lbfgs"]
@@ -247,10 +236,8 @@ def main(argv: list[str] | None = None) -> int:
         for word in flag.split():
             counts[word] += 1
         print(f"{flag:8s} case {case}: {desc}\n    {text}", flush=True)
-    print(
-        f"\n{args.what}, seed {args.seed}, {args.cases} cases: "
-        + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-    )
+    outcomes = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+    print(f"\n{args.what}, seed {args.seed}, {args.cases} cases: {outcomes}")
     return 0
 
 
