@@ -16,6 +16,7 @@ import math
 import os
 import pathlib
 import platform
+import shlex
 import statistics
 import subprocess
 import sys
@@ -147,8 +148,9 @@ def parser(
     return p
 
 
-def start(name: str, threads: int | None = None, note: str = "") -> dict[str, Any]:
-    """Set torch's threads, print the machine, the sources' digest and the load; returns the run's ``info``."""
+def start(name: str, threads: int | None = None, note: str = "", argv: list[str] | None = None) -> dict[str, Any]:
+    """Set torch's threads, print the machine, the sources' digest, the load and the command (``argv`` for a
+    ``main(argv)`` called from Python); returns the run's ``info``."""
     if threads:
         torch.set_num_threads(threads)
     info = machine()
@@ -160,6 +162,7 @@ def start(name: str, threads: int | None = None, note: str = "") -> dict[str, An
         flush=True,
     )
     print(f"torchfluidwarp sources sha256 {info['sources_sha256']}; at the start: {describe_load(info['load_start'])}")
+    print(f"command: {shlex.join(sys.argv if argv is None else [name, *argv])}")
     info["_t0"] = time.perf_counter()
     return info
 

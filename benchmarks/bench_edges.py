@@ -11,7 +11,6 @@ beyond a picture). The figures are ``torchfluidwarp.metrics.edges.border_seam``'
 
 from __future__ import annotations
 
-import shlex
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -104,8 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--png", metavar="DIR", help="write every 4th frame of each morph (and the last) to DIR")
     args = p.parse_args(argv)
     pairs = bundled() if args.no_faces or args.quick else {**bundled(), **faces()}
-    info = start("bench_edges", args.threads, " [--quick]" if args.quick else "")
-    print(f"command: {shlex.join(sys.argv if argv is None else ['bench_edges', *argv])}")
+    info = start("bench_edges", args.threads, " [--quick]" if args.quick else "", argv)
     frames = 8 if args.quick else args.frames
     rows: list[list[str]] = []
     records: list[dict[str, Any]] = []

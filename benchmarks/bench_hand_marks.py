@@ -25,7 +25,6 @@ within 1.5x ``tps 2/3``'s.
 from __future__ import annotations
 
 import json
-import shlex
 import sys
 from typing import Any
 
@@ -110,8 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     p = parser(__doc__, quick="one pair, 5 frames")
     p.add_argument("--frames", type=int, default=21, help="frames per morph (default 21)")
     args = p.parse_args(argv)
-    info = start("bench_hand_marks", args.threads, " [--quick]" if args.quick else "")
-    print(f"command: {shlex.join(sys.argv if argv is None else ['bench_hand_marks', *argv])}; crop {CROP_FACTOR}x")
+    info = start("bench_hand_marks", args.threads, " [--quick]" if args.quick else "", argv)
+    print(f"crop {CROP_FACTOR}x the hand marks' box")
     frames = 5 if args.quick else args.frames
     faces = load_hand_faces()
     names = list(faces)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import statistics
 import sys
 import time
@@ -440,8 +439,7 @@ def main(argv: list[str] | None = None) -> int:
         if keep - {pair.name for pair in pairs}:
             p.error(f"--pairs: not in split {args.split!r}: {sorted(keep - {pair.name for pair in pairs})}")
         pairs = [pair for pair in pairs if pair.name in keep]
-    info = start("bench_morph_quality", args.threads, " [--quick]" if args.quick else "")
-    print(f"command: {shlex.join(sys.argv if argv is None else ['bench_morph_quality', *argv])}")
+    info = start("bench_morph_quality", args.threads, " [--quick]" if args.quick else "", argv)
     described = ", ".join(f"{label} = {method} {spec}" for label, (method, spec) in rows.items())
     print(f"{len(pairs)} pairs, {args.frames} frames; rows: {described}")
     if args.sheets:

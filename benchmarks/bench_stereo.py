@@ -12,7 +12,6 @@ of the ghosting figures. Definitions: benchmarks/README.md.
 
 from __future__ import annotations
 
-import shlex
 import sys
 import time
 import warnings
@@ -146,8 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         args.settings = {**args.settings, "max_iter": 10}
     if args.frames < 2:
         p.error(f"--frames must be >= 2, got {args.frames}")
-    info = start("bench_stereo", args.threads, " [--quick]" if args.quick else "")
-    print(f"command: {shlex.join(sys.argv if argv is None else ['bench_stereo', *argv])}")
+    info = start("bench_stereo", args.threads, " [--quick]" if args.quick else "", argv)
     a, b, disp = load_stereo(args.scale)
     H, W = disp.shape
     truth, keep = true_map(disp), scored(disp)
