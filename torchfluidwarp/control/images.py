@@ -211,9 +211,9 @@ def fit_images(
             cross-correlation: robust to one brightness and contrast change over the whole picture), ``"ssim"``
             (:func:`ssim_loss`, kornia's structural dissimilarity ``(1 - SSIM) / 2``, window 11, for images in
             ``[0, 1]``), or a callable ``loss(warped, target) -> scalar``. On the stereo motorcycle the default
-            ends 6.4 px from the true map, ``"mse"`` 9.1 px (both compressible; ``docs/benchmarks.md``). Windows with
-            no texture count as a mismatch that no motion improves: for a picture that is mostly flat (a lone
-            shape on a plain ground) ``"mse"`` or ``"ncc"`` suit better.
+            ends 5.7 px from the true map (``benchmarks/bench_stereo.py``), ``"mse"`` in the same fluid about 9 px
+            (``docs/benchmarks.md``). Windows with no texture count as a mismatch that no motion improves: for a
+            picture that is mostly flat (a lone shape on a plain ground) ``"mse"`` or ``"ncc"`` suit better.
         points: optional landmark pairs ``(src, tgt)``, each ``(M, 2)`` or ``(B, M, 2)`` in pixels of the
             full-resolution images (pixel centres at integers): ``src`` carried by the forward map should land
             on ``tgt``.
