@@ -176,7 +176,9 @@ class FluidWarp(nn.Module):
         vel = self._velocities(forces, size, image.shape[0], "image", image.dtype)
         if torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad):
             return torch.stack([image, *self._resampled(image, vel)], dim=1)  # autograd keeps each frame
-        out = image.new_empty(image.shape[0], self.steps + 1, *image.shape[1:])
+        # zeroing maps the output's fresh pages in on all of torch's threads at once, where the frame copies below
+        # would fault them in one frame at a time: 0.93x of the 600 x 600 job (docs/benchmarks.md, issue #30)
+        out = image.new_zeros(image.shape[0], self.steps + 1, *image.shape[1:])
         out[:, 0] = image
         for t, frame in enumerate(self._resampled(image, vel), start=1):
             out[:, t] = frame
