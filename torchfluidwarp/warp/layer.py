@@ -219,9 +219,7 @@ class FluidWarp(nn.Module):
         # memory costs about 1 ms per MB to touch on some machines, 2.5 ms of a 600 x 600 frame's grid
         keep = torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad)
         buffer = None if keep else ident.new_empty(vel.shape[0], 2, *size)
-        # grid_sample reads a channels-last image about 1.5x faster on some CPUs, which repays the one copy
-        # over a whole animation (not over one call)
-        src = image.contiguous(memory_format=torch.channels_last) if image.shape[1] > 1 else image
+        src = image  # sampled in the layout it came in (docs/benchmarks.md, issue #30: no layout wins everywhere)
         next(displacements)  # map 0 is the identity: frame 0 is the input
         for disp in displacements:
             grid = torch.addcmul(ident, upsample_raster(disp, size), ratio, out=buffer).permute(0, 2, 3, 1)
