@@ -4,7 +4,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from torchfluidwarp.control.images import _level_grids, fit_images, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.images import _level_grids, fit_images
+from torchfluidwarp.control.losses import image_loss, mse_loss, ncc_loss, ssim_loss
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.errors import InputError, InputTypeError

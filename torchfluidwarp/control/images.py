@@ -43,7 +43,7 @@ from torchfluidwarp._checks import (
 )
 from torchfluidwarp.control.alignment import best_shift
 from torchfluidwarp.control.keyframes import check_fit_memory, check_points
-from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss, mse_loss, ncc_loss, ssim_loss
+from torchfluidwarp.control.losses import ImageLoss, LossName, image_loss
 from torchfluidwarp.control.optim import HISTORY_SIZE, minimize
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, scale_factor
@@ -54,8 +54,7 @@ from torchfluidwarp.warp.frames import jacobian_determinant, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import iter_backward_maps
 
-# the losses moved to torchfluidwarp.control.losses; they are re-exported here
-__all__ = ["ImageFit", "LevelFit", "fit_images", "image_loss", "ncc_loss", "mse_loss", "ssim_loss"]
+__all__ = ["ImageFit", "LevelFit", "fit_images"]
 
 SHIFT_CHECK = 0.1
 """A fit whose loss ends above this fraction of the starting loss is compared with the best plain shift of the
@@ -207,13 +206,14 @@ def fit_images(
             together.
         loss: ``"lncc"`` (the default: :func:`~torchfluidwarp.control.losses.lncc_loss`, ``1 -`` the squared local
             normalised cross-correlation over 9 x 9 pixels at every level, insensitive to brightness, contrast and
-            contrast sign), ``"mse"`` (mean squared error), ``"ncc"`` (``1 - `` global normalised
-            cross-correlation: robust to one brightness and contrast change over the whole picture), ``"ssim"``
-            (:func:`ssim_loss`, kornia's structural dissimilarity ``(1 - SSIM) / 2``, window 11, for images in
-            ``[0, 1]``), or a callable ``loss(warped, target) -> scalar``. On the stereo motorcycle the default
-            ends 5.7 px from the true map (``benchmarks/bench_stereo.py``), ``"mse"`` in the same fluid about 9 px
-            (``docs/benchmarks.md``). Windows with no texture count as a mismatch that no motion improves: for a
-            picture that is mostly flat (a lone shape on a plain ground) ``"mse"`` or ``"ncc"`` suit better.
+            contrast sign), ``"mse"`` (mean squared error), ``"ncc"`` (``1 - `` global normalised cross-correlation:
+            robust to one brightness and contrast change over the whole picture), ``"ssim"``
+            (:func:`~torchfluidwarp.control.losses.ssim_loss`, kornia's structural dissimilarity ``(1 - SSIM) / 2``,
+            window 11, for images in ``[0, 1]``), or a callable ``loss(warped, target) -> scalar``. On the stereo
+            motorcycle the default ends 5.7 px from the true map (``benchmarks/bench_stereo.py``), ``"mse"`` in the same
+            fluid about 9 px (``docs/benchmarks.md``). Windows with no texture count as a mismatch that no motion
+            improves: for a picture that is mostly flat (a lone shape on a plain ground) ``"mse"`` or ``"ncc"`` suit
+            better.
         points: optional landmark pairs ``(src, tgt)``, each ``(M, 2)`` or ``(B, M, 2)`` in pixels of the
             full-resolution images (pixel centres at integers): ``src`` carried by the forward map should land
             on ``tgt``.
