@@ -1,6 +1,6 @@
 """Benchmark of morphing: the time of a whole morph and its folds, the fluid morph against thin-plate splines.
 
-The bundled pair at 512 x 512 (``--pair faces``: ``face_pair.py``), float32 on CPU: ``morph()`` with
+The bundled pair at 512 x 512, float32 on CPU: ``morph()`` with
 ``NaturalSettings`` and ``PaperSettings``, each with ``inverse="flow"`` and ``"paper"`` (time, its split, peak RSS,
 point errors), against kornia's thin-plate spline (``kornia``) and the textbook one (``standard``); folded pixels of
 A's and B's backward maps. ``--images DIR`` writes middle frames. Figures: docs/benchmarks.md, "Time of a whole
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _common import finish, load_pair, log, parser, peak_mib, resize_pair, rows_table, start, verdict
+from _common import finish, load_pair, log, parser, peak_mib, rows_table, start, verdict
 from kornia.geometry.transform import get_tps_transform, warp_image_tps, warp_points_tps
 from torch import Tensor
 
@@ -114,7 +114,6 @@ def tps_maps(kind: str, pa: Tensor, pb: Tensor, size: tuple[int, int], frames: i
 
 def main(argv: list[str] | None = None) -> int:
     p = parser(__doc__, quick="the pair at 128x128, 6 frames, 15 fit iterations, 1 repeat", threads=1)
-    p.add_argument("--pair", choices=("bundled", "faces"), default="bundled", help="the bundled pair or two faces")
     p.add_argument("--images", metavar="DIR", help="write the middle frames as PNGs into DIR")
     p.add_argument("--repeats", type=int, help="timing repeats (default 3; 1 with --quick)")
     p.add_argument("--frames", type=int, help="frames per morph (default 30; 6 with --quick)")
@@ -125,15 +124,10 @@ def main(argv: list[str] | None = None) -> int:
     max_iter = args.max_iter or max_iter
     if frames < 3 or repeats < 1 or (max_iter is not None and max_iter < 1):
         p.error("--frames must be >= 3, --repeats and --max-iter >= 1")
-    if args.pair == "faces":
-        from face_pair import load_face_pair
-
-        a, b, pa, pb = resize_pair(*load_face_pair(), size)
-    else:
-        a, b, pa, pb = load_pair(size)
+    a, b, pa, pb = load_pair(size)
     size = a.shape[-1]
     info = start("bench_morph", args.threads, " [--quick]" if args.quick else "")
-    print(f"pair: {args.pair}, {size}x{size}, {pa.shape[0]} points; {frames} frames, {repeats} repeat(s)")
+    print(f"the bundled pair, {size}x{size}, {pa.shape[0]} points; {frames} frames, {repeats} repeat(s)")
     extra = {} if max_iter is None else {"max_iter": max_iter}
     settings = {
         (method, inverse): (NaturalSettings if method == "natural" else PaperSettings)(inverse=inverse, **extra)
@@ -144,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     times: dict[Any, dict[str, list[float]]] = {k: {} for k in [*FLUID, *TPS]}
     rows: dict[Any, dict[str, Any]] = {}
     mids: dict[str, Tensor] = {}
-    prefix = "morph" if args.pair == "bundled" else "morph_faces"
+    prefix = "morph"
     for rep in range(repeats):
         for cfg in FLUID:
             log(f"  repeat {rep + 1}/{repeats}: {cfg} ...")

