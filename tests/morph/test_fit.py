@@ -11,7 +11,9 @@ import torch
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area
-from torchfluidwarp.morph.fit import MIN_AREA, MIN_POSE_FIT, RELEASE, pose, straight_paths
+from torchfluidwarp.errors import InputError
+from torchfluidwarp.morph.fit import MIN_AREA, MIN_POSE_FIT, RELEASE, fit_natural, fit_paper, pose, straight_paths
+from torchfluidwarp.morph.settings import NaturalSettings, PaperSettings
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
 
@@ -117,3 +119,17 @@ def test_a_side_that_turns_away_is_released_and_the_rest_still_travels_straight(
     assert 1 <= released <= int(RELEASE * len(src)) and bool((~met)[away].any())
     # and nothing on the paths is squeezed below MIN_AREA, on a raster 4x finer than the library's lattice
     assert _least_area_on(tps_fit(mids, disp), 0.0, 255.0, n=257) >= MIN_AREA - 0.01
+
+
+@pytest.mark.parametrize("method", ["natural", "paper"])
+def test_the_morphs_memory_limit_reaches_its_fit(method):
+    # morph(max_memory=...) bounds the keyframe fit too, which checks the grid the margin may have widened: a limit
+    # the fit's roll-out exceeds is refused before any work, naming the fit and the setting
+    pa = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0]], dtype=torch.float64)
+    pb = pa + torch.tensor([[2.0, 1.0], [-1.0, 2.0], [1.5, -1.5], [-2.0, 0.0]], dtype=torch.float64)
+    with pytest.raises(InputError, match=r"fit_keyframes over 6 steps on a grid of .* above the limit") as info:
+        if method == "natural":
+            fit_natural(pa, pb, (64, 64), NaturalSettings(grid=24, steps=6, dense=None), None, False, max_memory=1e4)
+        else:
+            fit_paper(pa, pb, (64, 64), PaperSettings(grid=24, steps=6), None, False, max_memory=1e4)
+    assert info.value.hint is not None and "max_memory" in str(info.value.hint)

@@ -316,6 +316,7 @@ def fit_natural(
     progress: bool,
     dense: Callable[[Tensor, Tensor], Callable[[Tensor], Tensor]] | None = None,
     found: bool = False,
+    max_memory: float | None = None,
 ) -> tuple[KeyframeFit, tuple[int, int, int, int], Tensor]:
     """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
     :class:`~torchfluidwarp.morph.settings.NaturalSettings`).
@@ -333,6 +334,9 @@ def fit_natural(
         found: the marks were found automatically (``morph(match=...)``), not given: they only start the
             pixels' alignment, and each of A's marks then travels where the pixels' whole travel ``D + R`` takes
             it (B's side re-placed), instead of ``R`` bending around marks that may be wrong.
+        max_memory: bytes the fit may set out to hold, checked by
+            :func:`~torchfluidwarp.control.keyframes.fit_keyframes` on the grid as the margin widened it
+            (``morph(max_memory=...)``; ``None``: its default).
 
     Returns:
         The fit, in the box's frame; the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
@@ -401,6 +405,7 @@ def fit_natural(
         max_iter=settings.max_iter,
         tolerance=settings.tolerance,
         progress=progress,
+        max_memory=max_memory,  # the fit's own check, on the grid the margin may have widened
     )
     return fit, box, mids + disp / 2 + offset
 
@@ -412,11 +417,13 @@ def fit_paper(
     settings: PaperSettings,
     forces: nn.Module | None,
     progress: bool,
+    max_memory: float | None = None,
 ) -> KeyframeFit:
     """The paper's keyframe fit of a control grid (:class:`~torchfluidwarp.morph.settings.PaperSettings`) on a
     box of ``size`` ``(H, W)`` pixels: ``source`` ``(M, 2)`` box pixels to ``target`` at the last step.
     ``settings.smoothness`` is scaled by the square of the pixels per fluid cell (its unit is fluid cells^2 per
-    pixel^2 of point error); ``forces``: a previous fit's, to warm-start from."""
+    pixel^2 of point error); ``forces``: a previous fit's, to warm-start from; ``max_memory``: the limit of
+    :func:`~torchfluidwarp.control.keyframes.fit_keyframes`' memory check (bytes; ``None``: its default)."""
     return fit_keyframes(
         source,
         target,
@@ -431,6 +438,7 @@ def fit_paper(
         tolerance=settings.tolerance,
         forces=forces,
         progress=progress,
+        max_memory=max_memory,
     )
 
 

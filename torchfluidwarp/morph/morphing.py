@@ -372,7 +372,7 @@ def morph(
             def dense(mids: Tensor, disp: Tensor) -> Callable[[Tensor], Tensor]:
                 return halfway_alignment(a, b, to_a, to_b, size, mids, disp, options)
 
-        fit, box, target = fit_natural(pa_c, target, size, settings, warm_start, progress, dense, found)
+        fit, box, target = fit_natural(pa_c, target, size, settings, warm_start, progress, dense, found, max_memory)
         pb_c = apply_alignment(M, target)  # where found marks end, the pixels placed them
     else:
         if settings.margin is None:
@@ -383,7 +383,7 @@ def morph(
         offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)
         roi = (box[3] - box[1], box[2] - box[0])
         start = None if warm_start is None else warm_start.forces
-        fit = fit_paper(pa_c - offset, target - offset, roi, settings, start, progress)
+        fit = fit_paper(pa_c - offset, target - offset, roi, settings, start, progress, max_memory)
     roi = (box[3] - box[1], box[2] - box[0])  # (H, W) of the fluid's box, pixels
     offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)
     t_fit = time.perf_counter()
