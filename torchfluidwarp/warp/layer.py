@@ -219,11 +219,11 @@ class FluidWarp(nn.Module):
         # memory costs about 1 ms per MB to touch on some machines, 2.5 ms of a 600 x 600 frame's grid
         keep = torch.is_grad_enabled() and (image.requires_grad or vel.requires_grad)
         buffer = None if keep else ident.new_empty(vel.shape[0], 2, *size)
-        src = image  # sampled in the layout it came in (docs/benchmarks.md, issue #30: no layout wins everywhere)
         next(displacements)  # map 0 is the identity: frame 0 is the input
         for disp in displacements:
             grid = torch.addcmul(ident, upsample_raster(disp, size), ratio, out=buffer).permute(0, 2, 3, 1)
-            yield sample(src, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
+            # the image is read in the layout it came in: no layout wins on every CPU (docs/benchmarks.md, #30)
+            yield sample(image, grid, mode=self.mode, align_corners=False, check="the backward maps of forces")
 
     def maps(self, forces: ForceSource, size: tuple[int, int] | None = None) -> Tensor:
         """Backward coordinate maps ``(B, T + 1, H, W, 2)`` in pixels (see :func:`backward_maps`)."""
