@@ -106,12 +106,11 @@ LET_GO = 1.0
 (the morph meets the rest of its points within a fraction of it). #31 asks marks to be met within 1 px."""
 
 
-def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> list[tuple[int, int]]:
-    """Refuse marks that cannot be morphed, and warn about the user's marks whose order crosses.
-
-    Points the library placed (``placed_by``, the matcher's name) are nobody's order to check: their crossing
-    pairs are returned instead, for :func:`warn_let_go` to name after the fit those that the morph had to let go
-    (points placed twice are dropped before, by :func:`drop_repeats`). Returns ``[]`` for the user's marks."""
+def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
+    """Refuse marks that cannot be morphed, and warn about the user's marks whose order crosses. Points the library
+    placed (``placed_by``, the matcher's name) are nobody's order to check: :func:`warn_let_go` names after the fit
+    the crossing pairs that the morph had to let go (points placed twice are dropped before, by
+    :func:`drop_repeats`)."""
     for name, p in (("points_a", pa), ("points_b", pb)):
         pairs = _repeats(p)
         if pairs:
@@ -120,23 +119,21 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> list[tu
                 "position; each feature must be marked once",
                 argument=name,
             )
-    bad: list[tuple[int, int]] = [] if pa.shape[0] < 3 else [(a, b) for a, b in crossing_pairs(pa, pb).tolist()]
-    if placed_by is not None:
-        return bad
+    bad = _crossings(pa, pb) if placed_by is None else []
     if bad:
         warn(
             f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
             "morph can do without folding; check their order (result.error shows which points were not reached)",
             RuntimeWarning,
         )
-    return []
 
 
-def warn_let_go(crossing: list[tuple[int, int]], error: Tensor, placed_by: str) -> None:
-    """Warn about the ``crossing`` pairs of points the ``placed_by`` matcher placed (:func:`check_marks`) of which
-    a point ended more than :data:`LET_GO` px from its target (``error`` ``(M,)``, the last frame's pixels): the
-    morph let them go so as not to fold. Pairs it met say nothing: crossing then was the matcher's noise."""
-    missed = [(a, b) for a, b in crossing if max(float(error[a]), float(error[b])) > LET_GO]
+def warn_let_go(pa: Tensor, pb: Tensor, error: Tensor, placed_by: str) -> None:
+    """Warn about the pairs of points ``pa``, ``pb`` ``(M, 2)`` that the ``placed_by`` matcher placed whose order
+    crosses (:func:`crossing_pairs`) and of which a point ended more than :data:`LET_GO` px from its target
+    (``error`` ``(M,)``, the last frame's pixels): the morph let them go so as not to fold. Pairs it met say
+    nothing: crossing then was the matcher's noise."""
+    missed = [(a, b) for a, b in _crossings(pa, pb) if max(float(error[a]), float(error[b])) > LET_GO]
     if missed:
         warn(
             f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear apart "
@@ -144,6 +141,11 @@ def warn_let_go(crossing: list[tuple[int, int]], error: Tensor, placed_by: str) 
             "to fold (result.error shows how far each ended from its target)",
             RuntimeWarning,
         )
+
+
+def _crossings(pa: Tensor, pb: Tensor) -> list[tuple[int, int]]:
+    """:func:`crossing_pairs` as a list; none for fewer than 3 marks (no similarity to judge them by)."""
+    return [] if pa.shape[0] < 3 else [(a, b) for a, b in crossing_pairs(pa, pb).tolist()]
 
 
 def _listed(pairs: list[tuple[int, int]]) -> str:

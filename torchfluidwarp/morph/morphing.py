@@ -353,7 +353,7 @@ def morph(
     check_memory(
         f"morph(frames={n}, steps={steps}, grid={settings.grid})", estimate, max_memory, "morph(max_memory=...)"
     )
-    crossing = check_marks(pa, pb, None if placed is None else placed.matcher)
+    check_marks(pa, pb, None if placed is None else placed.matcher)
     # each picture keeps its aspect ratio: placed on the canvas by one scale factor; the morph works in the
     # canvas's pixels and reads each picture through its placement, at (up to antialiasing) its own resolution
     (place_a, scale_a), (place_b, scale_b) = placement(size_a, size), placement(size_b, size)
@@ -410,5 +410,5 @@ def morph(
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
     result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory)
     if placed is not None:
-        warn_let_go(crossing, result.error, placed.matcher)
+        warn_let_go(pa, pb, result.error, placed.matcher)
     return result
