@@ -239,3 +239,38 @@ def test_fluid_warp_shares_a_batch_of_one_force_schedule():
     image = torch.cat([a["image"], a["image"].flip(-1)])
     frames = _warp()(image, a["forces"])
     torch.testing.assert_close(frames[1], _warp()(image[1:], a["forces"])[0])
+
+
+@pytest.mark.parametrize("layout", ["contiguous", "channels-first"])
+def test_a_lone_picture_sampled_in_bands_is_sampled_exactly(monkeypatch: pytest.MonkeyPatch, layout: str):
+    # 4 threads: the 300 x 301 output is read as bands of the picture; every value and the grid's gradient are
+    # grid_sample's own, bit for bit
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    g = torch.Generator().manual_seed(1)
+    image = torch.rand(1, 3, 40, 50, generator=g)
+    grid = 2.4 * torch.rand(1, 300, 301, 2, generator=g) - 1.2
+    if layout == "channels-first":
+        grid = grid.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)
+    assert sampling._bands(image, grid) == 4
+    for mode in ("bilinear", "bicubic", "nearest"):
+        want = torch.nn.functional.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=False)
+        got = sampling.sample(image, grid, mode=mode, align_corners=False, check=None)
+        torch.testing.assert_close(got, want, rtol=0, atol=0)
+    leaf = grid.detach().requires_grad_()
+    sampling.sample(image, leaf, align_corners=True, check=None).square().sum().backward()
+    want_grad = torch.autograd.grad(
+        torch.nn.functional.grid_sample(image, leaf, padding_mode="border", align_corners=True).square().sum(), leaf
+    )[0]
+    torch.testing.assert_close(leaf.grad, want_grad, rtol=0, atol=0)
+
+
+def test_bands_only_for_a_lone_cpu_picture_with_enough_points(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    grid = torch.zeros(1, 300, 301, 2)
+    assert sampling._bands(torch.zeros(1, 1, 4, 4), grid) == 4
+    assert sampling._bands(torch.zeros(2, 1, 4, 4), grid.expand(2, -1, -1, -1)) == 1  # a batch uses the threads
+    assert sampling._bands(torch.zeros(1, 1, 4, 4), torch.zeros(1, 1, 68, 2)) == 1  # too few points to share
+    assert sampling._bands(torch.zeros(1, 1, 4, 4), torch.zeros(1, 1, 3 * sampling.GRAIN, 2)) == 3  # a divisor
+    assert sampling._bands(torch.zeros(1, 1, 4, 4, requires_grad=True), grid) == 1  # its gradient: one copy
+    with torch.no_grad():
+        assert sampling._bands(torch.zeros(1, 1, 4, 4, requires_grad=True), grid) == 4

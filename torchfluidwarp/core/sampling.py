@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 
@@ -65,4 +66,27 @@ def sample(
     # clears a sum that merely overflowed
     if check is not None and grid.numel() and not (math.isfinite(float(grid.detach().sum())) or all_finite(grid)):
         raise InputError(f"non-finite sampling positions (NaN or inf) from {check}; grid of shape {tuple(grid.shape)}")
-    return F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)
+    # a lone picture is read as `bands` pictures, each for a band of the output points: torch's CPU kernel runs one
+    # thread per picture of the batch, so a lone picture would be sampled on one thread (docs/benchmarks.md, #30)
+    bands = _bands(image, grid)
+    C, Hg, Wg = image.shape[1], grid.shape[1], grid.shape[2]
+    if bands > 1:  # views, of a contiguous grid or a channels-first one
+        image, grid = image.expand(bands, -1, -1, -1), grid.reshape(bands, 1, Hg * Wg // bands, 2)
+    out = F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)
+    return out if bands == 1 else out.permute(2, 1, 0, 3).reshape(1, C, Hg, Wg)
+
+GRAIN = 8192
+"""Output points per band at least: torch's own grain (``GRAIN_SIZE`` 32768 elements, 4 per sampled point)."""
+
+
+def _bands(image: Tensor, grid: Tensor) -> int:
+    """How many bands to sample a lone CPU picture in: one per thread, each at least :data:`GRAIN` points, a
+    divisor of the output's points; 1 for a batch, an accelerator, or a picture whose gradient autograd records
+    (the bands' gradients would take one copy of the picture each)."""
+    if image.shape[0] != 1 or image.device.type != "cpu" or (torch.is_grad_enabled() and image.requires_grad):
+        return 1
+    points = grid.shape[1] * grid.shape[2]
+    bands = min(torch.get_num_threads(), points // GRAIN)
+    while bands > 1 and points % bands:
+        bands -= 1
+    return max(bands, 1)
