@@ -75,6 +75,7 @@ def sample(
     out = F.grid_sample(image, grid, mode=mode, padding_mode="border", align_corners=align_corners)
     return out if bands == 1 else out.permute(2, 1, 0, 3).reshape(1, C, Hg, Wg)
 
+
 GRAIN = 8192
 """Output points per band at least: torch's own grain (``GRAIN_SIZE`` 32768 elements, 4 per sampled point)."""
 
