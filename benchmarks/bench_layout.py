@@ -80,7 +80,10 @@ def small(im, p):
 a128, pa128 = small(a, pa)
 b128, pb128 = small(b, pb)
 import dataclasses
-natural = getattr(tfw, "NaturalSettings", None)  # trees since #32 align the pixels by default: not here
+try:  # trees since #32 align the pixels by default: not here
+    from torchfluidwarp.morph import NaturalSettings as natural
+except ImportError:
+    natural = None
 dense = natural is not None and "dense" in {f.name for f in dataclasses.fields(natural)}
 marks = {"settings": natural(dense=None)} if dense else {}
 bench("morph 128^2 x 10 frames (marks alone)",
