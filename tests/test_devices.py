@@ -170,7 +170,7 @@ ALLOWED: dict[tuple[str, str, str], str] = {
     ("apps/studio/inputs.py", "points", "tensor"): "points parsed from the page, CPU by design",
     ("apps/studio/previews.py", "_to_size", "tensor"): "the studio runs on the CPU",
     # metadata for the caller, on the CPU like the other host-side scalars
-    ("metrics/path.py", "path_distances", "tensor"): "per-frame distances gathered as floats, metadata",
+    ("metrics/path.py", "PathTally.distances", "tensor"): "per-frame distances gathered as floats, metadata",
     ("morph/sequence.py", "average", "tensor"): "per-image point errors gathered as floats, metadata",
     # mediapipe's landmarks arrive as Python floats on the host; the caller moves them to the image's device
     ("correspond/faces.py", "_crop", "tensor"): "the crop's similarity for mediapipe's input, CPU by design",

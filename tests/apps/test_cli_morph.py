@@ -1,3 +1,5 @@
+import json
+
 import imageio.v3 as iio
 import pytest
 import torch
@@ -155,3 +157,27 @@ def test_the_automatic_mode_says_which_matcher_it_used_in_the_command_lines_word
     err = capsys.readouterr().err
     assert f"no face found in {a}" in err and "matched image features instead" in err
     assert "use --match features to skip the face search" in err and "match='" not in err
+
+
+def test_a_report_renders_each_frame_once_and_writes_the_same_animation(pair, tmp_path, monkeypatch):
+    from torchfluidwarp.morph import result as morph_result
+
+    a, b, pa, pb = pair
+    rendered: list[int] = []
+    render = morph_result.render
+
+    def counted(scene, ts, *args, **kwargs):
+        rendered.append(len(ts))
+        return render(scene, ts, *args, **kwargs)
+
+    monkeypatch.setattr(morph_result, "render", counted)
+    args = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "--frames", "5", *FAST]
+    assert main([*args, "-o", str(tmp_path / "plain.gif")]) == 0
+    assert sum(rendered) == 5
+    rendered.clear()
+    assert main([*args, "-o", str(tmp_path / "reported.gif"), "--report", str(tmp_path / "r.json")]) == 0
+    assert sum(rendered) == 5  # the report's pass wrote the animation: not 10
+    plain = iio.imread(tmp_path / "plain.gif", index=None)
+    reported = iio.imread(tmp_path / "reported.gif", index=None)
+    assert plain.shape == reported.shape and (plain == reported).all()
+    assert len(json.loads((tmp_path / "r.json").read_text())["path"]["distances"]) == 4

@@ -177,3 +177,25 @@ def test_streamed_and_materialised_results_report_the_same(image):
     assert metrics.morph_report(r, image, b, POINTS, POINTS + SHIFT) == streamed
     assert folds_a.tolist() == streamed["folds"]["a"] and folds_b.tolist() == streamed["folds"]["b"]
     torch.testing.assert_close(metrics.landmark_error(r.fit), r.fit.error[0].double())
+
+
+@pytest.mark.parametrize("reads", [5, 2])
+def test_a_report_hands_its_frames_to_a_sink_and_measures_the_same(image, reads: int):
+    # the sink (a writer) gets the frames the result streams, in order, from the report's own pass; what it
+    # leaves unread is still measured
+    b = torch.roll(image, (3, 5), (1, 2))
+    r = morph(image, b, POINTS, POINTS + SHIFT, frames=5, **KW)
+    alone = metrics.morph_report(r, image, b, POINTS, POINTS + SHIFT, chunk=2)
+    got: list[torch.Tensor] = []
+
+    def sink(frames):
+        for _ in range(reads):
+            got.append(next(frames))
+
+    shared = metrics.morph_report(r, image, b, POINTS, POINTS + SHIFT, chunk=2, sink=sink)
+    assert shared == alone
+    want = list(r.iter_frames())
+    assert len(got) == reads
+    for frame, expected in zip(got, want):
+        assert frame.dtype == expected.dtype
+        torch.testing.assert_close(frame, expected, rtol=0, atol=0)

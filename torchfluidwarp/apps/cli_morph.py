@@ -23,6 +23,7 @@ import argparse
 import ctypes
 import sys
 import warnings
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -247,8 +248,9 @@ def _run_morph(
 
     The line printed at the end gives the run's wall time (from :func:`~torchfluidwarp.apps.cli.main`'s start),
     then its parts: ``start`` (the library's import and the arguments), ``load``, ``points``, ``fit`` (the call to
-    :func:`~torchfluidwarp.morph.morph`), ``render and write`` (the frames are rendered as they are written) and
-    ``report``.
+    :func:`~torchfluidwarp.morph.morph`), ``render and write`` (the frames are rendered as they are written);
+    with ``--report``, ``render, write and report`` instead: the animation is written from the report's own pass
+    over the frames, so each frame is rendered once (``--frame``: ``render, report and write``).
     """
     clock = clock_of(args)
     with clock.part("load"):  # the held-out points and --region's masks
@@ -269,13 +271,18 @@ def _run_morph(
             progress=progress,
             max_memory=max_memory(args),
         )  # errors: see fail()
-    with clock.part("render and write"):
-        path = write_result(result, args)
-    if args.report:
-        with clock.part("report"):
+    if not args.report:
+        with clock.part("render and write"):
+            path = write_result(result, args)
+    else:
+        # the animation is written from the report's own pass over the frames: each frame is rendered once
+        with clock.part("render, write and report" if args.frame is None else "render, report and write"):
             if placed is not None:  # B's side where the morph aimed, B's pixels (the pixels may have moved it)
                 points_b = apply_alignment(torch.linalg.inv(result.canvas_from_b), result.targets).to(points_b)
-            report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held)
+            written: list[Path] = []
+            sink = None if args.frame is not None else lambda frames: written.append(write_result(result, args, frames))
+            report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held, sink=sink)
+            path = written[0] if written else write_result(result, args)
             print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
         err = result.error

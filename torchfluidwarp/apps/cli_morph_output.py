@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import json
 import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -170,11 +171,14 @@ def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) ->
         raise InputError(f"--report {args.report!r} already exists; pass --overwrite to replace it")
 
 
-def write_result(result: MorphResult | MorphSequence, args: argparse.Namespace) -> Path:
-    """Write ``--frame``'s image, or stream every frame to the animation ``-o``; returns the path written."""
+def write_result(
+    result: MorphResult | MorphSequence, args: argparse.Namespace, frames: Iterator[Tensor] | None = None
+) -> Path:
+    """Write ``--frame``'s image, or stream every frame to the animation ``-o`` (``frames``: the result's frames
+    ``(C, H, W)`` as another pass over them renders them); returns the path written."""
     if args.frame is not None:
         return write_image(args.output, result.frame(args.frame))
-    frames = progress_bar(stream_frames(result), len(result), "frames", args.quiet)
+    frames = progress_bar(stream_frames(result) if frames is None else frames, len(result), "frames", args.quiet)
     return write_animation(args.output, frames, fps=args.fps, overwrite=args.overwrite)
 
 

@@ -28,18 +28,44 @@ def path_distances(frames: Iterable[Tensor], kind: PathKind = "pixel") -> Tensor
     Returns:
         ``(N - 1,)`` float64; zeros for a still morph.
     """
-    if kind not in ("pixel", "ssim"):
-        raise InputError(f"kind must be 'pixel' or 'ssim', got {kind!r}", argument="kind")
-    out: list[float] = []
-    prev: Tensor | None = None
+    tally = PathTally(kind)
     for frame in frames:
+        tally.add(frame)
+    return tally.distances()
+
+
+class PathTally:
+    """:func:`path_distances` one frame at a time, for a caller that hands the frames on (to a writer) as they come.
+
+    Example:
+        >>> import torch
+        >>> tally = PathTally()
+        >>> for frame in torch.stack([torch.zeros(1, 2, 2), torch.ones(1, 2, 2)]):
+        ...     tally.add(frame)
+        >>> tally.distances()
+        tensor([1.], dtype=torch.float64)
+    """
+
+    def __init__(self, kind: PathKind = "pixel") -> None:
+        if kind not in ("pixel", "ssim"):
+            raise InputError(f"kind must be 'pixel' or 'ssim', got {kind!r}", argument="kind")
+        self.kind = kind
+        self._out: list[float] = []
+        self._prev: Tensor | None = None
+
+    def add(self, frame: Tensor) -> None:
+        """The next frame ``(C, H, W)``: its distance from the one before is kept (only that frame is held)."""
         check_tensor("frames", frame, ndim=3)
         cur = frame.detach().double()
-        if prev is not None:
-            d = (cur - prev).abs().mean() if kind == "pixel" else ssim_loss(cur[None], prev[None])
-            out.append(float(d))
-        prev = cur
-    return torch.tensor(out, dtype=torch.float64)
+        if self._prev is not None:
+            prev = self._prev
+            d = (cur - prev).abs().mean() if self.kind == "pixel" else ssim_loss(cur[None], prev[None])
+            self._out.append(float(d))
+        self._prev = cur
+
+    def distances(self) -> Tensor:
+        """``(N - 1,)`` float64: the distances of the frames added so far."""
+        return torch.tensor(self._out, dtype=torch.float64)
 
 
 def path_smoothness(distances: Tensor) -> dict[str, float]:

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator
 from typing import Any, Protocol
 
 import torch
@@ -16,7 +16,7 @@ from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.metrics.ghost import image_ghosting
 from torchfluidwarp.metrics.maps import folded_pixels, seam_figure
-from torchfluidwarp.metrics.path import PathKind, path_distances, path_smoothness
+from torchfluidwarp.metrics.path import PathKind, PathTally, path_distances, path_smoothness
 from torchfluidwarp.metrics.points import end_error, ghosting
 
 
@@ -33,17 +33,14 @@ class Morph(Protocol):
 
     def iter_frames(self, chunk: int = 8) -> Iterator[Tensor]: ...
 
-    def render(self, ts: Sequence[float]) -> Any: ...  # MorphFrames: frames, forward, backward, maps_a, maps_b
-
-    def frame_ts(self, start: int, stop: int) -> list[float]: ...
+    def iter_rendered(self, chunk: int = 8) -> Iterator[Any]: ...  # MorphFrames of chunk frames, in order
 
 
 def _stream(result: Morph, chunk: int) -> Iterator[tuple[Tensor, Tensor, Tensor, Tensor, Tensor]]:
     """``(frame (C, H, W), map_a (H, W, 2), map_b (H, W, 2), warped_a (C, H, W), warped_b (C, H, W))`` for each of
-    the ``N`` frames, in order, rendered ``chunk`` frames at a time through the result's public :meth:`render`
-    (``warped_a`` is A warped forward, ``warped_b`` B pulled back)."""
-    for start in range(0, len(result), chunk):
-        part = result.render(result.frame_ts(start, start + chunk))
+    the ``N`` frames, in order, rendered ``chunk`` frames at a time through the result's public
+    :meth:`iter_rendered` (``warped_a`` is A warped forward, ``warped_b`` B pulled back)."""
+    for part in result.iter_rendered(chunk):
         yield from zip(
             part.frames.unbind(0),
             part.maps_a.unbind(0),
@@ -101,6 +98,7 @@ def morph_report(
     *,
     path: PathKind = "pixel",
     chunk: int = 8,
+    sink: Callable[[Iterator[Tensor]], object] | None = None,
 ) -> dict[str, Any]:
     """Every measure of a morph in one pass over its frames (``chunk`` rendered at a time), as a JSON-ready dict.
 
@@ -113,6 +111,9 @@ def morph_report(
         held_out: ``(points_a, points_b)`` ``(K, 2)`` each: corresponding points that were not given to the morph.
         path: the neighbour distance of :func:`path_distances`.
         chunk: frames rendered at a time.
+        sink: given, it is handed the iterator of the ``N`` frames ``(C, H, W)`` as they are rendered (an
+            animation writer, say), so that a caller who writes and measures a morph renders it once; what it
+            leaves unread is rendered and measured after it returns.
 
     Returns:
         ``{"frames", "size": [H, W], "mid_frame", "mid_t", "folds": {"a", "b": per-frame counts, "total",
@@ -141,8 +142,11 @@ def morph_report(
     image_ghost: dict[str, Any] = {}
     size_b = (image_b.shape[-2], image_b.shape[-1])
 
+    tally = PathTally(path)
+
     def frames() -> Iterator[Tensor]:
         for k, (frame, ma, mb, fa, fb) in enumerate(_stream(result, chunk)):
+            tally.add(frame)
             folds_a.append(int(folded_pixels(ma)[0]))
             folds_b.append(int(folded_pixels(mb)[0]))
             if k in (mid, n - 1):
@@ -152,7 +156,12 @@ def morph_report(
                 image_ghost.update(image_ghosting(fa.detach(), fb.detach(), both))
             yield frame
 
-    distances = path_distances(frames(), path)
+    stream = frames()
+    if sink is not None:
+        sink(stream)
+    for _ in stream:  # what the sink left
+        pass
+    distances = tally.distances()
     if tuple(kept[mid][0].shape[:2]) != size:
         raise InputError(
             f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}", argument="image_a"

@@ -184,10 +184,24 @@ class MorphResult:
         Memory stays that of ``chunk`` frames whatever ``N``. Once the last frame is out, a ``RuntimeWarning``
         gives the number of folded map pixels if there were any, and :attr:`folded` is known.
         """
-        chunk = check_int("chunk", chunk)
         if self._all is not None:
+            check_int("chunk", chunk)
             yield from self._all.frames.to(self._dtype).unbind(0)
             return
+        for part in self.iter_rendered(chunk, keep=False):
+            frames = part.frames
+            del part  # hold the frames only while they are handed out
+            yield from frames.unbind(0)
+
+    def iter_rendered(self, chunk: int = 8, keep: bool = True) -> Iterator[MorphFrames]:
+        """Render the ``N`` frames in order, ``chunk`` at a time: each chunk's frames in A's and B's dtype, with
+        (``keep``) their warped images and maps, as :meth:`render` returns them.
+
+        The maps of many frames are made in one pass through the fluid's time. Memory stays that of ``chunk``
+        frames whatever ``N``; once the last chunk is out, :attr:`folded` is known and a ``RuntimeWarning`` gives
+        the number of folded map pixels if there were any.
+        """
+        chunk = check_int("chunk", chunk)
         folded = 0
         with torch.no_grad():
             group = max(chunk, RASTER_BYTES // raster_bytes(self._scene))  # frames whose maps one pass makes
@@ -198,11 +212,11 @@ class MorphResult:
             for start in range(0, len(ts), chunk):
                 rasters = (g[start : start + chunk], None if k is None else k[start : start + chunk])
                 with torch.no_grad():
-                    part = render(self._scene, ts[start : start + chunk], keep=False, rasters=rasters)
+                    part = render(self._scene, ts[start : start + chunk], keep=keep, rasters=rasters)
                 folded += part.folded
-                frames = part.frames.to(self._dtype)
-                del part  # hold the frames only while they are handed out
-                yield from frames.unbind(0)
+                part.frames = part.frames.to(self._dtype)
+                yield part
+                del part
         self._set_folded(folded)
 
     def _set_folded(self, count: int) -> None:
