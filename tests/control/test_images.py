@@ -159,8 +159,10 @@ def test_a_fit_whose_map_folds_warns_with_the_count_and_regularization_calms_it(
     # a blob pulled across the picture in an incompressible fluid: the flow swirls until the map folds
     source, target = _blob(8.0, 8.0, sigma=4.0), _blob(24.0, 24.0, sigma=4.0)
     kw = dict(loss="mse", compressible=False, grid=16, levels=None, steps=4, control=4, max_iter=40, progress=False)
-    with pytest.warns(RuntimeWarning, match=r"fit_images: the fitted map folds on \d+ of 1024 pixels") as caught:
-        fit = fit_images(source, target, **kw)
+    # the swirl misses the blob's travel too, and says so (a shift by it matches far better)
+    with pytest.warns(RuntimeWarning, match=r"fit_images: a plain shift of source by \(-16, -16\) px"):
+        with pytest.warns(RuntimeWarning, match=r"fit_images: the fitted map folds on \d+ of 1024 pixels") as caught:
+            fit = fit_images(source, target, **kw)
     folded = int(str(caught[0].message).split("folds on ")[1].split()[0])
     with torch.no_grad():
         det = jacobian_determinant(fit.warp.maps(fit.forces, (32, 32))[:, -1])  # the map fit_images judged
