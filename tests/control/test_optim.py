@@ -235,7 +235,7 @@ def test_the_iterates_are_those_of_torch_optim_lbfgs():
         opt.zero_grad()
         loss = _rosenbrock(y)
         loss.backward()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
         return loss
 
     opt.step(closure)

@@ -13,6 +13,7 @@ import imageio.v3 as iio
 import numpy as np
 import torch
 import torch.nn.functional as F
+from imageio.config import known_extensions
 from imageio.plugins.pillow import PillowPlugin
 from PIL import Image
 from torch import Tensor
@@ -158,15 +159,15 @@ def write_image(path: PathLike, image: Tensor) -> Path:
     array = _uint8_frames(image.reshape(1, *image.shape[-3:]), "image")[0]  # (H, W, C)
     if not target.suffix:
         raise InputError(f"path {str(path)!r} has no suffix to choose an image format by (e.g. .png)", argument="path")
+    cannot = f"cannot write image {str(path)!r} (suffix {target.suffix!r}, {array.shape[-1]} channels)"
+    if target.suffix.lower() not in known_extensions:  # refused here: imageio would warn before it fails
+        raise InputError(f"{cannot}: no image format has this suffix (e.g. use .png)", argument="path")
     try:
         encoded = iio.imwrite("<bytes>", array[..., 0] if array.shape[-1] == 1 else array, extension=target.suffix)
     except (*DECODE_ERRORS, KeyError, IndexError) as exc:
         known = target.suffix.lower() in Image.registered_extensions()
         why = first_line(exc) if known else "no image format has this suffix (e.g. use .png)"
-        raise InputError(
-            f"cannot write image {str(path)!r} (suffix {target.suffix!r}, {array.shape[-1]} channels): {why}",
-            argument="path",
-        ) from exc
+        raise InputError(f"{cannot}: {why}", argument="path") from exc
     make_parents("path", target)
     with atomic_output(target) as tmp:
         tmp.write_bytes(encoded)
