@@ -132,6 +132,31 @@ def test_sequence_of_three_images_writes_one_animation_and_reports_each_segment(
     assert len(segments) == 2 and all(s["folds"]["total"] == 0 for s in segments)
 
 
+def test_a_sequence_report_renders_each_frame_once_and_writes_the_same_animation(three, tmp_path, monkeypatch):
+    from torchfluidwarp.morph import result as morph_result
+
+    images, files = three
+    rendered: list[int] = []
+    render = morph_result.render
+
+    def counted(scene, ts, *args, **kwargs):
+        rendered.append(len(ts))
+        return render(scene, ts, *args, **kwargs)
+
+    monkeypatch.setattr(morph_result, "render", counted)
+    argv = ["morph", *images, "--points", *files, "--frames", "7", *FAST]
+    assert main([*argv, "-o", str(tmp_path / "plain.gif")]) == 0
+    once = sum(rendered)  # each segment renders its own frames, the joint in both
+    rendered.clear()
+    report = tmp_path / "r.json"
+    assert main([*argv, "-o", str(tmp_path / "reported.gif"), "--report", str(report)]) == 0
+    assert sum(rendered) == once  # the reports' passes wrote the animation: no second rendering
+    plain, reported = iio.imread(tmp_path / "plain.gif", index=None), iio.imread(tmp_path / "reported.gif", index=None)
+    assert plain.shape == reported.shape == (7, 36, 40, 3) and (plain == reported).all()
+    segments = json.loads(report.read_text())["segments"]
+    assert sum(s["frames"] for s in segments) == 7 + 1  # the joint is measured in both segments
+
+
 def test_sequence_frame_at_one_is_the_last_image(three, tmp_path):
     images, files = three
     out = tmp_path / "end.png"

@@ -179,23 +179,23 @@ def test_streamed_and_materialised_results_report_the_same(image):
     torch.testing.assert_close(metrics.landmark_error(r.fit), r.fit.error[0].double())
 
 
-@pytest.mark.parametrize("reads", [5, 2])
-def test_a_report_hands_its_frames_to_a_sink_and_measures_the_same(image, reads: int):
-    # the sink (a writer) gets the frames the result streams, in order, from the report's own pass; what it
-    # leaves unread is still measured
+def test_a_report_yields_its_frames_as_it_goes_and_measures_the_same(image):
+    # a writer reading report_frames gets the frames the result streams, in order, and the same report
     b = torch.roll(image, (3, 5), (1, 2))
     r = morph(image, b, POINTS, POINTS + SHIFT, frames=5, **KW)
     alone = metrics.morph_report(r, image, b, POINTS, POINTS + SHIFT, chunk=2)
-    got: list[torch.Tensor] = []
+    got: list[dict] = []
 
-    def sink(frames):
-        for _ in range(reads):
-            got.append(next(frames))
+    def writer():
+        report = yield from metrics.report_frames(r, image, b, POINTS, POINTS + SHIFT, chunk=2)
+        got.append(report)
 
-    shared = metrics.morph_report(r, image, b, POINTS, POINTS + SHIFT, chunk=2, sink=sink)
-    assert shared == alone
+    frames = list(writer())
+    assert got == [alone]
     want = list(r.iter_frames())
-    assert len(got) == reads
-    for frame, expected in zip(got, want):
+    assert len(frames) == len(want) == 5
+    for frame, expected in zip(frames, want):
         assert frame.dtype == expected.dtype
         torch.testing.assert_close(frame, expected, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="held_out"):  # checked before any frame is rendered
+        metrics.report_frames(r, image, b, POINTS, POINTS + SHIFT, held_out=(HELD, HELD[:1]))

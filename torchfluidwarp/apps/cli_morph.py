@@ -23,7 +23,6 @@ import argparse
 import ctypes
 import sys
 import warnings
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -48,6 +47,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     max_memory,
     morph_settings,
     result_options,
+    write_measured,
     write_report,
     write_result,
 )
@@ -57,7 +57,7 @@ from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
-from torchfluidwarp.metrics import morph_report
+from torchfluidwarp.metrics import report_frames
 from torchfluidwarp.morph import morph
 
 __all__ = ["add_morph", "add_demo", "EXIT_SOME_FAILED"]
@@ -279,10 +279,8 @@ def _run_morph(
         with clock.part("render, write and report" if args.frame is None else "render, report and write"):
             if placed is not None:  # B's side where the morph aimed, B's pixels (the pixels may have moved it)
                 points_b = apply_alignment(torch.linalg.inv(result.canvas_from_b), result.targets).to(points_b)
-            written: list[Path] = []
-            sink = None if args.frame is not None else lambda frames: written.append(write_result(result, args, frames))
-            report = morph_report(result, image_a, image_b, points_a, points_b, held_out=held, sink=sink)
-            path = written[0] if written else write_result(result, args)
+            measured = report_frames(result, image_a, image_b, points_a, points_b, held_out=held)
+            report, path = write_measured(result, args, measured)
             print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
         err = result.error

@@ -16,9 +16,9 @@ import argparse
 import dataclasses
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from torch import Tensor
 
@@ -37,6 +37,8 @@ from torchfluidwarp.io import read_image, write_animation, write_image
 from torchfluidwarp.morph import Blending, MorphResult, MorphSequence, MorphSettings, Timing
 from torchfluidwarp.morph.settings import METHODS
 
+Measures = TypeVar("Measures")
+
 __all__ = [
     "add_result_options",
     "morph_settings",
@@ -44,6 +46,7 @@ __all__ = [
     "result_options",
     "check_result_output",
     "write_result",
+    "write_measured",
     "write_report",
 ]
 
@@ -180,6 +183,24 @@ def write_result(
         return write_image(args.output, result.frame(args.frame))
     frames = progress_bar(stream_frames(result) if frames is None else frames, len(result), "frames", args.quiet)
     return write_animation(args.output, frames, fps=args.fps, overwrite=args.overwrite)
+
+
+def write_measured(
+    result: MorphResult | MorphSequence, args: argparse.Namespace, measured: Generator[Tensor, None, Measures]
+) -> tuple[Measures, Path]:
+    """:func:`write_result`, and the end of ``measured``: a report's pass over the same frames
+    (:func:`~torchfluidwarp.metrics.report.report_frames`). The animation is written from that pass, so each frame
+    is rendered once; ``--frame`` writes its image after it. Returns what the pass returned, and the path written."""
+    done: list[Measures] = []
+
+    def frames() -> Iterator[Tensor]:
+        done.append((yield from measured))
+
+    stream = frames()
+    path = None if args.frame is not None else write_result(result, args, stream)
+    for _ in stream:  # the rest of the pass: all of it for --frame
+        pass
+    return done[0], write_result(result, args) if path is None else path
 
 
 def write_report(path: str, report: dict[str, Any]) -> Path:

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Generator
+from typing import Any
 
 from torch import Tensor
 
@@ -33,13 +35,14 @@ from torchfluidwarp.apps.cli_morph_output import (
     max_memory,
     morph_settings,
     result_options,
+    write_measured,
     write_report,
     write_result,
 )
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
-from torchfluidwarp.metrics import morph_report
-from torchfluidwarp.morph import average, morph_sequence
+from torchfluidwarp.metrics import report_frames
+from torchfluidwarp.morph import MorphSequence, average, morph_sequence
 
 __all__ = ["run_sequence", "add_average"]
 
@@ -53,6 +56,21 @@ def _read_all(images: list[str], point_files: list[str]) -> tuple[list[Tensor], 
     for path, p in zip(point_files[1:], points[1:]):
         check_point_counts(points[0], p, point_files[0], path)
     return pictures, points
+
+
+def _measured(
+    sequence: MorphSequence, pictures: list[Tensor], points: list[Tensor]
+) -> Generator[Tensor, None, list[dict[str, Any]]]:
+    """The sequence's frames, in order, from each segment's report pass; returns the segments' reports. A joint is
+    the previous segment's last frame, so each later segment's first frame is measured but not yielded (as
+    :meth:`~torchfluidwarp.morph.MorphSequence.iter_frames` leaves it out)."""
+    reports = []
+    for i, segment in enumerate(sequence.segments):
+        frames = report_frames(segment, pictures[i], pictures[i + 1], points[i], points[i + 1])
+        if i:
+            next(frames)
+        reports.append((yield from frames))
+    return reports
 
 
 def run_sequence(args: argparse.Namespace) -> int:
@@ -88,14 +106,12 @@ def run_sequence(args: argparse.Namespace) -> int:
             progress=progress,
             max_memory=max_memory(args),
         )
-    with clock.part("render and write"):
-        path = write_result(sequence, args)
-    if args.report:
-        with clock.part("report"):
-            reports = [
-                morph_report(segment, pictures[i], pictures[i + 1], points[i], points[i + 1])
-                for i, segment in enumerate(sequence.segments)
-            ]
+    if not args.report:
+        with clock.part("render and write"):
+            path = write_result(sequence, args)
+    else:  # the animation is written from the segments' report passes: each frame is rendered once
+        with clock.part("render, write and report" if args.frame is None else "render, report and write"):
+            reports, path = write_measured(sequence, args, _measured(sequence, pictures, points))
             print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
     if not args.quiet:
         errors = [float(segment.error.mean()) for segment in sequence.segments]

@@ -35,7 +35,7 @@ from torchfluidwarp.metrics.points import (
     locate,
     read_map,
 )
-from torchfluidwarp.metrics.report import Morph, morph_folds, morph_path, morph_report
+from torchfluidwarp.metrics.report import Morph, morph_folds, morph_path, morph_report, report_frames
 
 __all__ = [
     "BorderSeam",
@@ -57,6 +57,7 @@ __all__ = [
     "morph_folds",
     "morph_path",
     "morph_report",
+    "report_frames",
     "path_distances",
     "path_smoothness",
     "read_map",

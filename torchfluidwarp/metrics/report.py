@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Generator, Iterator
 from typing import Any, Protocol
 
 import torch
@@ -98,7 +98,6 @@ def morph_report(
     *,
     path: PathKind = "pixel",
     chunk: int = 8,
-    sink: Callable[[Iterator[Tensor]], object] | None = None,
 ) -> dict[str, Any]:
     """Every measure of a morph in one pass over its frames (``chunk`` rendered at a time), as a JSON-ready dict.
 
@@ -111,9 +110,6 @@ def morph_report(
         held_out: ``(points_a, points_b)`` ``(K, 2)`` each: corresponding points that were not given to the morph.
         path: the neighbour distance of :func:`path_distances`.
         chunk: frames rendered at a time.
-        sink: given, it is handed the iterator of the ``N`` frames ``(C, H, W)`` as they are rendered (an
-            animation writer, say), so that a caller who writes and measures a morph renders it once; what it
-            leaves unread is rendered and measured after it returns.
 
     Returns:
         ``{"frames", "size": [H, W], "mid_frame", "mid_t", "folds": {"a", "b": per-frame counts, "total",
@@ -128,11 +124,66 @@ def morph_report(
         their picture (``"covered"``, a fraction of the frame) and where both show structure (``"textured"``);
         ``median``, ``p90`` and ``mean`` are in the frame's pixels (``None`` when nothing is textured).
     """
+    frames = report_frames(result, image_a, image_b, points_a, points_b, held_out, path=path, chunk=chunk)
+    while True:
+        try:
+            next(frames)
+        except StopIteration as done:
+            return done.value
+
+
+def report_frames(
+    result: Morph,
+    image_a: Tensor,
+    image_b: Tensor,
+    points_a: Tensor,
+    points_b: Tensor,
+    held_out: tuple[Tensor, Tensor] | None = None,
+    *,
+    path: PathKind = "pixel",
+    chunk: int = 8,
+) -> Generator[Tensor, None, dict[str, Any]]:
+    """:func:`morph_report` as its pass goes: yields the ``N`` frames ``(C, H, W)`` as they are rendered, and
+    returns the report (``report = yield from report_frames(...)``).
+
+    A caller who writes the frames (an animation writer reading this generator) and measures the morph renders
+    each frame once. The arguments are those of :func:`morph_report`, checked before the generator is returned.
+
+    Example:
+        >>> import torch
+        >>> from torchfluidwarp.morph import morph
+        >>> a, p = torch.rand(3, 32, 32), torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
+        >>> result = morph(a, a, p, p, frames=3, progress=False)
+        >>> written = []
+        >>> def frames():
+        ...     report = yield from report_frames(result, a, a, p, p)
+        ...     written.append(report["frames"])
+        >>> [tuple(f.shape) for f in frames()], written
+        ([(3, 32, 32), (3, 32, 32), (3, 32, 32)], [3])
+    """
     check_tensor("image_a", image_a)
     check_tensor("image_b", image_b)
     check_tensor("points_a", points_a, shape=[None, 2])
     check_tensor("points_b", points_b, shape=[points_a.shape[0], 2])
     chunk = check_int("chunk", chunk)
+    pairs = {"marked": (points_a, points_b)}
+    if held_out is not None:
+        check_tensor("held_out[0]", held_out[0], shape=[None, 2])
+        check_tensor("held_out[1]", held_out[1], shape=[held_out[0].shape[0], 2])
+        pairs["held_out"] = held_out
+    tally = PathTally(path)
+    return _report_pass(result, image_a, image_b, pairs, tally, chunk)
+
+
+def _report_pass(
+    result: Morph,
+    image_a: Tensor,
+    image_b: Tensor,
+    pairs: dict[str, tuple[Tensor, Tensor]],
+    tally: PathTally,
+    chunk: int,
+) -> Generator[Tensor, None, dict[str, Any]]:
+    """The pass of :func:`report_frames`, over checked arguments."""
     size = (image_a.shape[-2], image_a.shape[-1])
     n = len(result)
     mid = n // 2
@@ -141,36 +192,22 @@ def morph_report(
     kept: dict[int, tuple[Tensor, Tensor]] = {}
     image_ghost: dict[str, Any] = {}
     size_b = (image_b.shape[-2], image_b.shape[-1])
-
-    tally = PathTally(path)
-
-    def frames() -> Iterator[Tensor]:
-        for k, (frame, ma, mb, fa, fb) in enumerate(_stream(result, chunk)):
-            tally.add(frame)
-            folds_a.append(int(folded_pixels(ma)[0]))
-            folds_b.append(int(folded_pixels(mb)[0]))
-            if k in (mid, n - 1):
-                kept[k] = (ma.detach().cpu(), mb.detach().cpu())
-            if k == mid:  # measured now, while the chunk holds the warped pictures
-                both = _inside(ma.detach(), size) & _inside(mb.detach(), size_b)
-                image_ghost.update(image_ghosting(fa.detach(), fb.detach(), both))
-            yield frame
-
-    stream = frames()
-    if sink is not None:
-        sink(stream)
-    for _ in stream:  # what the sink left
-        pass
+    for k, (frame, ma, mb, fa, fb) in enumerate(_stream(result, chunk)):
+        tally.add(frame)
+        folds_a.append(int(folded_pixels(ma)[0]))
+        folds_b.append(int(folded_pixels(mb)[0]))
+        if k in (mid, n - 1):
+            kept[k] = (ma.detach().cpu(), mb.detach().cpu())
+        if k == mid:  # measured now, while the chunk holds the warped pictures
+            image_ghost = image_ghosting(
+                fa.detach(), fb.detach(), _inside(ma.detach(), size) & _inside(mb.detach(), size_b)
+            )
+        yield frame
     distances = tally.distances()
     if tuple(kept[mid][0].shape[:2]) != size:
         raise InputError(
             f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}", argument="image_a"
         )
-    pairs = {"marked": (points_a, points_b)}
-    if held_out is not None:
-        check_tensor("held_out[0]", held_out[0], shape=[None, 2])
-        check_tensor("held_out[1]", held_out[1], shape=[held_out[0].shape[0], 2])
-        pairs["held_out"] = held_out
     figures: dict[str, Any] = {}
     for name, (pa, pb) in pairs.items():
         pa, pb = pa.detach().cpu().double(), pb.detach().cpu().double()  # maps_b read B's own pixels
@@ -197,5 +234,5 @@ def morph_report(
         "held_out": figures.get("held_out"),
         "image_ghost": image_ghost,
         "seam": {"a": seam_a, "b": seam_b, "max": max(seam_a, seam_b)},
-        "path": {"kind": path, "distances": distances.tolist(), **path_smoothness(distances)},
+        "path": {"kind": tally.kind, "distances": distances.tolist(), **path_smoothness(distances)},
     }
