@@ -159,18 +159,8 @@ def test_the_automatic_mode_says_which_matcher_it_used_in_the_command_lines_word
     assert "use --match features to skip the face search" in err and "match='" not in err
 
 
-def test_a_report_renders_each_frame_once_and_writes_the_same_animation(pair, tmp_path, monkeypatch):
-    from torchfluidwarp.morph import result as morph_result
-
+def test_a_report_renders_each_frame_once_and_writes_the_same_animation(pair, tmp_path, rendered):
     a, b, pa, pb = pair
-    rendered: list[int] = []
-    render = morph_result.render
-
-    def counted(scene, ts, *args, **kwargs):
-        rendered.append(len(ts))
-        return render(scene, ts, *args, **kwargs)
-
-    monkeypatch.setattr(morph_result, "render", counted)
     args = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "--frames", "5", *FAST]
     assert main([*args, "-o", str(tmp_path / "plain.gif")]) == 0
     assert sum(rendered) == 5

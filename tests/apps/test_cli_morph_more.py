@@ -132,18 +132,8 @@ def test_sequence_of_three_images_writes_one_animation_and_reports_each_segment(
     assert len(segments) == 2 and all(s["folds"]["total"] == 0 for s in segments)
 
 
-def test_a_sequence_report_renders_each_frame_once_and_writes_the_same_animation(three, tmp_path, monkeypatch):
-    from torchfluidwarp.morph import result as morph_result
-
+def test_a_sequence_report_renders_each_frame_once_and_writes_the_same_animation(three, tmp_path, rendered):
     images, files = three
-    rendered: list[int] = []
-    render = morph_result.render
-
-    def counted(scene, ts, *args, **kwargs):
-        rendered.append(len(ts))
-        return render(scene, ts, *args, **kwargs)
-
-    monkeypatch.setattr(morph_result, "render", counted)
     argv = ["morph", *images, "--points", *files, "--frames", "7", *FAST]
     assert main([*argv, "-o", str(tmp_path / "plain.gif")]) == 0
     once = sum(rendered)  # each segment renders its own frames, the joint in both
