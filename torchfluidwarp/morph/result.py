@@ -188,10 +188,8 @@ class MorphResult:
             check_int("chunk", chunk)
             yield from self._all.frames.to(self._dtype).unbind(0)
             return
-        for part in self.iter_rendered(chunk, keep=False):
-            frames = part.frames
-            del part  # hold the frames only while they are handed out
-            yield from frames.unbind(0)
+        for part in self.iter_rendered(chunk, keep=False):  # frames only: the warped images and maps come back empty
+            yield from part.frames.unbind(0)
 
     def iter_rendered(self, chunk: int = 8, keep: bool = True) -> Iterator[MorphFrames]:
         """Render the ``N`` frames in order, ``chunk`` at a time: each chunk's frames in A's and B's dtype, with
