@@ -37,6 +37,23 @@ def one_thread():
 
 
 @pytest.fixture
+def rendered(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The number of frames of each call to the morph's renderer (``morph.result.render``), as the test runs
+    (tests/apps: a report's pass renders each frame once)."""
+    from torchfluidwarp.morph import result as morph_result
+
+    calls: list[int] = []
+    render = morph_result.render
+
+    def counted(scene, ts, *args, **kwargs):
+        calls.append(len(ts))
+        return render(scene, ts, *args, **kwargs)
+
+    monkeypatch.setattr(morph_result, "render", counted)
+    return calls
+
+
+@pytest.fixture
 def shuffled_marks() -> tuple[torch.Tensor, torch.Tensor]:
     """12 marks ``(12, 2)`` float64 pixels in a 64 x 64 picture, and the same marks in a shuffled order: a
     similarity explains 7% of the shuffled set's spread, an affine 12% (no common pose; tests/morph)."""
