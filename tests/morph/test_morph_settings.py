@@ -71,6 +71,8 @@ def test_settings_are_frozen_and_normalised():
         (lambda: NaturalSettings(viscosity=float("nan")), ValueError, r"NaturalSettings\.viscosity .* got nan"),
         (lambda: NaturalSettings(max_iter=2.5), TypeError, r"NaturalSettings\.max_iter must be an int, got float"),
         (lambda: NaturalSettings(align="rigid"), ValueError, r"NaturalSettings\.align must be .*, got 'rigid'"),
+        (lambda: NaturalSettings(lattice=0), ValueError, r"NaturalSettings\.lattice must be >= 1, got 0"),
+        (lambda: NaturalSettings(lattice=4.5), TypeError, r"NaturalSettings\.lattice must be an int, got float"),
         (lambda: PaperSettings(inverse="magic"), ValueError, r"PaperSettings\.inverse must be .*, got 'magic'"),
         (lambda: PaperSettings(smoothness=float("inf")), ValueError, r"PaperSettings\.smoothness .* got inf"),
         (lambda: PaperSettings(control=(4, 0)), ValueError, r"PaperSettings\.control .* got \(4, 0\)"),

@@ -321,7 +321,8 @@ def fit_natural(
     max_memory: float | None = None,
 ) -> tuple[KeyframeFit, tuple[int, int, int, int], Tensor]:
     """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
-    :class:`~torchfluidwarp.morph.settings.NaturalSettings`).
+    :class:`~torchfluidwarp.morph.settings.NaturalSettings`), for the marks and for a lattice of points between
+    them (``settings.lattice``), whose paths the whole travel ``D + R`` gives.
 
     Args:
         pa: ``(M, 2)`` A's points, A's pixels.
@@ -341,7 +342,8 @@ def fit_natural(
             (``morph(max_memory=...)``; ``None``: its default).
 
     Returns:
-        The fit, in the box's frame; the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
+        The fit, in the box's frame, of the marks alone (the lattice's points are left out of its points, paths
+        and errors); the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
         its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where A's marks must end,
         A's pixels (``target``, or where the pixels re-placed it when ``found``).
     """
@@ -357,21 +359,14 @@ def fit_natural(
         return (src + end) / 2, end - src
 
     mids, disp = clear(*straight_paths(src, target - offset, inside))
-    residual = None
-    marks_travel: Callable[[Tensor], Tensor]  # the spline through the marks, set below
+    travel: Callable[[Tensor], Tensor] = tps_fit(mids, disp)  # D, box pixels
     if dense is not None:
-        pixels = dense(mids + offset, disp)
-        if found:  # the marks follow the pixels: the whole travel D + R, re-split into marks and a residual
-            marks = tps_fit(mids, disp)
-            whole = lambda p, o=offset: marks(p) + pixels(p + o)  # noqa: E731  (box pixels)
-            mids = solve_midpoints(whole, src, -0.5)
-            mids, disp = clear(mids, whole(mids))
-            residual = lambda p: whole(p) - marks_travel(p)  # noqa: E731  (the spline through the re-placed marks)
-        else:
-            residual = lambda p, o=offset: pixels(p + o)  # noqa: E731  (box pixels)
+        travel = _moved(travel, dense(mids + offset, disp), offset)  # D + R (R reads canvas pixels)
+        if found:  # the marks follow the pixels: A's marks travel where the whole travel D + R takes them
+            mids = solve_midpoints(travel, src, -0.5)
+            mids, disp = clear(mids, travel(mids))
     grid = FluidGrid.of(settings.grid).shape
-    marks_travel = tps_fit(mids, disp)
-    wider = _margin_for(lambda p: marks_travel(p) + (0 if residual is None else residual(p)), inside, mids.device)
+    wider = _margin_for(travel, inside, mids.device)
     uniform = not isinstance(settings.viscosity, (nn.Module, Tensor)) or settings.viscosity.ndim == 0
     # the walls move out, and the fluid's cells keep their size (a viscosity field or module is given over the
     # user's grid: then the margin is kept)
@@ -383,10 +378,14 @@ def fit_natural(
         )
         pad, src, mids = wider, src + shift, mids + shift
         box, offset, inside = _frame(pad, size, pa.device)
-        if residual is not None:  # it reads the canvas through the offset it was made with
-            moved = residual
-            residual = lambda p: moved(p - shift)  # noqa: E731
-    forces = LandmarkForces(mids, disp, steps, inside=inside, residual=residual)
+        travel = _moved(travel, None, -shift)  # it was made in the narrower box's pixels
+    marks = mids.shape[0]
+    if settings.lattice is not None:  # points between the marks, held on the paths of the whole travel too
+        extra = _lattice(mids, travel, inside, settings.lattice * (box[2] - box[0]) / grid[1])
+        moved = travel(extra)
+        mids, disp, src = torch.cat([mids, extra]), torch.cat([disp, moved]), torch.cat([src, extra - moved / 2])
+    whole = None if dense is None and mids.shape[0] == marks else travel
+    forces = LandmarkForces(mids, disp, steps, inside=inside, travel=whole)
     previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
     if previous is not None and previous.shape == forces.weight.shape:
         with torch.no_grad():
@@ -409,7 +408,44 @@ def fit_natural(
         progress=progress,
         max_memory=max_memory,  # the fit's own check, on the grid the margin may have widened
     )
+    if mids.shape[0] > marks:  # the result speaks of the marks alone
+        fit = dataclasses.replace(
+            fit,
+            points=fit.points[:, :marks],
+            trajectories=fit.trajectories[:, :, :marks],
+            error=fit.error[:, :marks],
+            keyframe_errors=[(t, e[:, :marks]) for t, e in fit.keyframe_errors],
+        )
+    mids, disp = mids[:marks], disp[:marks]
     return fit, box, mids + disp / 2 + offset
+
+
+def _moved(
+    travel: Callable[[Tensor], Tensor], residual: Callable[[Tensor], Tensor] | None, offset: Tensor | float
+) -> Callable[[Tensor], Tensor]:
+    """Points ``(N, 2)`` -> ``(N, 2)``: ``travel(p) + residual(p + offset)``, or ``travel(p + offset)`` without a
+    residual (pixels)."""
+    if residual is None:
+        return lambda p: travel(p + offset)
+    return lambda p: travel(p) + residual(p + offset)
+
+
+def _lattice(mids: Tensor, travel: Callable[[Tensor], Tensor], inside: tuple[float, float, float, float],
+             spacing: float) -> Tensor:  # fmt: skip
+    """``(N, 2)`` middle-frame points on a lattice of ``spacing`` pixels over ``inside``, at least a third of it from
+    every mark's midpoint ``mids``, whose two ends ``p -+ travel(p) / 2`` lie inside."""
+    x0, y0, x1, y1 = inside
+    ys = torch.arange(y0 + spacing / 2, y1, spacing, dtype=mids.dtype, device=mids.device)
+    xs = torch.arange(x0 + spacing / 2, x1, spacing, dtype=mids.dtype, device=mids.device)
+    gy, gx = torch.meshgrid(ys, xs, indexing="ij")
+    p = torch.stack([gx, gy], -1).reshape(-1, 2)
+    p = p[torch.cdist(p, mids).min(1).values > spacing / 3]
+    d = travel(p)
+    low, high = p.new_tensor([x0, y0]), p.new_tensor([x1, y1])
+    ok = torch.ones(p.shape[0], dtype=torch.bool, device=p.device)
+    for end in (p - d / 2, p + d / 2):
+        ok &= ((end >= low) & (end <= high)).all(1)
+    return p[ok]
 
 
 def fit_paper(

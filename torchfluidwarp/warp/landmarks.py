@@ -89,10 +89,11 @@ class LandmarkForces(nn.Module):
             zero (a half cosine) at the image's edges, where the fluid's walls are; beyond it the travel is that
             of its nearest point, not the spline's extrapolation, which grows without bound. A morph puts the
             walls outside the picture and the picture inside, so the walls leave no seam.
-        residual: optional ``R``: points ``(N, 2)`` -> ``(N, 2)`` pixels, a correction to the spline's travel
-            between the marks (0 at the marks), so that every particle travels ``x(s) = m + (s - 1/2) (D + R)(m)``;
-            found by the pixels (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`). The kick at step 0
-            carries it; the corrections stay the marks' own.
+        travel: optional: every particle's whole travel, points ``(N, 2)`` -> ``(N, 2)`` pixels, where it is not
+            the spline ``D`` alone: ``D + R``, with ``R`` a correction between the marks (0 at the marks) that the
+            pixels found (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`), so that every particle
+            travels ``x(s) = m + (s - 1/2) (D + R)(m)``. The kick at step 0 carries ``R``; the corrections stay the
+            marks' own.
 
     Example:
         >>> mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
@@ -108,7 +109,7 @@ class LandmarkForces(nn.Module):
         steps: int,
         batch: int = 1,
         inside: tuple[float, float, float, float] | None = None,
-        residual: Callable[[Tensor], Tensor] | None = None,
+        travel: Callable[[Tensor], Tensor] | None = None,
     ) -> None:
         super().__init__()
         m = check_tensor("midpoints", midpoints, shape=[None, 2])
@@ -122,7 +123,7 @@ class LandmarkForces(nn.Module):
         self.displacements: Tensor
         self.weight = nn.Parameter(torch.zeros(batch, steps, m.shape[0], 2, device=m.device, dtype=m.dtype))
         self.inside = None if inside is None else tuple(float(v) for v in inside)
-        self.residual = residual
+        self.travel = travel
         self._basis: dict[tuple, tuple[Tensor, Tensor]] = {}  # (T, h w, M), (h w, 2) per grid, size, device, dtype
 
     def extra_repr(self) -> str:
@@ -147,13 +148,13 @@ class LandmarkForces(nn.Module):
                         :, None
                     ]
                 spline = tps_fit(mids, disp)  # D
-                residual = self.residual
+                whole = spline if self.travel is None else self.travel
                 held = lambda p: p  # noqa: E731
                 if self.inside is not None:  # beyond the rectangle (and the marks), the travel of its nearest point
                     lo = torch.minimum(cells.new_tensor(self.inside[:2]), mids.min(0).values)
                     hi = torch.maximum(cells.new_tensor(self.inside[2:]), mids.max(0).values)
                     held = lambda p: torch.maximum(torch.minimum(p, hi), lo)  # noqa: E731
-                travel = lambda p: spline(held(p)) + (0 if residual is None else residual(held(p)))  # noqa: E731
+                travel = lambda p: whole(held(p))  # noqa: E731
                 cardinal = tps_fit(mids, torch.eye(mids.shape[0], dtype=mids.dtype, device=mids.device))  # one solve
                 T = self.weight.shape[1]
                 rows, at = [], cells
@@ -162,8 +163,8 @@ class LandmarkForces(nn.Module):
                     # the particle at a cell at time t / T has its midpoint m with m + (t / T - 1/2) D(m) = cell
                     at = solve_midpoints(travel, cells, t / T - 0.5, start=at)
                     rows.append(fade * cardinal(held(at)))
-                    if t == 0 and residual is not None:
-                        extra = fade * residual(held(at))
+                    if t == 0 and self.travel is not None:
+                        extra = fade * (travel(at) - spline(held(at)))
                 dtype = self.weight.dtype
                 self._basis[key] = (torch.stack(rows).to(dtype), extra.to(dtype))
         return self._basis[key]
@@ -179,6 +180,6 @@ class LandmarkForces(nn.Module):
         to_cells = cell_scale((H, W), g, device=v.device, dtype=v.dtype) / dt
         basis, extra = self.basis(g, (H, W))
         field = torch.einsum("tnm,btmc->btcn", basis, kicks * to_cells)  # (B, T, 2, h w)
-        if self.residual is not None:  # the residual's kick, at step 0
+        if self.travel is not None:  # the residual's kick, at step 0
             field = field + F.pad((extra.T * to_cells.view(2, 1) / (T * dt)).unsqueeze(0), (0, 0, 0, 0, 0, T - 1))
         return field.reshape(B, T, 2, *g.shape)
