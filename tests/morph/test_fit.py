@@ -165,3 +165,12 @@ def test_the_lattice_holds_the_fluid_on_its_paths_beyond_the_marks():
     # measured: 0.37 px on average without the lattice (1.9 at most), 0.06 with it (0.5 at most)
     assert float(stray[None].mean()) > 0.25
     assert float(stray[6].mean()) < 0.4 * float(stray[None].mean()) and float(stray[6].max()) < 1.0
+
+
+def test_a_picture_narrower_than_the_lattices_spacing_gets_no_lattice_across_it():
+    # 8 px wide, 18 high, 4 fluid cells: the lattice's spacing (6 cells, about 9 px) is wider than the picture, so
+    # no column of lattice points fits (the command line's fuzzing found this refused with a torch error)
+    pa = torch.tensor([[1.0, 2.0], [6.0, 4.0], [3.0, 9.0], [5.0, 15.0]], dtype=torch.float64)
+    pb = pa + torch.tensor([[0.5, 0.5], [-0.5, 1.0], [0.5, -1.0], [0.0, 0.5]], dtype=torch.float64)
+    fit, _, _ = fit_natural(pa, pb, (18, 8), NaturalSettings(grid=4, steps=2, dense=None), None, False)
+    assert len(fit.forces.midpoints) == 4 and fit.trajectories.shape[2] == 4  # the marks alone

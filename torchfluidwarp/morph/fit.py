@@ -435,8 +435,12 @@ def _lattice(mids: Tensor, travel: Callable[[Tensor], Tensor], inside: tuple[flo
     """``(N, 2)`` middle-frame points on a lattice of ``spacing`` pixels over ``inside``, at least a third of it from
     every mark's midpoint ``mids``, whose two ends ``p -+ travel(p) / 2`` lie inside."""
     x0, y0, x1, y1 = inside
-    ys = torch.arange(y0 + spacing / 2, y1, spacing, dtype=mids.dtype, device=mids.device)
-    xs = torch.arange(x0 + spacing / 2, x1, spacing, dtype=mids.dtype, device=mids.device)
+    # from half a spacing in, as many as fall short of the far side (none along a side under half a spacing)
+    ys, xs = (
+        lo + spacing / 2 + spacing * torch.arange(n, dtype=mids.dtype, device=mids.device)
+        for lo, n in ((y0, math.ceil(max(0.0, y1 - y0 - spacing / 2) / spacing)),
+                      (x0, math.ceil(max(0.0, x1 - x0 - spacing / 2) / spacing)))
+    )  # fmt: skip
     gy, gx = torch.meshgrid(ys, xs, indexing="ij")
     p = torch.stack([gx, gy], -1).reshape(-1, 2)
     p = p[torch.cdist(p, mids).min(1).values > spacing / 3]
