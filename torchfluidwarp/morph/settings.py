@@ -143,7 +143,8 @@ class NaturalSettings:
             the discrete fluid drifts off the paths between the marks where they stretch or squeeze it (up to tens
             of pixels); the lattice holds it there, so that the frames show the spline's and the pixels' travel.
             At 6 (48 px of a 512-px picture, about 100 points) a 512-px morph takes about a second longer. These
-            points are the fit's own: ``result.error`` and ``result.fit`` speak of the marks alone.
+            points are the fit's own, weighed below the marks (:data:`~torchfluidwarp.morph.fit.LATTICE_WEIGHT`):
+            ``result.error`` and ``result.fit`` speak of the marks alone.
     """
 
     method: ClassVar[Method] = "natural"
