@@ -361,7 +361,7 @@ def fit_natural(
     mids, disp = clear(*straight_paths(src, target - offset, inside))
     travel: Callable[[Tensor], Tensor] = tps_fit(mids, disp)  # D, box pixels
     if dense is not None:
-        travel = _moved(travel, dense(mids + offset, disp), offset)  # D + R (R reads canvas pixels)
+        travel = _plus(travel, dense(mids + offset, disp), offset)  # D + R (R reads canvas pixels)
         if found:  # the marks follow the pixels: A's marks travel where the whole travel D + R takes them
             mids = solve_midpoints(travel, src, -0.5)
             mids, disp = clear(mids, travel(mids))
@@ -378,11 +378,10 @@ def fit_natural(
         )
         pad, src, mids = wider, src + shift, mids + shift
         box, offset, inside = _frame(pad, size, pa.device)
-        travel = _moved(travel, None, -shift)  # it was made in the narrower box's pixels
+        travel = _shifted(travel, -shift)  # it was made in the narrower box's pixels
     marks, weights = mids.shape[0], None
     if settings.lattice is not None:  # points between the marks, held on the paths of the whole travel too
-        extra = _lattice(mids, travel, inside, settings.lattice * (box[2] - box[0]) / grid[1])
-        moved = travel(extra)
+        extra, moved = _lattice(mids, travel, inside, settings.lattice * (box[2] - box[0]) / grid[1])
         mids, disp, src = torch.cat([mids, extra]), torch.cat([disp, moved]), torch.cat([src, extra - moved / 2])
         weights = torch.cat([mids.new_ones(marks), mids.new_full((len(extra),), LATTICE_WEIGHT)])
     whole = None if dense is None and mids.shape[0] == marks else travel
@@ -429,20 +428,22 @@ without a lattice, 0.26 px with one weighted as a mark, and 0.16 px at 0.3; the 
 paths as well at 0.3 as at 1 (12 tune face pairs of ``benchmarks/bench_morph_quality.py``)."""
 
 
-def _moved(
-    travel: Callable[[Tensor], Tensor], residual: Callable[[Tensor], Tensor] | None, offset: Tensor | float
+def _plus(
+    travel: Callable[[Tensor], Tensor], residual: Callable[[Tensor], Tensor], offset: Tensor
 ) -> Callable[[Tensor], Tensor]:
-    """Points ``(N, 2)`` -> ``(N, 2)``: ``travel(p) + residual(p + offset)``, or ``travel(p + offset)`` without a
-    residual (pixels)."""
-    if residual is None:
-        return lambda p: travel(p + offset)
+    """Points ``(N, 2)`` -> ``(N, 2)`` pixels: ``travel(p) + residual(p + offset)``."""
     return lambda p: travel(p) + residual(p + offset)
 
 
+def _shifted(travel: Callable[[Tensor], Tensor], by: float) -> Callable[[Tensor], Tensor]:
+    """Points ``(N, 2)`` -> ``(N, 2)`` pixels: ``travel(p + by)``."""
+    return lambda p: travel(p + by)
+
+
 def _lattice(mids: Tensor, travel: Callable[[Tensor], Tensor], inside: tuple[float, float, float, float],
-             spacing: float) -> Tensor:  # fmt: skip
+             spacing: float) -> tuple[Tensor, Tensor]:  # fmt: skip
     """``(N, 2)`` middle-frame points on a lattice of ``spacing`` pixels over ``inside``, at least a third of it from
-    every mark's midpoint ``mids``, whose two ends ``p -+ travel(p) / 2`` lie inside."""
+    every mark's midpoint ``mids``, whose two ends ``p -+ travel(p) / 2`` lie inside, and their travel ``(N, 2)``."""
     x0, y0, x1, y1 = inside
     # from half a spacing in, as many as fall short of the far side (none along a side under half a spacing)
     ys, xs = (
@@ -458,7 +459,7 @@ def _lattice(mids: Tensor, travel: Callable[[Tensor], Tensor], inside: tuple[flo
     ok = torch.ones(p.shape[0], dtype=torch.bool, device=p.device)
     for end in (p - d / 2, p + d / 2):
         ok &= ((end >= low) & (end <= high)).all(1)
-    return p[ok]
+    return p[ok], d[ok]
 
 
 def fit_paper(
