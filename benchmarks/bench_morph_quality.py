@@ -57,6 +57,8 @@ class Pair:
     held_b: Tensor
     kind: str | None = None  # faces: "frontal", or "turned" when the yaws differ by more than TURNED_DEG
     yaw: tuple[float, float] | None = None  # faces: each one's yaw, degrees (morph_quality_data.yaw_degrees)
+    landmarks: int | None = None  # faces: how many of the held-out points (the first) are iBUG landmarks; the rest
+    # are the mesh's extra forehead, temple and cheek vertices
 
 
 def hold_out(points: Tensor) -> tuple[Tensor, Tensor]:
@@ -95,7 +97,7 @@ def load_pairs(split: Split = "all", bundled: bool = True) -> list[Pair]:
         mb, hb = hold_out(fb.ibug)
         held_a, held_b = torch.cat([ha, fa.extra]), torch.cat([hb, fb.extra])
         kind, yaw = pair_kind(fa.ibug, fb.ibug), (yaw_degrees(fa.ibug), yaw_degrees(fb.ibug))
-        pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b, kind, yaw))
+        pairs.append(Pair(f"{a}_{b}", half, fa.image, fb.image, ma, mb, held_a, held_b, kind, yaw, len(ha)))
     if bundled:
         pairs.append(bundled_pair())
     return pairs
@@ -295,7 +297,10 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     face_ghost = image_ghosting(warped_a, warped_b, valid & halfway_hull(pair, (H, W)))
     last_a, mid_a, mid_b = maps[n - 1 :], maps[mid : mid + 1], maps_b[mid : mid + 1]
     points: dict[str, dict[str, Any]] = {}
-    for kind, pa, pb in (("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)):
+    sets = [("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)]
+    if pair.landmarks is not None:  # the iBUG landmarks among the held-out points alone, as #32 defines them
+        sets.append(("landmark", pair.held_a[: pair.landmarks], pair.held_b[: pair.landmarks]))
+    for kind, pa, pb in sets:
         points[f"{kind}_end"] = _stats(*end_error(last_a, pa, pb))
         points[f"{kind}_ghost"] = _stats(*ghosting(mid_a, mid_b, pa, pb))
     folded_a, folded_b = int(folded_pixels(maps).sum()), int(folded_pixels(maps_b).sum())
@@ -307,24 +312,27 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
         seconds = seconds.get("total")
     return dict(pair=pair.name, split=pair.split, kind=pair.kind, frames=n, held_end_px=points["held_end"]["mean"],
                 held_ghost_px=points["held_ghost"]["median"], marked_ghost_px=points["marked_ghost"]["median"],
+                landmark_end_px=points.get("landmark_end", {}).get("mean"),
+                landmark_ghost_px=points.get("landmark_ghost", {}).get("median"),
                 image_ghost_px=_median(image_ghost), face_ghost_px=_median(face_ghost), image_ghost=image_ghost,
                 face_ghost=face_ghost,
                 marked_end_px=points["marked_end"]["mean"], folded=folded_a + folded_b, folded_a=folded_a,
                 folded_b=folded_b, folded_seen=seen, folded_fraction=(folded_a + folded_b) / (2 * n * H * W),
                 seam=max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
                 seconds=None if seconds is None else float(seconds),
-                not_located=sum(p["of"] - p["located"] for p in points.values()), points=points)  # fmt: skip
+                not_located=sum(p["of"] - p["located"] for k, p in points.items() if not k.startswith("landmark")),
+                points=points)  # fmt: skip
 
 
 HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px", "marked_end_px",
-            "seam", "seconds")  # fmt: skip
+            "seam", "seconds", "landmark_end_px", "landmark_ghost_px")  # fmt: skip
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Medians over pairs of :func:`evaluate`'s figures; folds as the pairs that fold and the worst fraction."""
     out: dict[str, Any] = {"pairs": len(rows)}
     for key in (*HEADLINE, "folded_fraction"):
-        values = [r[key] for r in rows if r[key] is not None and r[key] == r[key]]
+        values = [r[key] for r in rows if r.get(key) is not None and r[key] == r[key]]
         out[key] = statistics.median(values) if values else float("nan")
     out["pairs_folding"] = sum(r["folded"] > 0 for r in rows)
     out["pairs_folding_seen"] = sum(r.get("folded_seen", r["folded"]) > 0 for r in rows)
@@ -351,16 +359,19 @@ def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
 
 def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
     ref = summary.get("tps")
-    ratio = lambda s, key: "—" if ref is None or not ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
+    ratio = lambda s, key: "—" if ref is None or not ref[key] or ref[key] != ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
     rows = [[label, *(fmt(s[k]) for k in HEADLINE[:6]),
              f"{s['pairs_folding']}/{s['pairs']} ({s['pairs_folding_seen']})",
              f"{100 * s['folded_fraction_max']:.3g}%", fmt(s["seam"], 3), fmt(s["seconds"]),
-             *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "image_ghost_px", "face_ghost_px", "seam"))]
+             *(ratio(s, k) for k in ("held_end_px", "held_ghost_px", "image_ghost_px", "face_ghost_px", "seam")),
+             fmt(s["landmark_end_px"]), fmt(s["landmark_ghost_px"]),
+             *(ratio(s, k) for k in ("landmark_end_px", "landmark_ghost_px"))]
             for label, s in ((label, summary[label]) for label in labels)]  # fmt: skip
     heads = ["method", "held-out end", "held-out ghost", "marked ghost", "picture ghost", "face picture ghost"]
     heads += ["marked end", "pairs folding (where a picture shows)", "worst folded", "seam", "time s"]
     heads += ["held-out end / tps"]
     heads += ["held-out ghost / tps", "picture ghost / tps", "face picture ghost / tps", "seam / tps"]
+    heads += ["held-out landmarks' end", "held-out landmarks' ghost", "landmarks' end / tps", "landmarks' ghost / tps"]
     return table(heads, rows, markdown=True)
 
 
