@@ -297,12 +297,12 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
     face_ghost = image_ghosting(warped_a, warped_b, valid & halfway_hull(pair, (H, W)))
     last_a, mid_a, mid_b = maps[n - 1 :], maps[mid : mid + 1], maps_b[mid : mid + 1]
     points: dict[str, dict[str, Any]] = {}
-    sets = [("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)]
-    if pair.landmarks is not None:  # the iBUG landmarks among the held-out points alone, as #32 defines them
-        sets.append(("landmark", pair.held_a[: pair.landmarks], pair.held_b[: pair.landmarks]))
-    for kind, pa, pb in sets:
-        points[f"{kind}_end"] = _stats(*end_error(last_a, pa, pb))
-        points[f"{kind}_ghost"] = _stats(*ghosting(mid_a, mid_b, pa, pb))
+    landmarks: dict[str, dict[str, Any]] = {}  # the iBUG landmarks among the held-out points, as #32 defines them
+    for kind, pa, pb in (("held", pair.held_a, pair.held_b), ("marked", pair.marked_a, pair.marked_b)):
+        for figure, (d, ok) in (("end", end_error(last_a, pa, pb)), ("ghost", ghosting(mid_a, mid_b, pa, pb))):
+            points[f"{kind}_{figure}"] = _stats(d, ok)
+            if kind == "held" and pair.landmarks is not None:  # the first held-out points, read off the same run
+                landmarks[figure] = _stats(d[: pair.landmarks], ok[: pair.landmarks])
     folded_a, folded_b = int(folded_pixels(maps).sum()), int(folded_pixels(maps_b).sum())
     # of those, the ones where a picture shows: the map reads inside its picture
     seen = sum(int(((jacobian_determinant(m) <= 0) & covered(m, img.shape[-2:])).sum())
@@ -312,16 +312,16 @@ def evaluate(result: Any, pair: Pair) -> dict[str, Any]:
         seconds = seconds.get("total")
     return dict(pair=pair.name, split=pair.split, kind=pair.kind, frames=n, held_end_px=points["held_end"]["mean"],
                 held_ghost_px=points["held_ghost"]["median"], marked_ghost_px=points["marked_ghost"]["median"],
-                landmark_end_px=points.get("landmark_end", {}).get("mean"),
-                landmark_ghost_px=points.get("landmark_ghost", {}).get("median"),
+                landmark_end_px=landmarks.get("end", {}).get("mean"),
+                landmark_ghost_px=landmarks.get("ghost", {}).get("median"),
                 image_ghost_px=_median(image_ghost), face_ghost_px=_median(face_ghost), image_ghost=image_ghost,
                 face_ghost=face_ghost,
                 marked_end_px=points["marked_end"]["mean"], folded=folded_a + folded_b, folded_a=folded_a,
                 folded_b=folded_b, folded_seen=seen, folded_fraction=(folded_a + folded_b) / (2 * n * H * W),
                 seam=max(seam_figure(maps[mid]), seam_figure(maps_b[mid])),
                 seconds=None if seconds is None else float(seconds),
-                not_located=sum(p["of"] - p["located"] for k, p in points.items() if not k.startswith("landmark")),
-                points=points)  # fmt: skip
+                not_located=sum(p["of"] - p["located"] for p in points.values()), points=points,
+                landmarks=landmarks)  # fmt: skip
 
 
 HEADLINE = ("held_end_px", "held_ghost_px", "marked_ghost_px", "image_ghost_px", "face_ghost_px", "marked_end_px",
@@ -332,7 +332,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Medians over pairs of :func:`evaluate`'s figures; folds as the pairs that fold and the worst fraction."""
     out: dict[str, Any] = {"pairs": len(rows)}
     for key in (*HEADLINE, "folded_fraction"):
-        values = [r[key] for r in rows if r.get(key) is not None and r[key] == r[key]]
+        values = [r[key] for r in rows if r[key] is not None and r[key] == r[key]]
         out[key] = statistics.median(values) if values else float("nan")
     out["pairs_folding"] = sum(r["folded"] > 0 for r in rows)
     out["pairs_folding_seen"] = sum(r.get("folded_seen", r["folded"]) > 0 for r in rows)
@@ -359,7 +359,10 @@ def pair_table(records: list[dict[str, Any]], labels: list[str]) -> str:
 
 def median_table(summary: dict[str, dict[str, Any]], labels: list[str]) -> str:
     ref = summary.get("tps")
-    ratio = lambda s, key: "—" if ref is None or not ref[key] or ref[key] != ref[key] else f"{s[key] / ref[key]:.2f}x"  # noqa: E731
+
+    def ratio(s: dict[str, Any], key: str) -> str:  # "—" where the spline's figure is missing, 0 or NaN
+        return "—" if ref is None or not ref[key] or ref[key] != ref[key] else f"{s[key] / ref[key]:.2f}x"
+
     rows = [[label, *(fmt(s[k]) for k in HEADLINE[:6]),
              f"{s['pairs_folding']}/{s['pairs']} ({s['pairs_folding_seen']})",
              f"{100 * s['folded_fraction_max']:.3g}%", fmt(s["seam"], 3), fmt(s["seconds"]),
