@@ -8,9 +8,11 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice, auto_points, border_points, detect_face_points
-from torchfluidwarp.correspond.auto import usable_pairs
+from torchfluidwarp.correspond.auto import BORDER_SLACK, border_pairs, usable_pairs
 from torchfluidwarp.data import load_sample
+from torchfluidwarp.morph.fit import crossing_pairs
 from torchfluidwarp.warp.frames import identity_map, warp_image
 
 
@@ -39,6 +41,37 @@ def test_border_points_go_round_the_frame_with_pixel_centres_at_integers():
     assert border_points((30, 50), per_side=5, dtype=torch.float64).dtype == torch.float64
     with pytest.raises(ValueError, match="per_side"):
         border_points((30, 50), per_side=1)
+
+
+def test_border_pairs_keep_frames_framed_alike_on_each_other():
+    # two crops of one scene, 6 px apart and 2% apart in scale: the frames correspond, as a morph tool assumes
+    gen = torch.Generator().manual_seed(3)
+    pa = 60 + 130 * torch.rand(20, 2, generator=gen)
+    pb = 128 + 1.02 * (pa - 128) + torch.tensor([6.0, -4.0])
+    ea, eb = border_pairs(pa, pb, (256, 256), (256, 256))
+    assert torch.equal(ea, border_points((256, 256))) and torch.equal(eb, border_points((256, 256)))
+
+
+def test_border_pairs_follow_the_pose_where_the_frames_do_not_correspond():
+    # a face that fills a tall portrait A, against the same face at the left edge of a wide group photograph B
+    # at 0.4 of its size: B's own corners would pin A's frame onto B's, across the face (the old behaviour)
+    gen = torch.Generator().manual_seed(4)
+    pa = torch.tensor([400.0, 500.0]) + 250 * torch.rand(30, 2, generator=gen)
+    pb = 0.4 * pa + torch.tensor([-100.0, 80.0])  # the face at x 60-160 of B's 1280 px
+    size_a, size_b = (2000, 900), (880, 1280)
+    ea, eb = border_pairs(pa, pb, size_a, size_b)
+    pose = estimate_alignment(pa.double(), pb.double(), "similarity")
+    posed = apply_alignment(pose, ea.double()).float()
+    own = border_points(size_b)
+    far = (posed - own).norm(dim=-1) > BORDER_SLACK * 1280
+    assert int(far.sum()) == 6  # only the bottom-left and left-middle ones agree with the pose here
+    # those keep B's own; the others go where the pose sends A's
+    torch.testing.assert_close(eb, torch.where(far[:, None], posed, own), atol=1e-3, rtol=0)
+    # and no border pair crosses a matched one (with B's own border, most of them did)
+    kept = usable_pairs(torch.cat([pa, ea]), torch.cat([pb, eb]), size_a, size_b)
+    both_a, both_b = torch.cat([pa, ea])[kept], torch.cat([pb, eb])[kept]
+    assert crossing_pairs(both_a, both_b).shape[0] == 0
+    assert crossing_pairs(torch.cat([pa, ea]), torch.cat([pb, own])).shape[0] > 0
 
 
 def test_two_faces_give_the_face_landmarks_and_the_border():

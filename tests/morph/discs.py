@@ -38,3 +38,24 @@ def aspect(frame):
     cx, cy = (w * xs).sum() / n, (w * ys).sum() / n
     vx, vy = (w * (xs - cx) ** 2).sum() / n, (w * (ys - cy) ** 2).sum() / n
     return float((vx / vy).sqrt())
+
+
+def crop_offset(marks, scale, extent, side, axis):
+    """Where the library's placement crops a picture of ``extent`` pixels along ``axis`` (0: x, 1: y), scaled by
+    ``scale`` onto a canvas ``side`` pixels long: the scaled picture's first pixel sits ``-offset`` pixels before
+    the canvas's, the median of ``marks`` ``(M, 2)`` centred on the canvas as far as the picture reaches. Written
+    from the rule, not from the library's code."""
+    centre = float(marks[:, axis].median())
+    return min(max(side / 2 - scale * (centre + 0.5), side - scale * extent), 0.0)
+
+
+def crop(picture, top, left, size):
+    """``picture`` ``(C, h, w)`` read at rows ``top .. top + H - 1`` and columns ``left .. left + W - 1`` of its
+    pixels (fractional starts read bilinearly), ``(C, H, W)``."""
+    H, W = size
+    for axis, start, n in ((1, top, H), (2, left, W)):
+        whole = int(start // 1)
+        frac = start - whole
+        lo = picture.narrow(axis, whole, n)
+        picture = lo if frac < 1e-9 else (1 - frac) * lo + frac * picture.narrow(axis, whole + 1, n)
+    return picture

@@ -1,7 +1,8 @@
 """Pictures as people bring them (#31): any colour model and any aspect ratio, nothing stretched or dropped.
 
 The frames take the richer colour model of the two pictures, and each picture lies on the output canvas by one
-scale factor for both axes (the smallest that covers it, centred): frame 0 is A so placed, the last frame B.
+scale factor for both axes (the smallest that covers it, the crop centred on its marks): frame 0 is A so placed,
+the last frame B.
 """
 
 import imageio.v3 as iio
@@ -9,11 +10,12 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from discs import aspect, disc, disc_marks, disc_picture
+from discs import aspect, crop, crop_offset, disc, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.io import resize_image, write_animation
 from torchfluidwarp.morph import Blending, NaturalSettings, morph
+from torchfluidwarp.morph.morphing import placement
 from torchfluidwarp.warp import identity_map
 
 FAST = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=False)
@@ -121,7 +123,7 @@ def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen)
     r = morph(a, b, pa, pb, frames=5, **FAST)
     H, W = size_a
     assert r.frames.shape == (5, 3, H, W)  # the canvas is A's size
-    # B's placement: one scale factor, the smallest that covers the canvas, centred
+    # B's placement: one scale factor, the smallest that covers the canvas, the crop centred on B's marks
     s = max(H / size_b[0], W / size_b[1])
     place = r.canvas_from_b
     assert float(place[0, 0]) == pytest.approx(s) and float(place[1, 1]) == pytest.approx(s)
@@ -133,8 +135,8 @@ def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen)
         scaled = resize_image(b[None], (h, w))[0]
     else:
         scaled = F.interpolate(b[None], size=(h, w), mode="bilinear", align_corners=False)[0]
-    top, left = (h - H) // 2, (w - W) // 2
-    torch.testing.assert_close(r.frames[-1], scaled[:, top : top + H, left : left + W], atol=1e-4, rtol=0)
+    top, left = (-crop_offset(pb, s, size_b[0], H, 1), -crop_offset(pb, s, size_b[1], W, 0))
+    torch.testing.assert_close(r.frames[-1], crop(scaled, top, left, (H, W)), atol=1e-4, rtol=0)
     torch.testing.assert_close(r.frames[0], a, atol=0, rtol=0)
     # B's disc stays a disc (the old resize to A's size made it an ellipse of aspect 1.6 or 0.67)
     assert aspect(r.frames[-1]) == pytest.approx(1.0, abs=0.04)
@@ -147,6 +149,27 @@ def test_neither_picture_is_stretched_and_b_marks_are_met_in_b_pixels(case, gen)
     canvas = identity_map((H, W), dtype=torch.float64)[0]
     want = apply_alignment(torch.linalg.inv(place), canvas)
     torch.testing.assert_close(r.maps_b[-1].double(), want, atol=1e-3, rtol=0)
+
+
+def test_a_feature_near_the_edge_of_a_wide_b_stays_on_the_canvas(gen):
+    # a group photograph: the marked face is near the left edge of a wide B, which a square canvas crops. A crop
+    # centred on the picture cut the face off (its marks 40 canvas pixels left of the canvas), so the morph
+    # carried A's face off the frame; centred on B's marks, the face stays whole on the canvas
+    size_a, centre_a, r_a = (64, 64), (32.0, 30.0), 14.0
+    size_b, centre_b, r_b = (64, 192), (20.0, 32.0), 12.0
+    a = disc_picture(size_a, centre_a, r_a, [0.9, 0.9, 0.9], gen)
+    b = disc_picture(size_b, centre_b, r_b, [0.9, 0.9, 0.9], gen)
+    pa, pb = disc_marks(centre_a, r_a), disc_marks(centre_b, r_b)
+    centred = apply_alignment(placement(size_b, size_a)[0], pb.double())
+    assert float(centred[:, 0].max()) < 0  # what the old, centred crop did: every mark off the canvas
+    r = morph(a, b, pa, pb, frames=5, **FAST)
+    marks = apply_alignment(r.canvas_from_b, pb.double())
+    # the picture's left edge on the canvas's (its marks cannot be centred further), the face whole on it
+    assert float(r.canvas_from_b[0, 2]) == pytest.approx(0.0)
+    assert float(marks[:, 0].min()) > 0 and float(marks[:, 0].max()) < 63
+    assert float(r.error.mean()) < 1.0  # and the morph meets them there
+    torch.testing.assert_close(r.frames[-1], b[..., :64], atol=1e-4, rtol=0)  # B at scale 1, its left part
+    assert aspect(r.frame(0.5)) == pytest.approx(1.0, abs=0.06)
 
 
 def test_the_output_size_is_a_setting(gen):

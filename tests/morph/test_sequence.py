@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from discs import aspect, disc_marks, disc_picture
+from discs import aspect, crop, crop_offset, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.io import resize_image
@@ -68,7 +68,7 @@ def test_the_average_of_two_shifted_images_sits_halfway_without_folds():
 
 
 SQUARE = ((64, 64), (32.0, 30.0), 14.0)
-TALL = ((160, 80), (40.0, 84.0), 20.0)  # 2:1; on the square canvas: scale 0.8, centre (32, 35.2), radius 16
+TALL = ((160, 80), (40.0, 84.0), 20.0)  # 2:1; on the square canvas: scale 0.8, radius 16, its marks centred
 FAST = dict(settings=NaturalSettings(grid=16, steps=4, max_iter=30), progress=False)
 
 
@@ -82,18 +82,18 @@ def test_a_later_picture_of_another_aspect_ratio_is_placed_on_the_first_canvas_n
     frames = seq.frames
     assert frames.shape == (7, 3, 64, 64)  # every segment on the first picture's canvas
     joint = frames[seq.counts[0] - 1]  # where the tall picture is shown
-    # it is the tall picture scaled by one factor, the smallest that covers the canvas, and cropped, centred
+    # it is the tall picture scaled by one factor, the smallest that covers the canvas, and cropped around its marks
     s = max(64 / 160, 64 / 80)
     h, w = round(160 * s), round(80 * s)
-    top, left = (h - 64) // 2, (w - 64) // 2
-    scaled = resize_image(images[1][None], (h, w))[0][:, top : top + 64, left : left + 64]
+    top, left = -crop_offset(sets[1], s, 160, 64, 1), -crop_offset(sets[1], s, 80, 64, 0)  # centred on its marks
+    scaled = crop(resize_image(images[1][None], (h, w))[0], top, left, (64, 64))
     torch.testing.assert_close(joint, scaled, atol=1e-4, rtol=0)
     # so its disc is a disc (resized to the canvas, it was an ellipse twice as wide as tall)
     assert aspect(joint) == pytest.approx(1.0, abs=0.04)
     for segment in seq.segments:  # and on the way to and from it
         assert aspect(segment.frame(0.5)) == pytest.approx(1.0, abs=0.06)
     # the segments meet the marks in the canvas's pixels, where the tall picture's are placed
-    placed = apply_alignment(placement(size_b, size_a)[0], sets[1].double())
+    placed = apply_alignment(placement(size_b, size_a, sets[1])[0], sets[1].double())
     torch.testing.assert_close(seq.segments[0].points.double(), placed, atol=1.0, rtol=0)
 
 
@@ -105,7 +105,7 @@ def test_the_average_places_each_picture_on_the_first_canvas_without_stretching(
     assert result.warped.shape == (2, 3, 64, 64) and result.image.shape == (3, 64, 64)
     # the mean shape, in the first picture's pixels, of the square's marks and the tall one's as placed on the
     # canvas: the two rim patterns are similar, so it is their plain mean (centre (31.95, 32.55), radius 15)
-    placed = apply_alignment(placement(size_b, size_a)[0], sets[1].double()).float()
+    placed = apply_alignment(placement(size_b, size_a, sets[1])[0], sets[1].double()).float()
     torch.testing.assert_close(result.points, 0.5 * (sets[0] + placed), atol=1e-4, rtol=0)
     assert float(result.errors.max()) < 0.5  # each picture's marks reached it (pixels)
     # the tall picture's disc stays a disc, warped to the mean shape, and so does the average's

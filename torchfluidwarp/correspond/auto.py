@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_size, warn
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import (
     FACE_MESH_INDICES,
@@ -39,6 +40,7 @@ __all__ = [
     "Note",
     "ValueHint",
     "auto_points",
+    "border_pairs",
     "border_points",
     "find_points",
     "usable_pairs",
@@ -160,6 +162,51 @@ def border_points(
     bottom = torch.stack([(1 - t) * x1, torch.full_like(t, y1)], -1)
     left = torch.stack([torch.zeros_like(t), (1 - t) * y1], -1)
     return torch.cat([top, right, bottom, left]).to(dtype)
+
+
+BORDER_SLACK = 0.1
+"""How far, as a fraction of B's longer side, B's own border point may lie from where the matched points' pose
+sends A's (:func:`border_pairs`) and still be its partner: pictures framed alike (two face crops) keep their
+frames on each other; a head-and-shoulders portrait against a group photograph does not."""
+
+
+def border_pairs(
+    points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], size_b: tuple[int, int], per_side: int = 3
+) -> tuple[Tensor, Tensor]:
+    """Border points for a pair of pictures, and their partners, consistent with what was matched.
+
+    A's :func:`border_points` are paired with B's own where the similarity that best maps the matched points
+    ``points_a`` onto ``points_b`` ``(M, 2)`` (M >= 2) sends them within :data:`BORDER_SLACK` of B's longer side:
+    the frames correspond, as a morph tool's border points assume. Elsewhere the partner is where the similarity
+    sends A's point: pinning frames that do not correspond (a face that fills A and sits at the edge of a group
+    photograph B) would drag the whole picture against the matched points, and the morph would swirl. Partners
+    outside B are left out later (:func:`usable_pairs`).
+
+    Args:
+        points_a, points_b: ``(M, 2)`` the matched points, pixels ``(x, y)`` of each picture.
+        size_a, size_b: the pictures' ``(H, W)``.
+        per_side: as for :func:`border_points`.
+
+    Returns:
+        ``(border_a, border_b)``, ``(4 * (per_side - 1), 2)`` each, in ``points_a``'s dtype and device.
+
+    Example:
+        >>> pa = torch.tensor([[40.0, 40.0], [60.0, 40.0], [50.0, 60.0]])
+        >>> ea, eb = border_pairs(pa, pa + 3, (100, 100), (100, 100))  # framed alike: B's own border
+        >>> torch.equal(eb, border_points((100, 100)))
+        True
+        >>> ea, eb = border_pairs(pa, pa / 2 + 5, (100, 100), (100, 100))  # A's face twice B's
+        >>> eb[:3].tolist()  # the top-left corners agree within 10 px; the pose sends the others inside B
+        [[0.0, 0.0], [29.75, 5.0], [54.5, 5.0]]
+    """
+    kw = dict(per_side=per_side, device=points_a.device, dtype=points_a.dtype)
+    ea, eb = border_points(size_a, **kw), border_points(size_b, **kw)
+    if points_a.shape[0] < 2:
+        return ea, eb
+    posed = apply_alignment(estimate_alignment(points_a.double(), points_b.double(), "similarity"), ea.double())
+    slack = BORDER_SLACK * max(size_b)
+    agree = (posed - eb.double()).norm(dim=-1) <= slack
+    return ea, torch.where(agree[:, None], eb, posed.to(eb.dtype))
 
 
 def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], size_b: tuple[int, int]) -> Tensor:
@@ -293,8 +340,8 @@ def find_points(
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
     if border is not None:
-        points_a = torch.cat([points_a, border_points(size_a, per_side=border, device=a.device, dtype=a.dtype)])
-        points_b = torch.cat([points_b, border_points(size_b, per_side=border, device=a.device, dtype=a.dtype)])
+        ea, eb = border_pairs(points_a, points_b, size_a, size_b, per_side=border)
+        points_a, points_b = torch.cat([points_a, ea]), torch.cat([points_b, eb])
     keep = usable_pairs(points_a, points_b, size_a, size_b)
     return FoundPoints(points_a[keep], points_b[keep], matcher, reason)
 
@@ -327,7 +374,8 @@ def auto_points(
             that lists them when there are several).
         names: the images' names in messages (their file names, say).
         border: points per image edge for :func:`border_points` (3: corners and edge midpoints), appended to
-            both lists; ``None`` for none.
+            both lists, paired as :func:`border_pairs` says (B's own border where the frames correspond, else
+            where the matched points' pose sends A's); ``None`` for none.
         max_points: the most feature matches (not counting the border).
         pixels: the lattice's points per side for ``match="pixels"``.
 

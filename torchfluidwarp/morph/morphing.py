@@ -139,20 +139,30 @@ def match_channels(image_a: Tensor, image_b: Tensor) -> tuple[Tensor, Tensor]:
     return convert(image_a), convert(image_b)
 
 
-def placement(size: tuple[int, int], canvas: tuple[int, int]) -> tuple[Tensor, float]:
+def placement(size: tuple[int, int], canvas: tuple[int, int], points: Tensor | None = None) -> tuple[Tensor, float]:
     """Where a picture of ``size`` ``(H, W)`` lies on the output ``canvas`` ``(H_c, W_c)``: the ``(3, 3)`` float64
     transform from its pixels to the canvas's, and its scale.
 
-    One scale factor for both axes (nothing is stretched), the smallest that covers the canvas, and centred: what
-    overflows the canvas is cropped. Pixel centres at integers, so a picture of the canvas's size is placed by
-    the identity: ``y = s (x + 0.5) + (W_c - s W) / 2 - 0.5``.
+    One scale factor for both axes (nothing is stretched), the smallest that covers the canvas; what overflows the
+    canvas is cropped. The crop is centred on the median of the picture's ``points`` ``(M, 2)`` (its pixels; the
+    median, so that a few border points do not outweigh a face's landmarks), as far as the picture reaches: the
+    marked content (a face at the edge of a group photograph) stays on the canvas. Without points, on the
+    picture. Pixel centres at integers, so a picture of the canvas's size is placed by the identity:
+    ``y = s (x + 0.5) + o - 0.5``, with the offset ``o`` between ``W_c - s W`` and ``0``.
     """
     (H, W), (Hc, Wc) = size, canvas
     s = max(Hc / H, Wc / W)
     out = torch.eye(3, dtype=torch.float64)
     out[0, 0] = out[1, 1] = s
-    out[0, 2] = 0.5 * s + 0.5 * (Wc - s * W) - 0.5
-    out[1, 2] = 0.5 * s + 0.5 * (Hc - s * H) - 0.5
+    for axis, (extent, side) in enumerate(((W, Wc), (H, Hc))):
+        low = side - s * extent  # <= 0: the offset that puts the picture's far edge on the canvas's
+        if points is None or points.shape[0] == 0 or low > -1e-9:
+            offset = 0.5 * low
+        else:
+            p = points[:, axis].double()
+            middle = s * (float(p.median()) + 0.5)  # the points' median on the scaled picture
+            offset = min(max(0.5 * side - middle, low), 0.0)
+        out[axis, 2] = 0.5 * s + offset - 0.5
     return out, s
 
 
@@ -247,8 +257,9 @@ def morph(
             ``Blending(size=...)`` does.
         image_b: ``(C_b, H_b, W_b)`` or ``(1, C_b, H_b, W_b)`` target image, of any size and aspect ratio. Neither
             picture is stretched: each is placed on the output canvas by one scale factor for both axes, the
-            smallest that covers it, centred (:func:`placement`), and read at its own resolution (a copy shrunk,
-            antialiased, when the canvas shows it smaller). Grey, grey + alpha, RGB and RGBA mix: the frames take
+            smallest that covers it, the crop centred on its points (:func:`placement`: a face near the edge of a
+            group photograph stays on the canvas), and read at its own resolution (a copy shrunk, antialiased, when
+            the canvas shows it smaller). Grey, grey + alpha, RGB and RGBA mix: the frames take
             the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
             integers); the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
@@ -356,7 +367,7 @@ def morph(
     check_marks(pa, pb, None if placed is None else placed.matcher)
     # each picture keeps its aspect ratio: placed on the canvas by one scale factor; the morph works in the
     # canvas's pixels and reads each picture through its placement, at (up to antialiasing) its own resolution
-    (place_a, scale_a), (place_b, scale_b) = placement(size_a, size), placement(size_b, size)
+    (place_a, scale_a), (place_b, scale_b) = placement(size_a, size, pa), placement(size_b, size, pb)
     place_a, place_b = place_a.to(a.device), place_b.to(a.device)
     pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
     M = pose(pa_c, pb_c, settings.align)  # canvas to canvas: A's place to B's

@@ -38,7 +38,7 @@ class MorphResult:
     * **the frames' pixels** (the canvas, ``(x, y)``, pixel centres at integers; image A's pixels unless
       ``Blending(size=...)`` sets another size): :attr:`trajectories`, :attr:`points`, :attr:`error` and the
       frames. These are the morph's figures: the pre-alignment is in them. Each picture lies on the canvas by one
-      scale factor for both axes, the smallest that covers it, centred (:attr:`canvas_from_a`,
+      scale factor for both axes, the smallest that covers it, the crop centred on its points (:attr:`canvas_from_a`,
       :attr:`canvas_from_b`): neither is stretched, and each is read at its own resolution. Frame 0 is A so
       placed, the last frame B so placed. :attr:`maps` are in A's own pixels and :attr:`maps_b` in B's.
     * **the fluid box's frame**: everything :attr:`fit` holds (its ``points``, ``trajectories``, ``error``,

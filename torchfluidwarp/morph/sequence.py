@@ -19,6 +19,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import torch
+from kornia.geometry.transform import warp_affine
 from torch import Tensor
 
 from torchfluidwarp._checks import check_instance, check_int, check_real, check_size
@@ -50,10 +51,18 @@ def _checked(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[T
     return out
 
 
-def _placed(image: Tensor, canvas: tuple[int, int]) -> Tensor:
+def _placed(image: Tensor, canvas: tuple[int, int], points: Tensor) -> Tensor:
     """``(3, 3)`` float64 on ``image``'s device: where :func:`~torchfluidwarp.morph.morph` places ``image``
-    ``(1, C, H, W)`` on ``canvas`` ``(H_c, W_c)``, from its pixels to the canvas's (:func:`placement`)."""
-    return placement((image.shape[-2], image.shape[-1]), canvas)[0].to(image.device)
+    ``(1, C, H, W)`` marked at ``points`` ``(M, 2)`` on ``canvas`` ``(H_c, W_c)``, from its pixels to the canvas's
+    (:func:`placement`)."""
+    return placement((image.shape[-2], image.shape[-1]), canvas, points)[0].to(image.device)
+
+
+def _on_canvas(image: Tensor, place: Tensor, canvas: tuple[int, int]) -> Tensor:
+    """``image`` ``(1, C, H, W)`` resampled (bilinear) onto ``canvas`` ``(H_c, W_c)`` through ``place`` ``(3, 3)``,
+    its pixels to the canvas's: ``(1, C, H_c, W_c)``, which :func:`placement` places by the identity."""
+    affine = place[:2].to(image.dtype).unsqueeze(0)
+    return warp_affine(image, affine, canvas, mode="bilinear", padding_mode="border", align_corners=True)
 
 
 class MorphSequence:
@@ -118,7 +127,8 @@ def morph_sequence(
 
     Every segment is a :func:`~torchfluidwarp.morph.morph` on one canvas, the first image's size (or
     ``blending.size``), so no picture is stretched: each keeps its aspect ratio, placed on the canvas by one scale
-    factor for both axes, the smallest that covers it, centred (:func:`~torchfluidwarp.morph.morphing.placement`),
+    factor for both axes, the smallest that covers it, the crop centred on its points
+    (:func:`~torchfluidwarp.morph.morphing.placement`),
     and read at its own resolution. The frames take the richest colour model of the images.
 
     Args:
@@ -139,7 +149,7 @@ def morph_sequence(
     first = pairs[0][0]
     canvas = (first.shape[-2], first.shape[-1]) if blending.size is None else check_size("blending.size", blending.size)
     on_canvas = replace(blending, size=canvas)
-    placed = [apply_alignment(_placed(im, canvas), p.double()) for im, p in pairs]  # (M, 2) canvas pixels each
+    placed = [apply_alignment(_placed(im, canvas, p), p.double()) for im, p in pairs]  # (M, 2) canvas pixels each
     n = check_int("frames", frames, minimum=len(images))
     travel = [max(_travel(a, b), 1e-6) for a, b in zip(placed, placed[1:])]
     segments = len(travel)
@@ -199,7 +209,7 @@ def average(
     """The average of ``images``: each warped to the mean shape of ``points`` by its own flow, then averaged.
 
     Each image is placed on the first image's canvas as :func:`~torchfluidwarp.morph.morph` places a picture (one
-    scale factor for both axes, the smallest that covers the canvas, centred:
+    scale factor for both axes, the smallest that covers the canvas, the crop centred on its points:
     :func:`~torchfluidwarp.morph.morphing.placement`), so none is stretched, and read at its own resolution. The
     mean shape: every point set, so placed, brought onto the first by a similarity (least squares), averaged, and
     placed where the sets' own centroids and scales are on average on the canvas.
@@ -218,7 +228,7 @@ def average(
     first = pairs[0][0]
     H, W = first.shape[-2:]
     canvas = (H, W)
-    places = [_placed(image, canvas) for image, _ in pairs]
+    places = [_placed(image, canvas, p) for image, p in pairs]
     sets = [apply_alignment(place, p.double()) for place, (_, p) in zip(places, pairs)]  # (M, 2) canvas pixels
     onto_first = [apply_alignment(estimate_alignment(p, sets[0], "similarity"), p) for p in sets]
     mean = torch.stack(onto_first).mean(0)
@@ -228,17 +238,16 @@ def average(
     back[:, 1].clamp_(-0.5, H - 0.5)
     warped, folded, errors = [], 0.0, []
     for place, (image, p) in zip(places, pairs):
-        # the mean shape in this image's own pixels: morph() places it back on the canvas, at `back`
-        target = apply_alignment(torch.linalg.inv(place), back)
-        h, w = image.shape[-2:]
-        target = torch.stack([target[:, 0].clamp(-0.5, w - 0.5), target[:, 1].clamp(-0.5, h - 0.5)], -1)
+        # B is the same picture already on the canvas, where morph() places it by the identity, marked at the
+        # mean shape `back` (a placement centred on `back` in the picture's own pixels would differ from A's)
+        on_canvas = _on_canvas(image, place, canvas)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
             result = morph(
                 image,
-                image,
+                on_canvas,
                 p,
-                target.to(p),
+                back.to(p),
                 settings=settings,
                 frames=2,
                 blending=Blending(size=canvas),

@@ -279,7 +279,8 @@ class Blending:
             ``"blend"`` (A and B cross-dissolved in place, with the colour's schedule).
         size: the output canvas ``(H, W)`` in pixels (an int: square); ``None``: image A's size. Each picture is
             placed on the canvas by one scale factor for both axes (never stretched), the smallest that covers the
-            canvas, centred: what overflows is cropped. Frame 0 is A so placed, the last frame B so placed.
+            canvas, the crop centred on the picture's points: what overflows is cropped. Frame 0 is A so placed, the
+            last frame B so placed.
     """
 
     feather: float = FEATHER
