@@ -2,11 +2,12 @@
 any frame of a morph? The fluid ``morph()`` against a thin-plate spline and a Delaunay morph of the same marks.
 
 Pairs: the demo (astronaut -> cat, 512 x 512, as ``torchfluidwarp demo``), and pictures of different framing,
-each placed on A's canvas by one scale factor (cover, centred): a square A with a 3:2 landscape B (the cat -> the
-astronaut's upper third, 300 x 200), a square A with a 150 x 225 portrait B and a 2:3 portrait A with a 3:2
-landscape B (faces of ``morph_quality_data.py``, 68 marks each; fetched on first use). The classical morphs go to
-the average shape on the same canvas (B's marks placed on it) and dissolve with ``warp_image`` (edge pixels held
-beyond a picture). The figures are ``torchfluidwarp.metrics.edges.border_seam``'s, worst over the frames.
+each placed on A's canvas by one scale factor (cover, the crop centred on its marks): a square A with a 3:2
+landscape B (the cat -> the astronaut's upper third, 300 x 200), a square A with a 150 x 225 portrait B and a 2:3
+portrait A with a 3:2 landscape B (faces of ``morph_quality_data.py``, 68 marks each; fetched on first use). The
+classical morphs go to the average shape on the same canvas (B's marks placed on it) and dissolve with
+``warp_image`` (edge pixels held beyond a picture). The figures are
+``torchfluidwarp.metrics.edges.border_seam``'s, worst over the frames.
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def classical(kind: str, pair: Pair, frames: int) -> tuple[Tensor, Tensor, Tenso
     ``(N, 3, H, W)`` and the maps into A's and B's own pixels ``(N, H, W, 2)``."""
     a, b, pa, pb = pair
     H, W = a.shape[-2:]
-    place_b, _ = placement((b.shape[-2], b.shape[-1]), (H, W))
+    place_b, _ = placement((b.shape[-2], b.shape[-1]), (H, W), pb)  # as morph() places B: on its marks
     to_b = torch.linalg.inv(place_b)
     maps_a, maps_b, out = [], [], []
     for s, ma, mb in classical_maps(kind, pa.double(), apply_alignment(place_b, pb.double()), H, W, frames):

@@ -7,7 +7,8 @@
 * :func:`~torchfluidwarp.correspond.features.match_features`: matched SIFT features (kornia; no weights),
   filtered by RANSAC and by their neighbours, thinned to a well-spread subset.
 * :func:`~torchfluidwarp.correspond.auto.auto_points`: faces when both images show one, features otherwise,
-  with :func:`~torchfluidwarp.correspond.auto.border_points` anchors;
+  with :func:`~torchfluidwarp.correspond.auto.border_points` anchors, paired as
+  :func:`~torchfluidwarp.correspond.auto.border_pairs` says (frame on frame only where the frames correspond);
   :func:`~torchfluidwarp.correspond.auto.find_points`: the same, with which matcher it used and why.
 * :func:`~torchfluidwarp.correspond.refine.refine_points`: the pixels add pairs to sparse ones, through a flow
   fitted to the images (:func:`~torchfluidwarp.control.images.fit_images`) with the pairs as anchors.
@@ -24,6 +25,7 @@ from torchfluidwarp.correspond.auto import (
     MatchNotice,
     Note,
     auto_points,
+    border_pairs,
     border_points,
     find_points,
 )
@@ -51,6 +53,7 @@ __all__ = [
     "NoFaceFound",
     "Note",
     "auto_points",
+    "border_pairs",
     "border_points",
     "detect_face_points",
     "find_faces",
