@@ -128,8 +128,8 @@ def morph_sequence(
     Every segment is a :func:`~torchfluidwarp.morph.morph` on one canvas, the first image's size (or
     ``blending.size``), so no picture is stretched: each keeps its aspect ratio, placed on the canvas by one scale
     factor for both axes, the smallest that covers it, the crop centred on its points
-    (:func:`~torchfluidwarp.morph.morphing.placement`),
-    and read at its own resolution. The frames take the richest colour model of the images.
+    (:func:`~torchfluidwarp.morph.morphing.placement`), and read at its own resolution. The frames take the
+    richest colour model of the images.
 
     Args:
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
