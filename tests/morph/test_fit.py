@@ -12,7 +12,16 @@ from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.morph.fit import MIN_AREA, MIN_POSE_FIT, RELEASE, fit_natural, fit_paper, pose, straight_paths
+from torchfluidwarp.morph.fit import (
+    MIN_AREA,
+    MIN_POSE_FIT,
+    RELEASE,
+    fit_natural,
+    fit_paper,
+    pose,
+    straight_paths,
+    warn_coarse_grid,
+)
 from torchfluidwarp.morph.settings import NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import solve_midpoints
 
@@ -174,3 +183,32 @@ def test_a_picture_narrower_than_the_lattices_spacing_gets_no_lattice_across_it(
     pb = pa + torch.tensor([[0.5, 0.5], [-0.5, 1.0], [0.5, -1.0], [0.0, 0.5]], dtype=torch.float64)
     fit, _, _ = fit_natural(pa, pb, (18, 8), NaturalSettings(grid=4, steps=2, dense=None), None, False)
     assert len(fit.forces.midpoints) == 4 and fit.trajectories.shape[2] == 4  # the marks alone
+
+
+def _lattice(spacing: float, n: int = 5) -> torch.Tensor:
+    ys, xs = torch.meshgrid(torch.arange(float(n)), torch.arange(float(n)), indexing="ij")
+    return 200.0 + spacing * torch.stack([xs, ys], -1).reshape(-1, 2)
+
+
+@pytest.mark.parametrize(
+    "spacing_px, error_px, warns",
+    [
+        (3.0, 2.0, True),  # 0.3 cells apart (10 px cells) and 2 px off: the slow fit of marks sharing cells
+        (20.0, 2.0, False),  # 2 cells apart: whatever left them off, a finer grid is not the remedy
+        (3.0, 0.5, False),  # met within LET_GO: nothing to say
+    ],
+)
+def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(spacing_px, error_px, warns):
+    points = _lattice(spacing_px)
+    error = torch.full((points.shape[0],), error_px)
+    box, grid = (800, 800), 80  # 10 pixels per cell
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn_coarse_grid(points, error, box, grid)
+    messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    if not warns:
+        assert messages == []
+        return
+    assert len(messages) == 1
+    assert f"{error_px:.1f} px" in messages[0] and "0.30 fluid cells apart" in messages[0]
+    assert "grid" in messages[0] and "max_iter" in messages[0] and "--grid" in messages[0]

@@ -199,8 +199,10 @@ def border_pairs(
         >>> eb[:3].tolist()  # the top-left corners agree within 10 px; the pose sends the others inside B
         [[0.0, 0.0], [29.75, 5.0], [54.5, 5.0]]
     """
-    kw = dict(per_side=per_side, device=points_a.device, dtype=points_a.dtype)
-    ea, eb = border_points(size_a, **kw), border_points(size_b, **kw)
+    ea, eb = (
+        border_points(size, per_side=per_side, device=points_a.device, dtype=points_a.dtype)
+        for size in (size_a, size_b)
+    )
     if points_a.shape[0] < 2:
         return ea, eb
     posed = apply_alignment(estimate_alignment(points_a.double(), points_b.double(), "similarity"), ea.double())

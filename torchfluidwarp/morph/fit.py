@@ -143,6 +143,35 @@ def warn_let_go(pa: Tensor, pb: Tensor, error: Tensor, placed_by: str) -> None:
         )
 
 
+MIN_SPACING = 1.0
+"""Fluid cells: marks that lie closer together than this (the median distance from each to its nearest, in A's
+frame) share cells, where the fit converges slowly (see :func:`warn_coarse_grid`). Face crops of 512 pixels put
+their 68 landmarks 1.2 to 2.3 cells apart on the default grid."""
+
+
+def warn_coarse_grid(points: Tensor, error: Tensor, box: tuple[int, int], grid: object) -> None:
+    """Warn when the marks end more than :data:`LET_GO` px from their targets on average (``error`` ``(M,)``, the
+    last frame's pixels) and lie closer together than :data:`MIN_SPACING` of the fluid's cells: ``points``
+    ``(M, 2)`` in A's frame, on a fluid box of ``box`` ``(H, W)`` pixels and a ``grid`` of cells.
+
+    The case: a small face in a large photograph morphed into a large face. Its marks share cells, the fit's 30
+    iterations leave them about a pixel off in A's frame, and the pre-alignment's zoom magnifies that in the last
+    frame (einstein -> obama2 of ``benchmarks/bench_framing.py``: 0.23 cells apart, 5.2 px at a 4.9x zoom; 3.5 px
+    with 100 iterations, 1.7 px on a grid of 160 cells)."""
+    if points.shape[0] < 2 or float(error.mean()) <= LET_GO:
+        return
+    gaps = torch.cdist(points.double(), points.double()).fill_diagonal_(math.inf)
+    spacing = float(gaps.min(1).values.median()) / mean_pixels_per_cell(box, grid)  # type: ignore[arg-type]
+    if spacing >= MIN_SPACING:
+        return
+    warn(
+        f"the marks end {float(error.mean()):.1f} px from their targets on average: they lie {spacing:.2f} fluid "
+        "cells apart in A (median), where the fit converges slowly; a finer grid or more iterations meet them "
+        "closer, at more time (NaturalSettings(grid=..., max_iter=...); the command line's --grid, --max-iter)",
+        RuntimeWarning,
+    )
+
+
 def _crossings(pa: Tensor, pb: Tensor) -> list[tuple[int, int]]:
     """:func:`crossing_pairs` as a list; none for fewer than 3 marks (no similarity to judge them by)."""
     return [] if pa.shape[0] < 3 else [(a, b) for a, b in crossing_pairs(pa, pb).tolist()]

@@ -48,6 +48,7 @@ from torchfluidwarp.morph.fit import (
     fit_paper,
     paper_flows,
     pose,
+    warn_coarse_grid,
     warn_let_go,
 )
 from torchfluidwarp.morph.regions import hull_mask
@@ -422,4 +423,6 @@ def morph(
     result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory)
     if placed is not None:
         warn_let_go(pa, pb, result.error, placed.matcher)
+    if isinstance(settings, NaturalSettings):
+        warn_coarse_grid(pa_c, result.error, roi, settings.grid)
     return result
