@@ -8,6 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.control import best_shift, fit_images, mse_loss
+from torchfluidwarp.control.images import shift_rivals
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.warp.forces import Brushes
 from torchfluidwarp.warp.frames import identity_map, warp_image
@@ -126,3 +127,20 @@ def test_pictures_that_no_shift_relates_do_not_warn(gen):
     _, by_shift = best_shift(source, target, mse_loss)
     assert by_shift > 0.75 * fit.initial_loss and fit.final_loss > 0.1 * fit.initial_loss  # the case this is about
     assert said == []
+
+
+@pytest.mark.parametrize(
+    "shift, by_shift, final, initial, size, rivals",
+    [
+        ((49.0, 0.0), 0.03444, 0.03189, 0.05433, (500, 741), True),  # the stereo motorcycle, the old defaults
+        ((16.0, 0.0), 0.020, 0.030, 0.100, (64, 64), True),  # a quarter of the picture out: still a motion
+        ((-269.0, -66.0), 0.5137, 0.3561, 0.8491, (354, 709), False),  # two plain masks: half out, worse
+        ((30.0, 0.0), 0.040, 0.030, 0.100, (64, 64), False),  # 47% out of the frame, worse than the fit
+        ((30.0, 0.0), 0.020, 0.030, 0.100, (64, 64), True),  # 47% out, but beating the fit outright
+        ((1.0, 1.0), 0.020, 0.030, 0.100, (64, 64), False),  # under 2 pixels
+        ((8.0, 0.0), 0.060, 0.030, 0.100, (64, 64), False),  # twice the fit's loss
+        ((8.0, 0.0), 0.040, 0.030, 0.050, (64, 64), False),  # removes a fifth of the mismatch only
+    ],
+)
+def test_a_shift_rivals_the_fit_only_when_it_is_a_plausible_motion(shift, by_shift, final, initial, size, rivals):
+    assert shift_rivals(torch.tensor(shift), by_shift, final, initial, size) is rivals

@@ -54,7 +54,7 @@ from torchfluidwarp.warp.frames import jacobian_determinant, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import iter_backward_maps
 
-__all__ = ["ImageFit", "LevelFit", "fit_images"]
+__all__ = ["ImageFit", "LevelFit", "fit_images", "shift_rivals"]
 
 SHIFT_CHECK = 0.1
 """A fit whose loss ends above this fraction of the starting loss is compared with the best plain shift of the
@@ -72,6 +72,35 @@ SHIFT_GAIN = 0.75
 """And only where that shift explains part of the mismatch itself, its loss at most this fraction of the starting
 loss: on pictures that no shift relates (noise against noise), the best shift barely moves the loss, and says
 nothing about the fit."""
+
+
+SHIFT_OUT = 1 / 3
+"""A shift that moves more than this share of the source out of the frame (``1 - (1 - |dx| / W) (1 - |dy| / H)``)
+rivals the fit only if it beats it outright (:data:`SHIFT_RIVAL` does not apply). Its copy is then mostly the
+source's edge pixels held, which a local loss scores as it does flat regions: two plain face masks side by side
+(709 x 354 and 680 x 366) found a shift by (-269, -66) px at 0.51 of a loss the flow had brought from 0.85 to
+0.36, and warned of a missed motion where there was none. A blob that truly crosses half a small picture is
+matched far better by its shift than by a flow that missed it, and still warns."""
+
+
+def shift_rivals(shift: Tensor, by_shift: float, final: float, initial: float, size: tuple[int, int]) -> bool:
+    """Whether a plain ``shift`` ``(2,)`` ``(dx, dy)`` pixels of a picture of ``size`` ``(H, W)``, at loss
+    ``by_shift``, rivals a fit that took the loss from ``initial`` to ``final``: a shift of at least 2 pixels,
+    within :data:`SHIFT_RIVAL` of the fit's loss (below it, if the shift moves more than :data:`SHIFT_OUT` of the
+    picture out of the frame), and removing a quarter of the starting loss itself (:data:`SHIFT_GAIN`).
+    :func:`fit_images` warns then.
+
+    Example:
+        >>> shift_rivals(torch.tensor([49.0, 0.0]), 0.03444, 0.03189, 0.05433, (500, 741))  # motorcycle, old defaults
+        True
+        >>> shift_rivals(torch.tensor([-269.0, -66.0]), 0.5137, 0.3561, 0.8491, (354, 709))  # two face masks
+        False
+    """
+    dx, dy = (abs(float(v)) for v in shift)
+    H, W = size
+    out = 1 - max(0.0, 1 - dx / W) * max(0.0, 1 - dy / H)
+    rival = SHIFT_RIVAL if out <= SHIFT_OUT else 1.0
+    return max(dx, dy) >= 2 and by_shift < min(rival * final, SHIFT_GAIN * initial)
 
 
 @dataclass
@@ -259,8 +288,9 @@ def fit_images(
     Warns:
         RuntimeWarning: the fitted map folds; or the fit ends above :data:`SHIFT_CHECK` of its starting loss and a
             plain shift of ``source`` (:func:`~torchfluidwarp.control.alignment.best_shift`) comes within
-            :data:`SHIFT_RIVAL` of it while removing at least a quarter of the starting loss (:data:`SHIFT_GAIN`):
-            the map may then be farther from the truth than no motion at all.
+            :data:`SHIFT_RIVAL` of it while removing at least a quarter of the starting loss (:data:`SHIFT_GAIN`)
+            (below it, for a shift that moves more than :data:`SHIFT_OUT` of the picture out of the frame;
+            :func:`shift_rivals`): the map may then be farther from the truth than no motion at all.
 
     Example:
         >>> yy, xx = torch.meshgrid(torch.arange(32.0), torch.arange(32.0), indexing="ij")
@@ -383,7 +413,7 @@ def fit_images(
         )
     if final > SHIFT_CHECK * initial:  # much of the mismatch is left: would the simplest motion do as well?
         shift, by_shift = best_shift(src, tgt, objective)
-        if float(shift.abs().max()) >= 2 and by_shift < min(SHIFT_RIVAL * final, SHIFT_GAIN * initial):
+        if shift_rivals(shift, by_shift, final, initial, (src.shape[-2], src.shape[-1])):
             dx, dy = (float(v) for v in shift)
             warn(
                 f"fit_images: a plain shift of source by ({dx:+.0f}, {dy:+.0f}) px matches target about as well as "
