@@ -171,3 +171,22 @@ def test_a_report_renders_each_frame_once_and_writes_the_same_animation(pair, tm
     reported = iio.imread(tmp_path / "reported.gif", index=None)
     assert plain.shape == reported.shape and (plain == reported).all()
     assert len(json.loads((tmp_path / "r.json").read_text())["path"]["distances"]) == 4
+
+
+def test_size_sets_the_frames_size_and_is_checked(pair, tmp_path, capsys):
+    a, b, pa, pb = pair
+    base = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "--frames", "3", *FAST]
+    out = tmp_path / "s.gif"
+    assert main([*base, "-o", str(out), "--size", "24", "36"]) == 0
+    assert iio.imread(out, index=None).shape[:3] == (3, 24, 36)  # H W
+    square = tmp_path / "q.gif"
+    assert main([*base, "-o", str(square), "--size", "30"]) == 0
+    assert iio.imread(square, index=None).shape[:3] == (3, 30, 30)
+    capsys.readouterr()
+    assert main([*base, "-o", str(tmp_path / "bad.gif"), "--size", "1", "2", "3"]) == 2
+    assert "--size takes 1 or 2 integers" in capsys.readouterr().err
+    # the work is estimated at the output's size, before any: 100 frames of 20000 x 20000 are refused at once
+    assert main([*base, "-o", str(tmp_path / "big.gif"), "--size", "20000", "--frames", "100"]) == 2
+    err = capsys.readouterr().err
+    assert "20000" in err and "--max-minutes" in err
+    assert not (tmp_path / "big.gif").exists()

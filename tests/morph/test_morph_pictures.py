@@ -172,6 +172,22 @@ def test_a_feature_near_the_edge_of_a_wide_b_stays_on_the_canvas(gen):
     assert aspect(r.frame(0.5)) == pytest.approx(1.0, abs=0.06)
 
 
+def test_marks_that_the_output_size_crops_away_are_left_out_with_a_warning(gen):
+    # a wide A cropped to a square canvas around its marks' median: its two outermost marks fall beyond the crop
+    a = disc_picture((40, 120), (60.0, 20.0), 10.0, [0.9, 0.9, 0.9], gen)
+    b = disc_picture((40, 120), (62.0, 21.0), 11.0, [0.9, 0.9, 0.9], gen)
+    pa = torch.cat([disc_marks((60.0, 20.0), 10.0), torch.tensor([[5.0, 20.0], [115.0, 20.0]])])
+    pb = torch.cat([disc_marks((62.0, 21.0), 11.0), torch.tensor([[6.0, 21.0], [114.0, 21.0]])])
+    with pytest.warns(RuntimeWarning, match=r"output size 40 x 40 .*crops image_a: 2 of its 7 points .*5, 6"):
+        r = morph(a, b, pa, pb, frames=3, blending=Blending(size=40), **FAST)
+    assert r.points.shape == (5, 2) and float(r.error.mean()) < 1.0  # the disc's marks are met
+    # marks spread over the whole width: the 40-pixel crop around their median keeps one
+    spread = torch.tensor([[5.0, 10.0], [35.0, 30.0], [60.0, 20.0], [85.0, 12.0], [115.0, 28.0]])
+    with pytest.raises(ValueError, match=r"only 1 of its 5 points stay on it") as caught:
+        morph(a, b, spread, spread + 1.0, frames=3, blending=Blending(size=40), **FAST)
+    assert caught.value.argument == "blending"
+
+
 def test_the_output_size_is_a_setting(gen):
     a = disc_picture((40, 40), (20.0, 20.0), 10.0, [0.9, 0.9, 0.9], gen)
     b = disc_picture((60, 30), (15.0, 30.0), 8.0, [0.9, 0.9, 0.9], gen)

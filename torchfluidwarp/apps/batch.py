@@ -42,7 +42,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from torchfluidwarp._checks import check_instance
+from torchfluidwarp._checks import check_instance, check_size
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, write_animation
@@ -302,7 +302,9 @@ def _morph_pair(
     b = read_image(pair.image_b).to(device)
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
-    check_disk_space(target, options.frames, a.shape[-2], a.shape[-1], a.shape[1])
+    size = options.blending.size
+    height, width = (a.shape[-2], a.shape[-1]) if size is None else check_size("blending.size", size)
+    check_disk_space(target, options.frames, height, width, a.shape[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = morph(

@@ -44,8 +44,10 @@ from torchfluidwarp.apps.cli_args import (
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
     check_result_output,
+    frame_shape,
     max_memory,
     morph_settings,
+    output_size,
     result_options,
     write_measured,
     write_report,
@@ -318,6 +320,9 @@ def _run_pairs(args: argparse.Namespace) -> int:
         raise InputError("--pairs needs --out DIR/, the folder for the outputs")
     # the whole batch's work, before any pair is morphed: the pairs a rerun skips add none
     work = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite)
+    size = output_size(args)
+    if size is not None:  # every pair's frames at --size
+        work = [(target, (shape[0], *size)) for target, shape in work]
     check_batch_work(args, work, args.frames, args.output)
     timing, blending = result_options(args)
     report = morph_pairs(
@@ -376,7 +381,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         with clock.part("load"):
             a, b = (read_image(path) for path in args.images)
         check_result_output(args, args.frames, a)  # before the points are searched for
-        check_work(args, args.output, 1 if args.frame is not None else args.frames, a.shape)
+        check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, a))
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
         if files:
             if args.save_points:
@@ -410,7 +415,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         with clock.part("load"):
             a, b = load_sample("astronaut"), load_sample("cat")
         check_result_output(args, args.frames, a)
-        check_work(args, args.output, 1 if args.frame is not None else args.frames, a.shape)
+        check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, a))
         with clock.part("points"):
             pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
         return _run_morph("demo", args, a, b, pa, pb)

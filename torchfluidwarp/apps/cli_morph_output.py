@@ -29,6 +29,7 @@ from torchfluidwarp.apps.cli_args import (
     check_disk_space,
     check_image_output,
     check_output,
+    count,
     progress_bar,
     timing,
 )
@@ -44,6 +45,8 @@ __all__ = [
     "morph_settings",
     "max_memory",
     "result_options",
+    "output_size",
+    "frame_shape",
     "check_result_output",
     "write_result",
     "write_measured",
@@ -52,7 +55,8 @@ __all__ = [
 
 
 def add_result_options(p: argparse.ArgumentParser) -> None:
-    """``--motion``, ``--blend``, ``--region``, ``--region-margin``, ``--background``, ``--frame``, ``--report``."""
+    """``--motion``, ``--blend``, ``--region``, ``--region-margin``, ``--background``, ``--frame``, ``--size``,
+    ``--report``."""
     p.add_argument(
         "--motion",
         metavar="SCHEDULE",
@@ -96,6 +100,15 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="write the single image at time T in [0, 1] to -o (an image file, e.g. --frame 0.5 -o mid.png: the "
         "middle image of a morph-attack set) instead of an animation",
+    )
+    p.add_argument(
+        "--size",
+        metavar="N",
+        nargs="+",
+        type=count(1),
+        default=None,
+        help="the frames' size in pixels: N (square) or H W (default: the first image's); each picture is placed "
+        "on them by one scale factor, the smallest that covers them, never stretched",
     )
     p.add_argument(
         "--report",
@@ -147,12 +160,31 @@ def max_memory(args: argparse.Namespace) -> float | None:
     return None if gib is None else gib * 2**30
 
 
+def output_size(args: argparse.Namespace) -> tuple[int, int] | None:
+    """``--size``: ``(H, W)`` pixels, or ``None`` (the first image's size)."""
+    size = getattr(args, "size", None)
+    if size is None:
+        return None
+    if len(size) > 2:
+        raise InputError(f"--size takes 1 or 2 integers (N, or H W), got {len(size)}: {' '.join(map(str, size))}")
+    return size[0], size[-1]
+
+
+def frame_shape(args: argparse.Namespace, image: Tensor) -> tuple[int, int, int]:
+    """``(C, H, W)`` of the frames a morph of ``image`` ``(1, C, H, W)`` (its first picture) writes: ``--size`` or
+    the picture's size."""
+    size = output_size(args)
+    H, W = (image.shape[-2], image.shape[-1]) if size is None else size
+    return image.shape[1], H, W
+
+
 def result_options(args: argparse.Namespace) -> tuple[Timing, Blending]:
     """The morph's :class:`~torchfluidwarp.morph.Timing` and :class:`~torchfluidwarp.morph.Blending` from the
     options (region masks are read here)."""
     timing = Timing(motion=args.motion, blend=args.blend)
+    size = output_size(args)
     if args.region is None:
-        return timing, Blending()
+        return timing, Blending(size=size)
     if args.region == "points":
         region: Any = "points"
     else:
@@ -160,7 +192,7 @@ def result_options(args: argparse.Namespace) -> tuple[Timing, Blending]:
         if len(files) != 2 or not all(files):
             raise InputError(f"--region takes 'points' or MASK_A,MASK_B (two image files), got {args.region!r}")
         region = tuple(read_image(f, channels=1)[0, 0] for f in files)
-    return timing, Blending(region=region, region_margin=args.region_margin, background=args.background)
+    return timing, Blending(region=region, region_margin=args.region_margin, background=args.background, size=size)
 
 
 def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) -> None:
@@ -169,7 +201,8 @@ def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) ->
         check_image_output(args.output, args.overwrite)
     else:
         check_output(args.output, args.overwrite)
-        check_disk_space(args.output, frames, image.shape[-2], image.shape[-1], image.shape[1])
+        channels, height, width = frame_shape(args, image)
+        check_disk_space(args.output, frames, height, width, channels)
     if args.report and Path(args.report).exists() and not args.overwrite:
         raise InputError(f"--report {args.report!r} already exists; pass --overwrite to replace it")
 

@@ -32,6 +32,7 @@ from torchfluidwarp.apps.cli_args import (
 )
 from torchfluidwarp.apps.cli_morph_output import (
     check_result_output,
+    frame_shape,
     max_memory,
     morph_settings,
     result_options,
@@ -93,7 +94,7 @@ def run_sequence(args: argparse.Namespace) -> int:
     settings = morph_settings(args)
     timing, blending = result_options(args)
     check_result_output(args, args.frames, pictures[0])
-    check_work(args, args.output, 1 if args.frame is not None else args.frames, pictures[0].shape)
+    check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, pictures[0]))
     progress = not args.quiet and sys.stderr.isatty()
     with clock.part("fit"):
         sequence = morph_sequence(

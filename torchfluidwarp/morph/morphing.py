@@ -167,6 +167,31 @@ def placement(size: tuple[int, int], canvas: tuple[int, int], points: Tensor | N
     return out, s
 
 
+def _marks_on_canvas(points: Tensor, canvas: tuple[int, int]) -> Tensor:
+    """``(M,)`` bool: which of A's marks ``points`` ``(M, 2)`` (canvas pixels) lie on the output ``canvas``
+    ``(H, W)`` that ``Blending.size`` crops A to. The others are left out with a warning that counts them; fewer
+    than 3 left is the caller's error."""
+    H, W = canvas
+    keep = (points[:, 0] >= -0.5) & (points[:, 0] <= W - 0.5) & (points[:, 1] >= -0.5) & (points[:, 1] <= H - 0.5)
+    dropped = (~keep).nonzero().flatten().tolist()
+    if not dropped:
+        return keep
+    what = f"the output size {H} x {W} (Blending.size; --size on the command line)"
+    if int(keep.sum()) < 3:
+        raise InputError(
+            f"{what} crops image_a so that only {int(keep.sum())} of its {len(keep)} points stay on it (3 are "
+            "needed): choose a size nearer image_a's aspect ratio, or mark what the crop shows",
+            argument="blending",
+        )
+    listed = ", ".join(map(str, dropped[:5])) + (" ..." if len(dropped) > 5 else "")
+    warn(
+        f"{what} crops image_a: {len(dropped)} of its {len(keep)} points lie beyond it and are left out of the "
+        f"morph (indices {listed})",
+        RuntimeWarning,
+    )
+    return keep
+
+
 def _at_scale(image: Tensor, scale: float) -> Tensor:
     """``image`` as it is read on the canvas: shrunk (antialiased, one factor for both axes up to the rounding of
     its size) when the canvas shows it smaller, so that the frames' bilinear reads do not alias; the renderer
@@ -371,6 +396,9 @@ def morph(
     (place_a, scale_a), (place_b, scale_b) = placement(size_a, size, pa), placement(size_b, size, pb)
     place_a, place_b = place_a.to(a.device), place_b.to(a.device)
     pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
+    if blending.size is not None:  # A cropped to another canvas: its marks beyond the crop are left out
+        keep = _marks_on_canvas(pa_c, size)
+        pa, pb, pa_c, pb_c = pa[keep], pb[keep], pa_c[keep], pb_c[keep]
     M = pose(pa_c, pb_c, settings.align)  # canvas to canvas: A's place to B's
     center = pa_c.mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
