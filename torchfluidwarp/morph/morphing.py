@@ -396,9 +396,8 @@ def morph(
     (place_a, scale_a), (place_b, scale_b) = placement(size_a, size, pa), placement(size_b, size, pb)
     place_a, place_b = place_a.to(a.device), place_b.to(a.device)
     pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
-    if blending.size is not None:  # A cropped to another canvas: its marks beyond the crop are left out
-        keep = _marks_on_canvas(pa_c, size)
-        pa, pb, pa_c, pb_c = pa[keep], pb[keep], pa_c[keep], pb_c[keep]
+    keep = _marks_on_canvas(pa_c, size)  # all of them on A's own canvas; a crop to another size may leave some out
+    pa, pb, pa_c, pb_c = pa[keep], pb[keep], pa_c[keep], pb_c[keep]
     M = pose(pa_c, pb_c, settings.align)  # canvas to canvas: A's place to B's
     center = pa_c.mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame

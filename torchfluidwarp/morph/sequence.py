@@ -19,7 +19,6 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import torch
-from kornia.geometry.transform import warp_affine
 from torch import Tensor
 
 from torchfluidwarp._checks import check_instance, check_int, check_real, check_size
@@ -28,6 +27,7 @@ from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettings, Timing
+from torchfluidwarp.warp.frames import identity_map, warp_image
 
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
@@ -61,8 +61,8 @@ def _placed(image: Tensor, canvas: tuple[int, int], points: Tensor) -> Tensor:
 def _on_canvas(image: Tensor, place: Tensor, canvas: tuple[int, int]) -> Tensor:
     """``image`` ``(1, C, H, W)`` resampled (bilinear) onto ``canvas`` ``(H_c, W_c)`` through ``place`` ``(3, 3)``,
     its pixels to the canvas's: ``(1, C, H_c, W_c)``, which :func:`placement` places by the identity."""
-    affine = place[:2].to(image.dtype).unsqueeze(0)
-    return warp_affine(image, affine, canvas, mode="bilinear", padding_mode="border", align_corners=True)
+    ident = identity_map(canvas, device=image.device, dtype=torch.float64)
+    return warp_image(image, apply_alignment(torch.linalg.inv(place), ident).to(image.dtype))
 
 
 class MorphSequence:
