@@ -16,8 +16,10 @@ from torchfluidwarp.morph.fit import (
     MIN_AREA,
     MIN_POSE_FIT,
     RELEASE,
+    FOCUS_MARGIN,
     fit_natural,
     fit_paper,
+    focus,
     pose,
     straight_paths,
     warn_coarse_grid,
@@ -212,3 +214,29 @@ def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(
     assert len(messages) == 1
     assert f"{error_px:.1f} px" in messages[0] and "0.30 fluid cells apart" in messages[0]
     assert "grid" in messages[0] and "max_iter" in messages[0] and "--grid" in messages[0]
+
+
+def _zoom(factor: float, centre: tuple[float, float]) -> torch.Tensor:
+    """``(3, 3)`` float64: a zoom by ``factor`` about ``centre`` ``(x, y)``."""
+    cx, cy = centre
+    return torch.tensor([[factor, 0, cx * (1 - factor)], [0, factor, cy * (1 - factor)], [0, 0, 1]], dtype=torch.float64)
+
+
+def test_the_fluid_covers_what_the_last_frame_shows_of_a_when_that_is_small():
+    points = torch.tensor([[95.0, 96.0], [101.0, 100.0], [98.0, 104.0]], dtype=torch.float64)
+    # a zoom by 4 about (100, 100) shows A's pixels 76 to 124 (the canvas's 200 px / 4, edges at -0.5 and 199.5
+    # mapped back: 100 + (-0.5 - 100) / 4 = 74.875 and 100 + 99.5 / 4 = 124.875), grown by a quarter of that
+    lo, hi = 100 - 100.5 / 4, 100 + 99.5 / 4
+    grow = FOCUS_MARGIN * (hi - lo)
+    x0, y0, x1, y1 = focus((200, 200), _zoom(4.0, (100.0, 100.0)), points)
+    assert (x0, y0) == (math.floor(lo - grow + 0.5),) * 2 and (x1, y1) == (math.ceil(hi + grow + 0.5),) * 2
+    # a mark that ends beyond what the last frame shows is inside the region too
+    far = torch.cat([points, points.new_tensor([[40.0, 150.0]])])
+    x0, y0, x1, y1 = focus((200, 200), _zoom(4.0, (100.0, 100.0)), far)
+    assert x0 <= 40 < x1 and y0 <= 150 < y1
+    # no zoom, or a zoom out: the last frame shows all of A, and the fluid covers the whole picture
+    assert focus((200, 200), torch.eye(3, dtype=torch.float64), points) is None
+    assert focus((200, 200), _zoom(0.5, (100.0, 100.0)), points) is None
+    # the region stays within the picture: a zoom about a point near its corner
+    x0, y0, x1, y1 = focus((200, 300), _zoom(4.0, (5.0, 5.0)), points.new_tensor([[5.0, 5.0], [8.0, 6.0], [6.0, 9.0]]))
+    assert (x0, y0) == (0, 0) and x1 < 300 / 2 and y1 < 200 / 2

@@ -154,10 +154,11 @@ def warn_coarse_grid(points: Tensor, error: Tensor, box: tuple[int, int], grid: 
     last frame's pixels) and lie closer together than :data:`MIN_SPACING` of the fluid's cells: ``points``
     ``(M, 2)`` in A's frame, on a fluid box of ``box`` ``(H, W)`` pixels and a ``grid`` of cells.
 
-    The case: a small face in a large photograph morphed into a large face. Its marks share cells, the fit's 30
-    iterations leave them about a pixel off in A's frame, and the pre-alignment's zoom magnifies that in the last
-    frame (einstein -> obama2 of ``benchmarks/bench_framing.py``: 0.23 cells apart, 5.2 px at a 4.9x zoom; 3.5 px
-    with 100 iterations, 1.7 px on a grid of 160 cells)."""
+    The case: marks that share cells, where the fit's 30 iterations leave them about a pixel off in A's frame and
+    the pre-alignment's zoom magnifies that in the last frame. A small face zoomed into a large one was the first
+    (einstein -> obama2 of ``benchmarks/bench_framing.py``: 0.23 cells apart, 5.2 px at a 4.9x zoom), until the
+    fluid covered only what the last frame shows (:func:`focus`: 0.20 px). Marks that share cells without a zoom
+    to focus on remain (obama3 -> breakingbad, whose border points hold the whole of A: 2.7 px)."""
     if points.shape[0] < 2 or float(error.mean()) <= LET_GO:
         return
     gaps = torch.cdist(points.double(), points.double()).fill_diagonal_(math.inf)
@@ -328,14 +329,54 @@ def _margin_for(
 
 
 def _frame(
-    pad: int, size: tuple[int, int], device: torch.device
+    pad: int, region: tuple[int, int, int, int], device: torch.device
 ) -> tuple[tuple[int, int, int, int], Tensor, tuple[float, float, float, float]]:
-    """The natural morph's fluid box around a picture of ``size`` ``(H, W)`` with ``pad`` pixels of margin: the
-    box ``(x0, y0, x1, y1)`` in A's pixels, the offset ``(2,)`` float64 from box pixels to A's, and the picture's
-    rectangle ``inside`` in box pixels (its pixels' outer edges)."""
+    """The natural morph's fluid box around the ``region`` ``(x0, y0, x1, y1)`` of A's pixels (``x1, y1``
+    exclusive) with ``pad`` pixels of margin: the box ``(x0, y0, x1, y1)`` in A's pixels, the offset ``(2,)``
+    float64 from box pixels to A's, and the region's rectangle ``inside`` in box pixels (its pixels' outer
+    edges)."""
+    x0, y0, x1, y1 = region
+    offset = torch.tensor([x0 - pad, y0 - pad], dtype=torch.float64, device=device)
+    inside = (pad - 0.5, pad - 0.5, pad + x1 - x0 - 0.5, pad + y1 - y0 - 0.5)
+    return (x0 - pad, y0 - pad, x1 + pad, y1 + pad), offset, inside
+
+
+FOCUS = 0.5
+"""The natural morph's fluid covers only what its last frame shows of A (:func:`focus`) when that is under this
+fraction of A's area: a small face in a wide photograph morphed into a large one."""
+
+FOCUS_MARGIN = 0.1
+""":func:`focus` grows the region the last frame shows by this fraction of its longer side on each side (the
+fluid's own margin, :data:`PAD`, lies beyond it). On the four zooms of ``benchmarks/bench_framing.py`` the marks
+end 0.13-0.57 px off at 0.1, 0.17-1.08 px at 0.25 (5.24 px at most over the whole picture)."""
+
+
+def focus(
+    size: tuple[int, int], alignment: Tensor, points: Tensor, canvas: tuple[int, int] | None = None
+) -> tuple[int, int, int, int] | None:
+    """The part of A, a region ``(x0, y0, x1, y1)`` of its pixels (``x1, y1`` exclusive), that the natural morph's
+    fluid covers when the last frame shows little of A; ``None``: the whole picture.
+
+    The last frame shows A's pixels where the pre-alignment ``alignment`` ``(3, 3)`` (A's pixels to the canvas's)
+    sends them onto the ``canvas`` ``(H, W)`` (default ``size``, A's). Where B's face is several times the size of
+    A's (a small face in a group photograph morphed into a portrait) that is a small part of A, and on the whole
+    picture the fluid's cells would be larger than the gaps between the marks, which the pre-alignment's zoom then
+    magnifies in the last frame. That part, the ``points`` ``(N, 2)`` (both ends of the marks' travel, A's
+    pixels) and :data:`FOCUS_MARGIN` around them, when under :data:`FOCUS` of A's area, is the region: the fluid's
+    cells shrink by the zoom, and the rest of A moves by the pre-alignment alone, as the posed border points of
+    :func:`~torchfluidwarp.correspond.auto.border_pairs` say it does."""
     H, W = size
-    offset = torch.tensor([-pad, -pad], dtype=torch.float64, device=device)
-    return (-pad, -pad, W + pad, H + pad), offset, (pad - 0.5, pad - 0.5, pad + W - 0.5, pad + H - 0.5)
+    h, w = canvas or size
+    corners = torch.tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]], dtype=torch.float64)
+    seen = apply_alignment(torch.linalg.inv(alignment.double().cpu()), corners)
+    lo = torch.minimum(seen.min(0).values.clamp(min=-0.5), points.double().cpu().min(0).values)
+    hi = torch.maximum(seen.max(0).values.clamp(max=torch.tensor([W - 0.5, H - 0.5])), points.double().cpu().max(0).values)
+    grow = FOCUS_MARGIN * float((hi - lo).max())
+    x0, y0 = (int(math.floor(max(float(v) - grow + 0.5, 0))) for v in lo)
+    x1, y1 = int(math.ceil(min(float(hi[0]) + grow + 0.5, W))), int(math.ceil(min(float(hi[1]) + grow + 0.5, H)))
+    if (x1 - x0) * (y1 - y0) >= FOCUS * H * W:
+        return None
+    return x0, y0, x1, y1
 
 
 def fit_natural(
@@ -348,6 +389,7 @@ def fit_natural(
     dense: Callable[[Tensor, Tensor], Callable[[Tensor], Tensor]] | None = None,
     found: bool = False,
     max_memory: float | None = None,
+    region: tuple[int, int, int, int] | None = None,
 ) -> tuple[KeyframeFit, tuple[int, int, int, int], Tensor]:
     """The natural morph's fit: straight paths, a thin-plate-spline kick, L-BFGS corrections (see
     :class:`~torchfluidwarp.morph.settings.NaturalSettings`), for the marks and for a lattice of points between
@@ -369,17 +411,20 @@ def fit_natural(
         max_memory: bytes the fit may set out to hold, checked by
             :func:`~torchfluidwarp.control.keyframes.fit_keyframes` on the grid as the margin widened it
             (``morph(max_memory=...)``; ``None``: its default).
+        region: ``(x0, y0, x1, y1)``, A's pixels (``x1, y1`` exclusive): the part of A the fluid covers
+            (:func:`focus`), which must hold the marks' ends; ``None``: the whole picture.
 
     Returns:
         The fit, in the box's frame, of the marks alone (the lattice's points are left out of its points, paths
-        and errors); the box ``(x0, y0, x1, y1)`` in A's pixels: the picture and :data:`PAD` of
-        its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where A's marks must end,
+        and errors); the box ``(x0, y0, x1, y1)`` in A's pixels: the picture (or the ``region``) and :data:`PAD`
+        of its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where A's marks must end,
         A's pixels (``target``, or where the pixels re-placed it when ``found``).
     """
-    H, W = size
+    region = region or (0, 0, size[1], size[0])
+    H, W = region[3] - region[1], region[2] - region[0]
     steps = settings.steps
     pad = max(1, round(PAD * max(H, W)))
-    box, offset, inside = _frame(pad, size, pa.device)
+    box, offset, inside = _frame(pad, region, pa.device)
     src = pa.double() - offset
     far = src.new_tensor([W + 1.5 * pad, H + 1.5 * pad])
 
@@ -406,7 +451,7 @@ def fit_natural(
             math.ceil(grid[1] * (W + 2 * wider) / (W + 2 * pad)),
         )
         pad, src, mids = wider, src + shift, mids + shift
-        box, offset, inside = _frame(pad, size, pa.device)
+        box, offset, inside = _frame(pad, region, pa.device)
         travel = _shifted(travel, -shift)  # it was made in the narrower box's pixels
     marks, weights = mids.shape[0], None
     if settings.lattice is not None:  # points between the marks, held on the paths of the whole travel too

@@ -46,6 +46,7 @@ from torchfluidwarp.morph.fit import (
     drop_repeats,
     fit_natural,
     fit_paper,
+    focus,
     paper_flows,
     pose,
     warn_coarse_grid,
@@ -272,7 +273,8 @@ def morph(
 
     * :class:`~torchfluidwarp.morph.settings.NaturalSettings` (default): every marked point travels on a straight
       line at constant speed, and the rest of the picture moves as a thin-plate spline between the points says,
-      in a compressible, inviscid fluid over the whole picture (its walls lie :data:`PAD` or more beyond the edges).
+      in a compressible, inviscid fluid over the whole picture (its walls lie :data:`PAD` or more beyond the edges),
+      or over the part of A the last frame shows when that is under half of it (:func:`~torchfluidwarp.morph.fit.focus`).
       Regions change size as the marks say; the maps never fold where the spline does not, and no box edge shows.
     * :class:`~torchfluidwarp.morph.settings.PaperSettings`: the paper's keyframe fit of a control grid of forces,
       so that the points reach their targets at the last step, in an incompressible fluid (every region keeps its
@@ -403,15 +405,23 @@ def morph(
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb_c)
     if isinstance(settings, NaturalSettings):
+        region = focus(size, M, torch.cat([pa_c, target]))  # a small part of A in the last frame: the fluid's box
         dense = None
         if settings.dense is not None:
-            to_a, to_b = torch.linalg.inv(place_a), torch.linalg.solve(place_b, M.to(place_b))
+            x0, y0, x1, y1 = region or (0, 0, W, H)  # the pixels align what the fluid covers
+            corner = torch.eye(3, dtype=torch.float64, device=a.device)
+            corner[0, 2], corner[1, 2] = x0, y0
+            to_a, to_b = torch.linalg.solve(place_a, corner), torch.linalg.solve(place_b, M.to(place_b) @ corner)
             options = replace(settings.dense, anchor=0.0) if found else settings.dense
+            at = corner[:2, 2]
 
             def dense(mids: Tensor, disp: Tensor) -> Callable[[Tensor], Tensor]:
-                return halfway_alignment(a, b, to_a, to_b, size, mids, disp, options)
+                residual = halfway_alignment(a, b, to_a, to_b, (y1 - y0, x1 - x0), mids - at, disp, options)
+                return lambda p: residual(p - at)
 
-        fit, box, target = fit_natural(pa_c, target, size, settings, warm_start, progress, dense, found, max_memory)
+        fit, box, target = fit_natural(
+            pa_c, target, size, settings, warm_start, progress, dense, found, max_memory, region
+        )
         pb_c = apply_alignment(M, target)  # where found marks end, the pixels placed them
     else:
         if settings.margin is None:

@@ -107,15 +107,18 @@ class NaturalSettings:
     spline between the points says, in a compressible, inviscid fluid over the whole picture.
 
     Each marked point travels on a straight line at constant speed. The fluid covers the picture and a margin of
-    :data:`~torchfluidwarp.morph.fit.PAD` around it, or more (its walls lie outside the picture); one kick at step 0
+    :data:`~torchfluidwarp.morph.fit.PAD` around it, or more (its walls lie outside the picture), or, where the
+    last frame shows under half of A (a small face zoomed into a large one), that part of A and its margin
+    (:func:`~torchfluidwarp.morph.fit.focus`: ``grid`` then spans the part, whose cells shrink by the zoom, and the
+    rest of A moves by the pre-alignment alone); one kick at step 0
     (:class:`~torchfluidwarp.warp.landmarks.LandmarkForces`) sets it moving, after which every particle coasts on
     a straight line (Burgers' equation), and ``max_iter`` L-BFGS iterations correct the kicks so that the points,
     and a lattice of points between them (``lattice``), stay on their paths at every step. Needs at least 3
     points, not all on one line.
 
     Attributes:
-        grid: fluid cells ``(h, w)`` (an int: square) over the picture and its margin: 80 x 80 cells are about
-            8 pixels each of a 512-pixel picture. Where the margin widens
+        grid: fluid cells ``(h, w)`` (an int: square) over the picture (or the part the fluid covers) and its
+            margin: 80 x 80 cells are about 8 pixels each of a 512-pixel picture. Where the margin widens
             (:data:`~torchfluidwarp.morph.fit.WALL_CLEARANCE`) the fluid gets more cells of the same size.
         steps: fluid steps ``T`` of the roll-out (time steps).
         viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
