@@ -13,6 +13,7 @@ from torchfluidwarp.core.grid import (
     cell_centres,
     cell_scale,
     cell_to_pixel,
+    inside_picture,
     mean_pixels_per_cell,
     normalized_affine,
     normalized_to_pixel,
@@ -177,3 +178,15 @@ def test_bad_arguments() -> None:
         normalized_affine((1, 5), align_corners=True)
     with pytest.raises(ValueError, match="grid"):
         cell_scale((10, 10), (1, 4))
+
+
+def test_inside_picture_holds_the_pixel_edges_and_nothing_beyond():
+    # a 20 x 10 picture covers x in [-0.5, 9.5], y in [-0.5, 19.5]: its outer pixel edges count, a hair beyond
+    # does not, on either axis, for any leading shape
+    eps = 1e-4
+    edges = torch.tensor([[-0.5, -0.5], [9.5, 19.5], [4.0, 7.0]])
+    beyond = torch.tensor([[-0.5 - eps, 3.0], [9.5 + eps, 3.0], [3.0, -0.5 - eps], [3.0, 19.5 + eps]])
+    assert inside_picture(edges, (20, 10)).all()
+    assert not inside_picture(beyond, (20, 10)).any()
+    batched = torch.stack([edges[:3], beyond[:3]])  # (2, 3, 2)
+    assert inside_picture(batched, (20, 10)).tolist() == [[True, True, True], [False, False, False]]

@@ -13,10 +13,10 @@ from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph.fit import (
+    FOCUS_MARGIN,
     MIN_AREA,
     MIN_POSE_FIT,
     RELEASE,
-    FOCUS_MARGIN,
     fit_natural,
     fit_paper,
     focus,
@@ -219,7 +219,9 @@ def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(
 def _zoom(factor: float, centre: tuple[float, float]) -> torch.Tensor:
     """``(3, 3)`` float64: a zoom by ``factor`` about ``centre`` ``(x, y)``."""
     cx, cy = centre
-    return torch.tensor([[factor, 0, cx * (1 - factor)], [0, factor, cy * (1 - factor)], [0, 0, 1]], dtype=torch.float64)
+    return torch.tensor(
+        [[factor, 0, cx * (1 - factor)], [0, factor, cy * (1 - factor)], [0, 0, 1]], dtype=torch.float64
+    )
 
 
 def test_the_fluid_covers_what_the_last_frame_shows_of_a_when_that_is_small():

@@ -14,8 +14,7 @@ from discs import aspect, crop, crop_offset, disc, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.io import resize_image, write_animation
-from torchfluidwarp.morph import Blending, NaturalSettings, morph
-from torchfluidwarp.morph import morphing
+from torchfluidwarp.morph import Blending, NaturalSettings, morph, morphing
 from torchfluidwarp.morph.morphing import placement
 from torchfluidwarp.warp import identity_map
 

@@ -34,7 +34,7 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.newton import MAX_FORWARDS, newton_start, startable_control
 from torchfluidwarp.control.optim import minimize
 from torchfluidwarp.core.fluid import Viscosity
-from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.core.grid import FluidGrid, inside_picture
 from torchfluidwarp.core.staggered import StaggeredGrid
 from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 from torchfluidwarp.warp.forces import ControlGrid
@@ -122,7 +122,7 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
     if batch is not None and p.shape[0] not in (1, batch):
         raise InputError(f"{name} must have batch size {batch} (or 1), got {tuple(p.shape)}")
     H, W = image_size
-    outside = (p[..., 0] < -0.5) | (p[..., 0] > W - 0.5) | (p[..., 1] < -0.5) | (p[..., 1] > H - 0.5)
+    outside = ~inside_picture(p, image_size)
     if bool(outside.any()):
         i = int(outside.flatten().nonzero()[0])
         raise InputError(

@@ -36,6 +36,7 @@ from torchfluidwarp._checks import check_size, check_tensor
 __all__ = [
     "FluidGrid",
     "interior_mask",
+    "inside_picture",
     "scale_factor",
     "cell_scale",
     "mean_pixels_per_cell",
@@ -142,6 +143,19 @@ def cell_scale(
         tensor([0.2000, 0.1000])
     """
     return scale_factor(image_size, FluidGrid.of(grid).shape, device=device, dtype=dtype)
+
+
+def inside_picture(points: Tensor, size: tuple[int, int]) -> Tensor:
+    """``(...)`` bool: which of ``points`` ``(..., 2)`` (pixels, ``(x, y)``) lie on a picture of ``size``
+    ``(H, W)``, edges included: ``x`` in ``[-0.5, W - 0.5]`` and ``y`` in ``[-0.5, H - 0.5]``.
+
+    Example:
+        >>> inside_picture(torch.tensor([[-0.5, 0.0], [10.0, 3.0], [3.0, 19.6]]), (20, 10))
+        tensor([ True, False, False])
+    """
+    H, W = size
+    x, y = points[..., 0], points[..., 1]
+    return (x >= -0.5) & (x <= W - 0.5) & (y >= -0.5) & (y <= H - 0.5)
 
 
 def mean_pixels_per_cell(image_size: tuple[int, int], grid: FluidGrid | int | tuple[int, int]) -> float:

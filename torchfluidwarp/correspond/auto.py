@@ -17,6 +17,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.core.grid import inside_picture
 from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import (
     FACE_MESH_INDICES,
@@ -218,12 +219,12 @@ def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], si
         points_a, points_b: ``(M, 2)`` pairs, pixels of images of ``size_a`` and ``size_b`` ``(H, W)``.
 
     Returns:
-        ``(M,)`` bool, True for the pairs kept (inside: ``x`` in ``[-0.5, W - 0.5]``, ``y`` likewise, the
+        ``(M,)`` bool, True for the pairs kept (inside: :func:`~torchfluidwarp.core.grid.inside_picture`, the
         bounds that :func:`~torchfluidwarp.control.keyframes.check_points` allows).
     """
     keep = torch.ones(len(points_a), dtype=torch.bool, device=points_a.device)
-    for p, (H, W) in ((points_a, size_a), (points_b, size_b)):
-        keep &= (p[:, 0] >= -0.5) & (p[:, 0] <= W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= H - 0.5)
+    for p, size in ((points_a, size_a), (points_b, size_b)):
+        keep &= inside_picture(p, size)
         close = torch.cdist(p, p) < 1.0
         keep &= ~torch.tril(close, diagonal=-1).any(dim=1)  # close to an earlier point
     return keep

@@ -35,7 +35,7 @@ from torchfluidwarp._checks import (
 )
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
-from torchfluidwarp.core.grid import FluidGrid, rescale_points, scale_factor
+from torchfluidwarp.core.grid import FluidGrid, inside_picture, rescale_points, scale_factor
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
@@ -173,7 +173,7 @@ def _marks_on_canvas(points: Tensor, canvas: tuple[int, int]) -> Tensor:
     ``(H, W)`` that ``Blending.size`` crops A to. The others are left out with a warning that counts them; fewer
     than 3 left is the caller's error."""
     H, W = canvas
-    keep = (points[:, 0] >= -0.5) & (points[:, 0] <= W - 0.5) & (points[:, 1] >= -0.5) & (points[:, 1] <= H - 0.5)
+    keep = inside_picture(points, canvas)
     dropped = (~keep).nonzero().flatten().tolist()
     if not dropped:
         return keep
@@ -274,7 +274,8 @@ def morph(
     * :class:`~torchfluidwarp.morph.settings.NaturalSettings` (default): every marked point travels on a straight
       line at constant speed, and the rest of the picture moves as a thin-plate spline between the points says,
       in a compressible, inviscid fluid over the whole picture (its walls lie :data:`PAD` or more beyond the edges),
-      or over the part of A the last frame shows when that is under half of it (:func:`~torchfluidwarp.morph.fit.focus`).
+      or over the part of A the last frame shows when that is under half of it
+      (:func:`~torchfluidwarp.morph.fit.focus`).
       Regions change size as the marks say; the maps never fold where the spline does not, and no box edge shows.
     * :class:`~torchfluidwarp.morph.settings.PaperSettings`: the paper's keyframe fit of a control grid of forces,
       so that the points reach their targets at the last step, in an incompressible fluid (every region keeps its
