@@ -9,8 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.control.images import FoldWarning
 from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice, auto_points, border_points, detect_face_points
-from torchfluidwarp.correspond.auto import BORDER_SLACK, border_pairs, usable_pairs
+from torchfluidwarp.correspond.auto import BORDER_SLACK, border_pairs, find_points, usable_pairs
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.morph.fit import crossing_pairs
 from torchfluidwarp.warp.frames import identity_map, warp_image
@@ -132,3 +133,21 @@ def test_pixels_place_a_lattice_where_no_feature_is_needed():
     assert pa.shape == pb.shape == (16, 2)
     # the cat's fur at 64 px: the fitted flow places the lattice within a pixel or so of the map
     assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 1.5
+
+
+def test_the_pixels_matcher_says_in_its_own_terms_that_its_flow_folds(recwarn):
+    # two unrelated smooth pictures: the flow that places the lattice crushes part of A onto itself (min det < 0).
+    # That flow only places points, so fit_images' advice (raise its regularization, which a matcher's caller
+    # cannot reach) is not passed on; the matcher's note says it, and is notable, so that morph() warns with it
+    gen = torch.Generator().manual_seed(0)
+    a, b = (
+        F.interpolate(torch.rand(1, 3, 8, 8, generator=gen), size=(48, 48), mode="bicubic").clamp(0, 1) for _ in "ab"
+    )
+    found = find_points(a, b, match="pixels", pixels=4, border=None)
+    assert found.matcher == "pixels" and 3 <= len(found.points_a) <= 16  # those the flow pushed out are dropped
+    assert found.reason.notable and "that flow folds in places" in found.reason.message
+    assert not [w for w in recwarn if issubclass(w.category, FoldWarning)]
+    # a pair the flow relates without a fold: the plain note, not notable
+    cat = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
+    plain = find_points(cat, warped(cat), match="pixels", pixels=4, border=None)
+    assert not plain.reason.notable and "folds" not in plain.reason.message

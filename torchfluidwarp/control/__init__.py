@@ -12,7 +12,7 @@
 """
 
 from torchfluidwarp.control.alignment import apply_alignment, best_shift, estimate_alignment, interpolate_alignment
-from torchfluidwarp.control.images import ImageFit, LevelFit, fit_images
+from torchfluidwarp.control.images import FoldWarning, ImageFit, LevelFit, fit_images
 from torchfluidwarp.control.keyframes import (
     KeyframeFit,
     check_points,
@@ -28,6 +28,7 @@ __all__ = [
     "best_shift",
     "estimate_alignment",
     "interpolate_alignment",
+    "FoldWarning",
     "ImageFit",
     "LevelFit",
     "fit_images",

@@ -54,7 +54,12 @@ from torchfluidwarp.warp.frames import jacobian_determinant, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import iter_backward_maps
 
-__all__ = ["ImageFit", "LevelFit", "fit_images", "shift_rivals"]
+__all__ = ["FoldWarning", "ImageFit", "LevelFit", "fit_images", "shift_rivals"]
+
+
+class FoldWarning(RuntimeWarning):
+    """:func:`fit_images`' fitted map folds: the flow crushes part of the source onto itself."""
+
 
 SHIFT_CHECK = 0.1
 """A fit whose loss ends above this fraction of the starting loss is compared with the best plain shift of the
@@ -286,7 +291,8 @@ def fit_images(
         FlowBlewUp: the flow blows up at the starting forces (an ``ArithmeticError``).
 
     Warns:
-        RuntimeWarning: the fitted map folds; or the fit ends above :data:`SHIFT_CHECK` of its starting loss and a
+        FoldWarning: (a ``RuntimeWarning``) the fitted map folds.
+        RuntimeWarning: the fit ends above :data:`SHIFT_CHECK` of its starting loss and a
             plain shift of ``source`` (:func:`~torchfluidwarp.control.alignment.best_shift`) comes within
             :data:`SHIFT_RIVAL` of it while removing at least a quarter of the starting loss (:data:`SHIFT_GAIN`)
             (below it, for a shift that moves more than :data:`SHIFT_OUT` of the picture out of the frame;
@@ -405,7 +411,7 @@ def fit_images(
             f"fit_images: the fitted map folds on {folded} of {det.numel()} pixels (min det "
             f"{float(min_det.min()):.3g}): the flow crushes part of the source onto itself; raise regularization "
             "for a calmer flow, at some cost in the loss",
-            RuntimeWarning,
+            FoldWarning,
         )
     if not math.isfinite(final):
         raise InputError(

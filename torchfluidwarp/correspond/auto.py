@@ -8,6 +8,7 @@ from faces or chose among several.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
@@ -17,6 +18,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.control.images import FoldWarning
 from torchfluidwarp.core.grid import inside_picture
 from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import (
@@ -313,10 +315,22 @@ def find_points(
     elif match == "pixels":
         none = a.new_zeros(0, 2)
         n = check_int("pixels", pixels)
-        refined = refine_points(a, b, none, none, extra=n)
+        with warnings.catch_warnings(record=True) as caught:  # the flow's own fold warning is said below, as ours
+            warnings.simplefilter("always")
+            refined = refine_points(a, b, none, none, extra=n)
+        folds = bool((refined[2].min_det <= 0).any())
+        for w in caught:
+            if not (folds and issubclass(w.category, FoldWarning)):  # the flow only places points
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         found = (refined[0], refined[1])
         matcher = "pixels"
-        reason = Note(f"placed {len(found[0])} points on a {n} x {n} lattice through a flow fitted to the pixels")
+        message = f"placed {len(found[0])} points on a {n} x {n} lattice through a flow fitted to the pixels"
+        if folds:  # pictures whose content does not correspond: the points there are guesses
+            message += (
+                "; that flow folds in places (it crushes part of image_a onto itself, as between pictures whose "
+                "content does not correspond), so points it placed there may cross, and the morph lets those go"
+            )
+        reason = Note(message, notable=folds)
     if found is None:
         found = match_features(a, b, max_points=max_points)
         count = len(found[0])
