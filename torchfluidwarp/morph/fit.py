@@ -367,12 +367,11 @@ def focus(
     :func:`~torchfluidwarp.correspond.auto.border_pairs` say it does."""
     H, W = size
     h, w = canvas or size
-    corners = torch.tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]], dtype=torch.float64)
-    seen = apply_alignment(torch.linalg.inv(alignment.double().cpu()), corners)
-    lo = torch.minimum(seen.min(0).values.clamp(min=-0.5), points.double().cpu().min(0).values)
-    hi = torch.maximum(
-        seen.max(0).values.clamp(max=torch.tensor([W - 0.5, H - 0.5])), points.double().cpu().max(0).values
-    )
+    m, p = alignment.double(), points.double()
+    corners = m.new_tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    seen = apply_alignment(torch.linalg.inv(m), corners)
+    lo = torch.minimum(seen.min(0).values.clamp(min=-0.5), p.min(0).values)
+    hi = torch.maximum(torch.minimum(seen.max(0).values, m.new_tensor([W - 0.5, H - 0.5])), p.max(0).values)
     grow = FOCUS_MARGIN * float((hi - lo).max())
     x0, y0 = (int(math.floor(max(float(v) - grow + 0.5, 0))) for v in lo)
     x1, y1 = int(math.ceil(min(float(hi[0]) + grow + 0.5, W))), int(math.ceil(min(float(hi[1]) + grow + 0.5, H)))
