@@ -76,6 +76,32 @@ def test_channel_conversions(tmp_path, gen):
     torch.testing.assert_close(luma[:, 0], expected)
 
 
+@pytest.mark.parametrize(
+    "orientation, upright",
+    [
+        (1, lambda a: a),
+        (3, lambda a: np.rot90(a, 2)),
+        (6, lambda a: np.rot90(a, -1)),  # a phone held upright: stored turned left, shown turned a quarter right
+        (8, lambda a: np.rot90(a, 1)),
+        (2, lambda a: a[:, ::-1]),
+        (4, lambda a: a[::-1]),
+    ],
+)
+def test_a_photograph_reads_upright_as_its_exif_orientation_says(tmp_path, gen, orientation, upright):
+    # every viewer shows a picture as its EXIF orientation tag says; read as stored, a phone's portrait would come
+    # out sideways (its faces unfound, its marks on the wrong pixels)
+    stored = (torch.rand(6, 10, 3, generator=gen) * 255).round().to(torch.uint8).numpy()
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "photo.png"
+    Image.fromarray(stored).save(path, exif=exif)
+    image = read_image(path)
+    want = torch.from_numpy(np.ascontiguousarray(upright(stored))).permute(2, 0, 1)[None].float() / 255
+    assert image.shape == want.shape
+    torch.testing.assert_close(image, want, atol=0, rtol=0)
+    torch.testing.assert_close(read_image_bytes(path.read_bytes()), want, atol=0, rtol=0)
+
+
 def test_gray_alpha_png_reads_as_rgba(tmp_path):
     Image.new("LA", (3, 2), (128, 64)).save(tmp_path / "la.png")
     image = read_image(tmp_path / "la.png")

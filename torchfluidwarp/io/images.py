@@ -67,7 +67,8 @@ def read_image(
 
     8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
     A multi-frame file (GIF, TIFF) gives its first frame. CMYK images are converted to RGB, and palette
-    images with a transparent colour to RGBA.
+    images with a transparent colour to RGBA. A photograph whose EXIF orientation says it is stored turned (a
+    phone's portrait) is turned upright, as viewers show it: ``H`` and ``W`` are those of the upright picture.
 
     Args:
         path: the image file; any format imageio reads (PNG, JPEG, GIF, TIFF, ...).
@@ -258,7 +259,7 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
         with iio.imopen(uri, "r") as file:
             shape = file.properties(index=0).shape
             too_large = len(shape) >= 2 and shape[0] * shape[1] > max_pixels
-            array = None if too_large else file.read(index=0, **_pillow_conversion(file))
+            array = None if too_large else file.read(index=0, **_pillow_options(file))
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
         match = _BOMB_PIXELS.search(str(exc))
         claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
@@ -278,18 +279,20 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     return array
 
 
-def _pillow_conversion(file: object) -> dict[str, str]:
-    """Pillow modes whose raw values would be misread: CMYK (4 channels, not RGBA) is read as RGB, and a palette
-    image with a transparent colour as RGBA (imageio would drop its alpha)."""
+def _pillow_options(file: object) -> dict[str, str | bool]:
+    """How Pillow reads the file as a person sees it: upright, as its EXIF orientation says (a phone's portrait is
+    stored sideways with a tag that every viewer follows), and in modes whose raw values would be misread: CMYK
+    (4 channels, not RGBA) as RGB, and a palette image with a transparent colour as RGBA (imageio would drop its
+    alpha)."""
     if not isinstance(file, PillowPlugin):
         return {}
     meta = file.metadata(index=0)
     mode = meta.get("mode")
     if mode == "CMYK":
-        return {"mode": "RGB"}
+        return {"rotate": True, "mode": "RGB"}
     if mode == "PA" or (mode == "P" and "transparency" in meta):
-        return {"mode": "RGBA"}
-    return {}
+        return {"rotate": True, "mode": "RGBA"}
+    return {"rotate": True}
 
 
 def _tensor_from_array(
