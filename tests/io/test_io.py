@@ -85,6 +85,8 @@ def test_channel_conversions(tmp_path, gen):
         (8, lambda a: np.rot90(a, 1)),
         (2, lambda a: a[:, ::-1]),
         (4, lambda a: a[::-1]),
+        (5, lambda a: a.transpose(1, 0, 2)),  # mirrored about the main diagonal
+        (7, lambda a: a[::-1, ::-1].transpose(1, 0, 2)),  # mirrored about the other diagonal
     ],
 )
 def test_a_photograph_reads_upright_as_its_exif_orientation_says(tmp_path, gen, orientation, upright):
