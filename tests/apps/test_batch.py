@@ -238,3 +238,34 @@ def test_a_killed_run_resumes_with_each_output_once_and_no_temporaries(tmp_path,
     assert [s["name"] for s in read_csv(out / "summary.csv")] == ["pair0", "pair1", "pair2"]
     for k in range(3):
         assert len(iio.imread(out / f"pair{k}.gif", index=None)) == 150
+
+
+def test_streamed_frames_hand_the_heaps_free_memory_back_after_each(monkeypatch):
+    # the frames pass unchanged, one at a time (nothing read ahead), and the C heap is trimmed once before the
+    # first (what the fit freed) and after each; where the C library has no malloc_trim, they pass all the same
+    calls = []
+    monkeypatch.setattr(batch, "_malloc_trim", lambda: lambda pad: calls.append(("trim", pad)))
+    frames = [torch.full((1, 2, 2), float(k)) for k in range(3)]
+
+    def produced():
+        for k, frame in enumerate(frames):
+            calls.append(("frame", k))
+            yield frame
+
+    stream = batch.returning_memory(produced())
+    first = next(stream)
+    assert first is frames[0] and calls == [("trim", 0), ("frame", 0)]
+    rest = list(stream)
+    assert rest == frames[1:]
+    assert calls == [("trim", 0), ("frame", 0), ("trim", 0), ("frame", 1), ("trim", 0), ("frame", 2), ("trim", 0)]
+    monkeypatch.setattr(batch, "_malloc_trim", lambda: None)
+    assert list(batch.returning_memory(iter(frames))) == frames
+
+
+def test_malloc_trim_is_glibcs_on_linux_and_none_elsewhere():
+    trim = batch._malloc_trim()
+    if not sys.platform.startswith("linux"):
+        assert trim is None
+        return
+    assert trim is not None
+    assert trim(0) in (0, 1)  # 1 if memory went back to the system

@@ -20,7 +20,6 @@ some pairs failed (listed in ``DIR/failures.csv``).
 from __future__ import annotations
 
 import argparse
-import ctypes
 import sys
 import warnings
 
@@ -66,14 +65,6 @@ __all__ = ["add_morph", "add_demo", "EXIT_SOME_FAILED"]
 
 EXIT_SOME_FAILED = 1
 """Exit status of ``morph --pairs`` when some pairs failed (the others were written)."""
-
-MMAP_THRESHOLD = 2**20
-"""Bytes from which the morph commands have glibc's ``malloc`` map each block on its own (``M_MMAP_THRESHOLD``),
-so that it goes back to the system when freed. glibc raises this threshold by itself, up to 32 MiB, each time a
-mapped block is freed; from then on the renderer's bands of a large frame (temporaries of 4 to 33 MB each, for a
-6000-pixel-wide frame) come from the heap, whose freed holes are seldom returned: the process grew by 1.6 GiB
-over three frames of a 6000 x 6000 morph although it held no more. Fixing the threshold stops that; the
-fit's small tensors stay below it."""
 
 # (flag, metavar, type, help) of the fields of the method's settings (NaturalSettings, PaperSettings) whose
 # default is the method's: not given (None), the settings class's default stands
@@ -349,20 +340,7 @@ def _run_pairs(args: argparse.Namespace) -> int:
     return EXIT_OK if report.ok else EXIT_SOME_FAILED
 
 
-def _return_freed_blocks() -> None:
-    """Fix glibc's mmap threshold at :data:`MMAP_THRESHOLD` for this process (the command line owns it); nothing
-    where the C library is not glibc or has no ``mallopt``."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
-        return
-    mallopt(-3, MMAP_THRESHOLD)  # M_MMAP_THRESHOLD (malloc.h); setting it turns off glibc's dynamic threshold
-
-
 def _cmd_morph(args: argparse.Namespace) -> int:
-    _return_freed_blocks()
     try:
         if args.pairs:
             return _run_pairs(args)
@@ -408,7 +386,6 @@ def _cmd_morph(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    _return_freed_blocks()
     try:
         args.output = args.output or "morph.gif"
         clock = clock_of(args)

@@ -22,7 +22,7 @@ from typing import Any, TypeVar
 
 from torch import Tensor
 
-from torchfluidwarp.apps.batch import stream_frames
+from torchfluidwarp.apps.batch import returning_memory, stream_frames
 from torchfluidwarp.apps.cli_args import (
     FRACTION,
     NON_NEGATIVE,
@@ -214,7 +214,8 @@ def write_result(
     ``(C, H, W)`` as another pass over them renders them); returns the path written."""
     if args.frame is not None:
         return write_image(args.output, result.frame(args.frame))
-    frames = progress_bar(stream_frames(result) if frames is None else frames, len(result), "frames", args.quiet)
+    frames = returning_memory(stream_frames(result) if frames is None else frames)
+    frames = progress_bar(frames, len(result), "frames", args.quiet)
     return write_animation(args.output, frames, fps=args.fps, overwrite=args.overwrite)
 
 
