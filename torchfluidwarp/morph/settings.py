@@ -128,7 +128,7 @@ class NaturalSettings:
         straightness: the weight on the fit's corrections to the points' straight-line velocities, in pixels^2 of
             point error per (pixel per time step)^2 of velocity correction, the same whatever the image or grid
             size; 0 (the default) lets the fit bend the paths as it needs to meet the marks (the bundled demo's
-            marks end 0.2 px from B's; 4.1 px at 3, the earlier default).
+            marks end 0.08 px from B's on average; 1.3 px at 3, the earlier default).
         max_iter: L-BFGS iterations of the fit (it starts on the straight paths, so few are needed).
         tolerance: pixels; the fit stops once every point is this close to its path at every step.
         align: the global pre-alignment from the points: ``"similarity"``, ``"affine"`` or ``None`` (``"none"``).
