@@ -351,24 +351,21 @@ fluid's own margin, :data:`PAD`, lies beyond it). On the four zooms of ``benchma
 end 0.13-0.57 px off at 0.1, 0.17-1.08 px at 0.25 (5.24 px at most over the whole picture)."""
 
 
-def focus(
-    size: tuple[int, int], alignment: Tensor, points: Tensor, canvas: tuple[int, int] | None = None
-) -> tuple[int, int, int, int] | None:
+def focus(size: tuple[int, int], alignment: Tensor, points: Tensor) -> tuple[int, int, int, int] | None:
     """The part of A, a region ``(x0, y0, x1, y1)`` of its pixels (``x1, y1`` exclusive), that the natural morph's
     fluid covers when the last frame shows little of A; ``None``: the whole picture.
 
-    The last frame shows A's pixels where the pre-alignment ``alignment`` ``(3, 3)`` (A's pixels to the canvas's)
-    sends them onto the ``canvas`` ``(H, W)`` (default ``size``, A's). Where B's face is several times the size of
-    A's (a small face in a group photograph morphed into a portrait) that is a small part of A, and on the whole
-    picture the fluid's cells would be larger than the gaps between the marks, which the pre-alignment's zoom then
-    magnifies in the last frame. That part, the ``points`` ``(N, 2)`` (both ends of the marks' travel, A's
-    pixels) and :data:`FOCUS_MARGIN` around them, when under :data:`FOCUS` of A's area, is the region: the fluid's
-    cells shrink by the zoom, and the rest of A moves by the pre-alignment alone, as the posed border points of
-    :func:`~torchfluidwarp.correspond.auto.border_pairs` say it does."""
+    The last frame shows A's pixels where the pre-alignment ``alignment`` ``(3, 3)`` (canvas pixels to canvas
+    pixels, A's place to B's) sends them onto the canvas of ``size`` ``(H, W)``. Where B's face is several times
+    the size of A's (a small face in a group photograph morphed into a portrait) that is a small part of A, and on
+    the whole picture the fluid's cells would be larger than the gaps between the marks, which the pre-alignment's
+    zoom then magnifies in the last frame. That part, the ``points`` ``(N, 2)`` (both ends of the marks' travel,
+    canvas pixels) and :data:`FOCUS_MARGIN` around them, when under :data:`FOCUS` of the canvas's area, is the
+    region: the fluid's cells shrink by the zoom, and the rest of A moves by the pre-alignment alone, as the posed
+    border points of :func:`~torchfluidwarp.correspond.auto.border_pairs` say it does."""
     H, W = size
-    h, w = canvas or size
     m, p = alignment.double(), points.double()
-    corners = m.new_tensor([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+    corners = m.new_tensor([[-0.5, -0.5], [W - 0.5, -0.5], [-0.5, H - 0.5], [W - 0.5, H - 0.5]])
     seen = apply_alignment(torch.linalg.inv(m), corners)
     lo = torch.minimum(seen.min(0).values.clamp(min=-0.5), p.min(0).values)
     hi = torch.maximum(torch.minimum(seen.max(0).values, m.new_tensor([W - 0.5, H - 0.5])), p.max(0).values)
