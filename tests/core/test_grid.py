@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from torchfluidwarp.core.grid import (
     FluidGrid,
+    SquareCells,
     cell_centres,
     cell_scale,
     cell_to_pixel,
@@ -190,3 +191,26 @@ def test_inside_picture_holds_the_pixel_edges_and_nothing_beyond():
     assert not inside_picture(beyond, (20, 10)).any()
     batched = torch.stack([edges[:3], beyond[:3]])  # (2, 3, 2)
     assert inside_picture(batched, (20, 10)).tolist() == [[True, True, True], [False, False, False]]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(16, 4000), st.integers(16, 4000), st.integers(64, 20000))
+def test_square_cells_are_square_and_as_many_as_asked(H: int, W: int, count: int) -> None:
+    h, w = SquareCells(count).over((H, W)).shape
+    # each axis is the exact square grid's side rounded (at least 2): its cells' aspect and the count are off by at
+    # most that half a cell on each axis
+    exact_h, exact_w = (count * H / W) ** 0.5, (count * W / H) ** 0.5
+    assert abs(h - max(2.0, exact_h)) <= 0.5 + 1e-9 and abs(w - max(2.0, exact_w)) <= 0.5 + 1e-9
+    if min(exact_h, exact_w) >= 8:
+        aspect = (H / h) / (W / w)  # a cell's height over its width
+        assert abs(aspect - 1) <= 0.5 / min(exact_h, exact_w) * 2.2
+        assert abs(h * w / count - 1) <= 0.5 / min(exact_h, exact_w) * 2.2
+
+
+def test_square_cells_keep_a_square_picture_s_grid_and_refuse_bad_counts() -> None:
+    assert SquareCells(6400).over((512, 512)) == FluidGrid(80, 80)
+    assert SquareCells(6400).over((970, 2204)).shape == (53, 121)
+    with pytest.raises(ValueError, match="SquareCells.count"):
+        SquareCells(3)
+    with pytest.raises(TypeError, match="SquareCells.count"):
+        SquareCells(80.0)  # type: ignore[arg-type]

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from torchfluidwarp.control.alignment import apply_alignment
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area
 from torchfluidwarp.errors import InputError
@@ -242,3 +243,29 @@ def test_the_fluid_covers_what_the_last_frame_shows_of_a_when_that_is_small():
     # the region stays within the picture: a zoom about a point near its corner
     x0, y0, x1, y1 = focus((200, 300), _zoom(4.0, (5.0, 5.0)), points.new_tensor([[5.0, 5.0], [8.0, 6.0], [6.0, 9.0]]))
     assert (x0, y0) == (0, 0) and x1 < 300 / 2 and y1 < 200 / 2
+
+
+def test_square_cells_on_a_wide_picture_meet_marks_that_stretched_cells_blur():
+    # a 48 x 240 picture: 21 marks 6 px apart along a row, pushed alternately up and down by 1 px; 576 cells either
+    # way. Square cells (about 7 px) resolve the alternation; 24 x 24 cells of 12 x 5 px cannot
+    xs = torch.arange(60.0, 181.0, 6.0, dtype=torch.float64)
+    row = torch.stack([xs, torch.full_like(xs, 24.0)], -1)
+    corners = torch.tensor([[20.0, 10.0], [220.0, 38.0], [20.0, 38.0], [220.0, 10.0]], dtype=torch.float64)
+    pa = torch.cat([row, corners])
+    pb = pa.clone()
+    pb[: len(xs), 0] += 2.0
+    pb[: len(xs), 1] += torch.tensor([(-1.0) ** i for i in range(len(xs))], dtype=torch.float64)
+    error = {}
+    for grid in (SquareCells(24 * 24), 24):
+        settings = NaturalSettings(grid=grid, steps=6, dense=None, lattice=None)
+        fit, box, _ = fit_natural(pa, pb, (48, 240), settings, None, False)
+        h, w = fit.warp.grid.shape
+        cell = ((box[3] - box[1]) / h, (box[2] - box[0]) / w)  # pixels per cell (tall, wide)
+        if isinstance(grid, SquareCells):
+            assert abs(cell[0] / cell[1] - 1) < 0.05  # (more than 576 of them: the margin widened)
+        else:
+            assert cell[1] / cell[0] > 2
+        error[grid] = fit.error[0]
+    # measured: 0.18 px on average (0.27 at most) on square cells, 0.74 (1.28) on stretched ones
+    assert float(error[SquareCells(576)].mean()) < 0.3 and float(error[SquareCells(576)].max()) < 0.5
+    assert float(error[24].mean()) > 2 * float(error[SquareCells(576)].mean())

@@ -10,6 +10,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.morph import (
     Blending,
     Matching,
@@ -43,7 +44,7 @@ def test_no_default_is_a_none_sentinel_resolved_per_method():
     for name, parameter in inspect.signature(morph).parameters.items():
         if name not in ("points_a", "points_b", "placed", "warm_start", "max_memory"):  # optional inputs
             assert parameter.default is not None, name
-    assert NaturalSettings().grid.shape == (80, 80) and PaperSettings().grid.shape == (64, 64)
+    assert NaturalSettings().grid == SquareCells(80 * 80) and PaperSettings().grid.shape == (64, 64)
     assert NaturalSettings().compressible is True and PaperSettings().compressible is False
     assert METHODS == {"natural": NaturalSettings, "paper": PaperSettings}
     assert NaturalSettings.method == "natural" and PaperSettings.method == "paper"

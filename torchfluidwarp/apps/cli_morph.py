@@ -69,7 +69,13 @@ EXIT_SOME_FAILED = 1
 # (flag, metavar, type, help) of the fields of the method's settings (NaturalSettings, PaperSettings) whose
 # default is the method's: not given (None), the settings class's default stands
 _MORPH_TUNING = (
-    ("--grid", "N", count(4), "fluid grid N x N cells (default 80 for natural, 64 for paper)"),
+    (
+        "--grid",
+        "N",
+        count(4),
+        "fluid grid N x N cells (default: natural, 6,400 square cells whatever the picture's shape, 80 x 80 on a "
+        "square one; paper, 64)",
+    ),
     (
         "--compressible",
         "W",

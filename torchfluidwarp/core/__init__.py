@@ -19,6 +19,7 @@ Nothing here knows about images, forces' parameters or fits; every layer above b
 
 from torchfluidwarp.core.grid import (
     FluidGrid,
+    SquareCells,
     cell_centres,
     cell_scale,
     cell_to_pixel,
@@ -54,6 +55,7 @@ from torchfluidwarp.core.staggered import StaggeredGrid
 
 __all__ = [
     "FluidGrid",
+    "SquareCells",
     "cell_centres",
     "cell_scale",
     "cell_to_pixel",

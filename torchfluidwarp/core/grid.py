@@ -26,15 +26,17 @@ below: :func:`scale_factor` and :func:`cell_scale` (per-axis length ratios, tens
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_size, check_tensor
+from torchfluidwarp._checks import check_int, check_size, check_tensor
 
 __all__ = [
     "FluidGrid",
+    "SquareCells",
     "interior_mask",
     "inside_picture",
     "scale_factor",
@@ -86,6 +88,31 @@ class FluidGrid:
     def staggered_shape(self) -> tuple[int, int]:
         """``(h + 1, w + 1)``: the spatial shape of a staggered velocity."""
         return (self.height + 1, self.width + 1)
+
+
+@dataclass(frozen=True)
+class SquareCells:
+    """About ``count`` fluid cells, square, over whatever rectangle the fluid covers: a grid that follows its box's
+    aspect ratio (:meth:`over`), where a :class:`FluidGrid` of as many rows as columns stretches its cells.
+
+    Args:
+        count: the number of cells (at least 4).
+
+    Example:
+        >>> SquareCells(6400).over((512, 512)).shape, SquareCells(6400).over((400, 900)).shape
+        ((80, 80), (53, 120))
+    """
+
+    count: int
+
+    def __post_init__(self) -> None:
+        check_int("SquareCells.count", self.count, minimum=4)
+
+    def over(self, size: tuple[int, int]) -> FluidGrid:
+        """The grid over a rectangle of ``size`` ``(H, W)`` (pixels, or any one unit): ``h = sqrt(count H / W)``
+        rows and ``w = sqrt(count W / H)`` columns, rounded, at least 2 each."""
+        H, W = check_size("size", size, minimum=1)
+        return FluidGrid(max(2, round(math.sqrt(self.count * H / W))), max(2, round(math.sqrt(self.count * W / H))))
 
 
 def interior_mask(grid: FluidGrid, *, device: torch.device | None = None, dtype: torch.dtype = torch.float32) -> Tensor:

@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from torchfluidwarp._checks import warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
-from torchfluidwarp.core.grid import FluidGrid, mean_pixels_per_cell
+from torchfluidwarp.core.grid import FluidGrid, SquareCells, mean_pixels_per_cell
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area_ratio
 from torchfluidwarp.errors import InputError
@@ -377,6 +377,13 @@ def focus(size: tuple[int, int], alignment: Tensor, points: Tensor) -> tuple[int
     return x0, y0, x1, y1
 
 
+def fluid_grid(settings: MorphSettings, box: tuple[int, int]) -> FluidGrid:
+    """The fluid's cells over a box of ``box`` ``(H, W)`` pixels: ``settings.grid``, square cells
+    (:class:`~torchfluidwarp.core.grid.SquareCells`) laid over the box."""
+    grid = settings.grid
+    return grid.over(box) if isinstance(grid, SquareCells) else FluidGrid.of(grid)  # type: ignore[arg-type]
+
+
 def fit_natural(
     pa: Tensor,
     target: Tensor,
@@ -437,7 +444,7 @@ def fit_natural(
         if found:  # the marks follow the pixels: A's marks travel where the whole travel D + R takes them
             mids = solve_midpoints(travel, src, -0.5)
             mids, disp = clear(mids, travel(mids))
-    grid = FluidGrid.of(settings.grid).shape
+    grid = fluid_grid(settings, (H + 2 * pad, W + 2 * pad)).shape
     wider = _margin_for(travel, inside, mids.device)
     uniform = not isinstance(settings.viscosity, (nn.Module, Tensor)) or settings.viscosity.ndim == 0
     # the walls move out, and the fluid's cells keep their size (a viscosity field or module is given over the
@@ -549,16 +556,17 @@ def fit_paper(
     ``settings.smoothness`` is scaled by the square of the pixels per fluid cell (its unit is fluid cells^2 per
     pixel^2 of point error); ``forces``: a previous fit's, to warm-start from; ``max_memory``: the limit of
     :func:`~torchfluidwarp.control.keyframes.fit_keyframes`' memory check (bytes; ``None``: its default)."""
+    grid = fluid_grid(settings, size)
     return fit_keyframes(
         source,
         target,
         steps=settings.steps,
         image_size=size,
-        grid=settings.grid,
+        grid=grid,
         control=settings.control,
         viscosity=settings.viscosity,
         compressible=settings.compressible,
-        smoothness=settings.smoothness * mean_pixels_per_cell(size, settings.grid) ** 2,
+        smoothness=settings.smoothness * mean_pixels_per_cell(size, grid) ** 2,
         max_iter=settings.max_iter,
         tolerance=settings.tolerance,
         forces=forces,

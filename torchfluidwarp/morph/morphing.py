@@ -47,6 +47,7 @@ from torchfluidwarp.morph.fit import (
     fit_natural,
     fit_paper,
     focus,
+    fluid_grid,
     paper_flows,
     pose,
     warn_coarse_grid,
@@ -389,10 +390,9 @@ def morph(
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
     size = size_a if blending.size is None else check_size("blending.size", blending.size)  # the canvas (H, W)
     H, W = size
-    estimate = _memory(size, a.shape[1], 1, steps, settings.grid, a.element_size())  # streamed
-    check_memory(
-        f"morph(frames={n}, steps={steps}, grid={settings.grid})", estimate, max_memory, "morph(max_memory=...)"
-    )
+    grid = fluid_grid(settings, size).shape  # over the picture; the fit's box adds its margin
+    estimate = _memory(size, a.shape[1], 1, steps, grid, a.element_size())  # streamed
+    check_memory(f"morph(frames={n}, steps={steps}, grid={grid})", estimate, max_memory, "morph(max_memory=...)")
     check_marks(pa, pb, None if placed is None else placed.matcher)
     # each picture keeps its aspect ratio: placed on the canvas by one scale factor; the morph works in the
     # canvas's pixels and reads each picture through its placement, at (up to antialiasing) its own resolution
@@ -462,5 +462,5 @@ def morph(
     if placed is not None:
         warn_let_go(pa, pb, result.error, placed.matcher)
     if isinstance(settings, NaturalSettings):
-        warn_coarse_grid(pa_c, result.error, roi, settings.grid)
+        warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid)
     return result

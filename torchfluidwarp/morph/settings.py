@@ -37,7 +37,7 @@ from torchfluidwarp._checks import (
     describe,
 )
 from torchfluidwarp.control.alignment import AlignKind
-from torchfluidwarp.core.grid import FluidGrid
+from torchfluidwarp.core.grid import FluidGrid, SquareCells
 from torchfluidwarp.correspond import HalfwaySettings, MatchMode
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.regions import Background
@@ -86,7 +86,7 @@ def _set(obj: object, name: str, value: object) -> None:
 def _check_flow(obj: NaturalSettings | PaperSettings) -> None:
     """The fields both methods share: the fluid, the fit's stopping rules, the pre-alignment, the inverse."""
     cls = type(obj).__name__
-    if not isinstance(obj.grid, FluidGrid):
+    if not isinstance(obj.grid, (FluidGrid, SquareCells)):
         _set(obj, "grid", FluidGrid(*check_size(f"{cls}.grid", obj.grid, minimum=2)))
     check_int(f"{cls}.steps", obj.steps)
     if isinstance(obj.viscosity, (int, float)):
@@ -117,9 +117,13 @@ class NaturalSettings:
     points, not all on one line.
 
     Attributes:
-        grid: fluid cells ``(h, w)`` (an int: square) over the picture (or the part the fluid covers) and its
-            margin: 80 x 80 cells are about 8 pixels each of a 512-pixel picture. Where the margin widens
-            (:data:`~torchfluidwarp.morph.fit.WALL_CLEARANCE`) the fluid gets more cells of the same size.
+        grid: the fluid's cells over the picture (or the part the fluid covers) and its margin:
+            :class:`~torchfluidwarp.core.grid.SquareCells` (the default, 6,400 square cells whatever the aspect
+            ratio: 80 x 80 on a square picture, about 8 pixels each of a 512-pixel one; 108 x 59 on a 970 x 2204
+            portrait), or ``(h, w)`` rows and columns (an int: as many rows as columns, so the cells stretch with
+            the picture). On the non-square photographs of ``benchmarks/bench_framing.py`` square cells meet the
+            marks closer than 80 x 80 stretched ones, in the same time (``docs/benchmarks.md``). Where the margin
+            widens (:data:`~torchfluidwarp.morph.fit.WALL_CLEARANCE`) the fluid gets more cells of the same size.
         steps: fluid steps ``T`` of the roll-out (time steps).
         viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
             ``(1, 1, h, w)`` or module (see :class:`~torchfluidwarp.warp.layer.FluidWarp`).
@@ -128,7 +132,7 @@ class NaturalSettings:
         straightness: the weight on the fit's corrections to the points' straight-line velocities, in pixels^2 of
             point error per (pixel per time step)^2 of velocity correction, the same whatever the image or grid
             size; 0 (the default) lets the fit bend the paths as it needs to meet the marks (the bundled demo's
-            marks end 0.08 px from B's on average; 1.3 px at 3, the earlier default).
+            marks end 0.02 px from B's on average; 1.3 px at 3, the earlier default).
         max_iter: L-BFGS iterations of the fit (it starts on the straight paths, so few are needed).
         tolerance: pixels; the fit stops once every point is this close to its path at every step.
         align: the global pre-alignment from the points: ``"similarity"``, ``"affine"`` or ``None`` (``"none"``).
@@ -152,7 +156,7 @@ class NaturalSettings:
 
     method: ClassVar[Method] = "natural"
 
-    grid: FluidGrid | int | tuple[int, int] = (80, 80)
+    grid: FluidGrid | SquareCells | int | tuple[int, int] = SquareCells(80 * 80)
     steps: int = 10
     viscosity: float | Tensor | nn.Module = 0.0
     compressible: bool | float = True
@@ -179,7 +183,8 @@ class PaperSettings:
     box around the points.
 
     Attributes:
-        grid: fluid cells ``(h, w)`` (an int: square) over the fluid's box.
+        grid: fluid cells ``(h, w)`` (an int: as many rows as columns) over the fluid's box, or square cells
+            laid over it (:class:`~torchfluidwarp.core.grid.SquareCells`).
         steps: fluid steps ``T`` of the roll-out (time steps).
         control: ``(K_y, K_x)`` control points per step of the fitted force grid (an int: square).
         viscosity: the fluid's viscosity, fluid cells^2 per time step (0: inviscid), or a viscosity field
@@ -202,7 +207,7 @@ class PaperSettings:
 
     method: ClassVar[Method] = "paper"
 
-    grid: FluidGrid | int | tuple[int, int] = (64, 64)
+    grid: FluidGrid | SquareCells | int | tuple[int, int] = (64, 64)
     steps: int = 10
     control: int | tuple[int, int] = (8, 8)
     viscosity: float | Tensor | nn.Module = 0.0
