@@ -36,6 +36,7 @@ from torchfluidwarp._checks import check_int, check_positive
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.losses import local_ncc2
 from torchfluidwarp.control.optim import minimize
+from torchfluidwarp.core.grid import pixel_to_normalized
 from torchfluidwarp.core.sampling import sample
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.errors import InputError
@@ -110,7 +111,7 @@ class HalfwayAlignment:
 
     def __call__(self, points: Tensor) -> Tensor:
         """``R`` at ``points`` ``(N, 2)`` canvas pixels (bilinear; held at the raster's edge beyond it), ``(N, 2)``."""
-        g = _normalised(points, self.size).view(1, 1, -1, 2).to(self.residual.dtype)
+        g = pixel_to_normalized(points, self.size).view(1, 1, -1, 2).to(self.residual.dtype)
         out = sample(self.residual, g, align_corners=False, check=None)[0, :, 0].T
         return out.to(points.dtype)
 
@@ -127,12 +128,6 @@ def _raster(size: tuple[int, int], long: int, device: torch.device) -> tuple[tup
     return (h, w), torch.stack([gx, gy], -1)
 
 
-def _normalised(points: Tensor, size: tuple[int, int]) -> Tensor:
-    """Pixels ``(..., 2)`` of a picture of ``size`` to ``grid_sample``'s ``[-1, 1]`` (``align_corners=False``)."""
-    H, W = size
-    return torch.stack([(2 * points[..., 0] + 1) / W - 1, (2 * points[..., 1] + 1) / H - 1], -1)
-
-
 def _on_canvas(image: Tensor, from_canvas: Tensor, at: Tensor) -> Tensor:
     """``image`` ``(1, C, H_i, W_i)`` read at canvas points ``at`` ``(h, w, 2)`` through ``from_canvas`` ``(3, 3)``
     (canvas pixels to the picture's), as grey plus a coverage channel, ``(1, 2, h, w)`` float64. Where the raster
@@ -147,7 +142,7 @@ def _on_canvas(image: Tensor, from_canvas: Tensor, at: Tensor) -> Tensor:
         small = (max(2, round(size[0] / spacing)), max(2, round(size[1] / spacing)))
         grey = F.interpolate(grey, size=small, mode="bilinear", antialias=True, align_corners=False)
     grey = grey.double()
-    g = _normalised(points, size).unsqueeze(0).to(grey.dtype)
+    g = pixel_to_normalized(points, size).unsqueeze(0).to(grey.dtype)
     x, y = points[..., 0], points[..., 1]
     depth = torch.minimum(torch.minimum(x + 0.5, size[1] - 0.5 - x), torch.minimum(y + 0.5, size[0] - 0.5 - y))
     covered = (depth + 0.5).clamp(0, 1).to(grey.dtype)[None, None]  # 1 inside, 0 a pixel beyond the edge
@@ -217,8 +212,8 @@ class _Level:
     def image_term(self, field: Tensor) -> tuple[Tensor, Tensor]:
         """``mean_valid(1 - ncc^2)`` of the pictures read through the travel ``field``, and the valid mask."""
         half = field.permute(0, 2, 3, 1)[0] / 2  # (h, w, 2)
-        ga = _normalised(self.at - half, self.size).unsqueeze(0)
-        gb = _normalised(self.at + half, self.size).unsqueeze(0)
+        ga = pixel_to_normalized(self.at - half, self.size).unsqueeze(0)
+        gb = pixel_to_normalized(self.at + half, self.size).unsqueeze(0)
         wa = sample(self.ca, ga, align_corners=False, check=None)  # finite: the travel is a spline plus R
         wb = sample(self.cb, gb, align_corners=False, check=None)
         valid = (wa[:, 1:] * wb[:, 1:]).detach()

@@ -220,6 +220,26 @@ def read(image: Tensor, coords: Tensor, size: tuple[int, int]) -> Tensor:
     return sample_map(image, coords, "bilinear")
 
 
+def on_canvas(
+    image: Tensor,
+    place: Tensor,
+    canvas: tuple[int, int],
+    rows: tuple[int, int] | None = None,
+    size: tuple[int, int] | None = None,
+) -> Tensor:
+    """A picture placed on a canvas of ``canvas`` ``(H, W)`` pixels: ``(1, C, r1 - r0, W)``, the canvas's rows
+    ``rows`` ``(r0, r1)`` (``None``: all), bilinear.
+
+    ``place`` ``(3, 3)`` takes the picture's pixels to the canvas's
+    (:func:`~torchfluidwarp.morph.morphing.placement`); ``image`` ``(1, C, h, w)`` is the picture of ``size``
+    ``(H_p, W_p)`` or a resized copy of it (:func:`read`; ``None``: the picture itself)."""
+    r0, r1 = rows or (0, canvas[0])
+    ident = identity_map((r1 - r0, canvas[1]), device=image.device, dtype=torch.float64)
+    ident = ident + ident.new_tensor([0.0, float(r0)])
+    coords = apply_alignment(torch.linalg.inv(place.double()), ident).to(image.dtype)
+    return read(image, coords, size or (image.shape[-2], image.shape[-1]))
+
+
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
     """Read a map ``(1, h, w, 2)`` at pixel positions ``(1, H, W, 2)`` of its grid (bilinear).
 
@@ -306,13 +326,10 @@ class Scene:
             (self.a, self.size_a, self.place_a) if which == "a" else (self.b, self.size_b, self.place_b)
         )
         assert size is not None and place is not None
-        H, W = self.size
         identity = torch.eye(3, dtype=place.dtype, device=place.device)
-        if (H, W) == tuple(size) == tuple(image.shape[-2:]) and bool((place == identity).all()):
+        if tuple(self.size) == tuple(size) == tuple(image.shape[-2:]) and bool((place == identity).all()):
             return image[:, :, rows[0] : rows[1]]  # the picture itself: no resampling
-        ident = identity_map((rows[1] - rows[0], W), device=image.device, dtype=torch.float64)
-        ident = ident + ident.new_tensor([0.0, float(rows[0])])
-        return read(image, apply_alignment(torch.linalg.inv(place), ident).to(image.dtype), size)
+        return on_canvas(image, place, self.size, rows, size)
 
 
 @dataclass

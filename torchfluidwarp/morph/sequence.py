@@ -25,9 +25,9 @@ from torchfluidwarp._checks import check_instance, check_int, check_real, check_
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
+from torchfluidwarp.morph.render import on_canvas
 from torchfluidwarp.morph.result import MorphResult
 from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettings, Timing
-from torchfluidwarp.warp.frames import identity_map, warp_image
 
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
@@ -56,13 +56,6 @@ def _placed(image: Tensor, canvas: tuple[int, int], points: Tensor) -> Tensor:
     ``(1, C, H, W)`` marked at ``points`` ``(M, 2)`` on ``canvas`` ``(H_c, W_c)``, from its pixels to the canvas's
     (:func:`placement`)."""
     return placement((image.shape[-2], image.shape[-1]), canvas, points)[0].to(image.device)
-
-
-def _on_canvas(image: Tensor, place: Tensor, canvas: tuple[int, int]) -> Tensor:
-    """``image`` ``(1, C, H, W)`` resampled (bilinear) onto ``canvas`` ``(H_c, W_c)`` through ``place`` ``(3, 3)``,
-    its pixels to the canvas's: ``(1, C, H_c, W_c)``, which :func:`placement` places by the identity."""
-    ident = identity_map(canvas, device=image.device, dtype=torch.float64)
-    return warp_image(image, apply_alignment(torch.linalg.inv(place), ident).to(image.dtype))
 
 
 class MorphSequence:
@@ -240,12 +233,12 @@ def average(
     for place, (image, p) in zip(places, pairs):
         # B is the same picture already on the canvas, where morph() places it by the identity, marked at the
         # mean shape `back` (a placement centred on `back` in the picture's own pixels would differ from A's)
-        on_canvas = _on_canvas(image, place, canvas)
+        placed = on_canvas(image, place, canvas)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
             result = morph(
                 image,
-                on_canvas,
+                placed,
                 p,
                 back.to(p),
                 settings=settings,
