@@ -1,9 +1,10 @@
 """The input validators shared by the public functions."""
 
+import numpy as np
 import pytest
 import torch
 
-from torchfluidwarp._checks import all_finite, check_tensor
+from torchfluidwarp._checks import all_finite, check_picture, check_tensor, describe
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
@@ -23,3 +24,33 @@ def test_all_finite_is_not_fooled_by_a_sum_that_overflows():
     x[0] = float("inf")
     x[1] = float("-inf")
     assert not all_finite(x)
+
+
+def test_describe_says_an_arrays_shape_and_dtype_never_its_values_and_cuts_long_reprs():
+    array = np.zeros((1137, 910, 3), dtype=np.uint8)
+    assert describe(array) == "numpy.ndarray of shape (1137, 910, 3) and dtype uint8"
+    text = describe(list(range(1000)))
+    assert text.startswith("list [0, 1, 2") and text.endswith("...") and len(text) < 100
+    assert describe("abc") == "str 'abc'"
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [
+        (np.zeros((16, 16, 3), dtype=np.uint8), r"got numpy.ndarray of shape \(16, 16, 3\).*torch.from_numpy"),
+        (torch.zeros(3, 16, 16, dtype=torch.uint8), r"dtype torch.uint8.*\.float\(\) / 255"),
+        (torch.zeros(16, 16, 3), r"channels look last.*permute\(2, 0, 1\)"),
+        (torch.zeros(2, 16, 16, 4), r"channels look last.*permute\(0, 3, 1, 2\)"),
+    ],
+    ids=["numpy", "uint8", "channels-last", "batch-channels-last"],
+)
+def test_a_picture_in_another_form_is_refused_with_how_to_make_one(value, match):
+    with pytest.raises((TypeError, ValueError), match=match) as caught:
+        check_picture("image_a", value)
+    assert caught.value.argument == "image_a"
+
+
+def test_pictures_in_the_librarys_form_pass_whatever_their_channels():
+    for shape in [(3, 16, 16), (1, 4, 16, 3), (2, 1, 3, 3), (64, 8, 8)]:  # a picture 3 px wide with 4 channels too
+        x = torch.rand(shape)
+        assert check_picture("image", x) is x

@@ -32,10 +32,42 @@ def argument_of(name: str) -> str | None:
 
 
 def describe(x: object) -> str:
-    """A short description of a value for error messages."""
+    """A short description of a value for error messages: a tensor's or an array's shape and dtype (never its
+    values), other values' repr, cut at 80 characters."""
     if isinstance(x, Tensor):
         return f"tensor of shape {tuple(x.shape)} and dtype {x.dtype}"
-    return f"{type(x).__name__} {x!r}"
+    shape, dtype = getattr(x, "shape", None), getattr(x, "dtype", None)
+    if isinstance(shape, tuple) and dtype is not None:  # a NumPy array and its kin
+        return f"{type(x).__module__.split('.')[0]}.{type(x).__name__} of shape {shape} and dtype {dtype}"
+    text = repr(x)
+    return f"{type(x).__name__} {text if len(text) <= 80 else text[:77] + '...'}"
+
+
+IMAGE_FORM = (
+    "pictures are floating-point tensors (C, H, W) or (B, C, H, W) with values in [0, 1]: "
+    "torchfluidwarp.io.read_image reads a file as one, an (H, W, C) uint8 array converts with "
+    "torch.from_numpy(array).permute(2, 0, 1).float() / 255, a (C, H, W) uint8 tensor with .float() / 255"
+)
+"""How to make a picture the library takes, said when it is given something else."""
+
+
+def check_picture(name: str, x: object, *, ndim: int | Sequence[int] = (3, 4)) -> Tensor:
+    """:func:`check_tensor` for a picture ``(C, H, W)`` or ``(B, C, H, W)``: a value that is not a floating-point
+    tensor (a NumPy array, a uint8 tensor as a decoder returns it) is refused with how to make one
+    (:data:`IMAGE_FORM`), and so is a picture with its channels last (``(H, W, C)``: 1, 3 or 4 along the last
+    axis and more than 4 along the channels')."""
+    if not isinstance(x, Tensor) or not x.is_floating_point():
+        raise InputTypeError(
+            f"{name} must be a floating-point tensor, got {describe(x)}; {IMAGE_FORM}", argument=argument_of(name)
+        )
+    x = check_tensor(name, x, ndim=ndim)
+    if x.ndim >= 3 and x.shape[-1] in (1, 3, 4) and x.shape[-3] > 4:
+        raise InputError(
+            f"{name} has shape {tuple(x.shape)}: its channels look last, (H, W, C); pictures are (C, H, W) "
+            f"({name}.permute(2, 0, 1) for one picture, .permute(0, 3, 1, 2) for a batch)",
+            argument=argument_of(name),
+        )
+    return x
 
 
 def all_finite(x: Tensor) -> bool:

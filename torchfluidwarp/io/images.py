@@ -22,6 +22,7 @@ from torchfluidwarp._checks import (
     argument_of,
     check_int,
     check_memory,
+    check_picture,
     check_size,
     check_tensor,
     compute_dtype,
@@ -154,7 +155,7 @@ def write_image(path: PathLike, image: Tensor) -> Path:
             a path, is a folder, or has a suffix whose format cannot hold the image.
     """
     target = check_output_path("path", path)
-    check_tensor("image", image, ndim=(3, 4))
+    check_picture("image", image, ndim=(3, 4))
     if image.ndim == 4 and image.shape[0] != 1:
         raise InputError(f"image must be (C, H, W) or (1, C, H, W), got shape {tuple(image.shape)}", argument="image")
     array = _uint8_frames(image.reshape(1, *image.shape[-3:]), "image")[0]  # (H, W, C)

@@ -10,7 +10,7 @@ from typing import Any, Protocol
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_tensor
+from torchfluidwarp._checks import check_int, check_picture, check_tensor
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
@@ -161,8 +161,8 @@ def report_frames(
         >>> [tuple(f.shape) for f in frames()], written
         ([(3, 32, 32), (3, 32, 32), (3, 32, 32)], [3])
     """
-    check_tensor("image_a", image_a)
-    check_tensor("image_b", image_b)
+    check_picture("image_a", image_a)
+    check_picture("image_b", image_b)
     check_tensor("points_a", points_a, shape=[None, 2])
     check_tensor("points_b", points_b, shape=[points_a.shape[0], 2])
     chunk = check_int("chunk", chunk)

@@ -28,6 +28,7 @@ from torchfluidwarp._checks import (
     check_instance,
     check_int,
     check_memory,
+    check_picture,
     check_size,
     check_tensor,
     compute_dtype,
@@ -46,8 +47,8 @@ from torchfluidwarp.morph.fit import (
     drop_repeats,
     fit_natural,
     fit_paper,
-    focus,
     fluid_grid,
+    focus,
     paper_flows,
     pose,
     warn_coarse_grid,
@@ -71,7 +72,7 @@ __all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_int
 
 
 def _as_image(name: str, image: Tensor) -> Tensor:
-    img = check_tensor(name, image, ndim=(3, 4))
+    img = check_picture(name, image)
     img = img.unsqueeze(0) if img.ndim == 3 else img
     if img.shape[0] != 1 or min(img.shape[1:]) < 1:
         raise InputError(

@@ -14,7 +14,7 @@ from contextlib import closing
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import all_finite, check_int, check_memory, check_size, check_tensor
+from torchfluidwarp._checks import all_finite, check_int, check_memory, check_picture, check_size, check_tensor
 from torchfluidwarp.core.fluid import Viscosity
 from torchfluidwarp.core.grid import FluidGrid, normalized_affine, pixel_to_normalized
 from torchfluidwarp.core.linalg import CGConfig
@@ -31,7 +31,7 @@ ForceSource = Tensor | Callable[..., Tensor]
 
 def check_image(image: object) -> Tensor:
     """Validate an image ``(B, C, H, W)`` to warp, with ``B, H, W >= 1``."""
-    x = check_tensor("image", image, ndim=4)
+    x = check_picture("image", image, ndim=4)
     if min(x.shape[0], *x.shape[-2:]) < 1:
         raise InputError(f"image must have B, H and W >= 1, got shape {tuple(x.shape)}")
     return x
