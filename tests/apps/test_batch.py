@@ -18,12 +18,13 @@ from torchfluidwarp.apps import batch
 from torchfluidwarp.apps.batch import morph_pairs, planned_work, read_pairs
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.apps.cli_args import EXIT_BAD_INPUT, EXIT_OK, work_seconds
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.io import write_image, write_points
 from torchfluidwarp.morph import NaturalSettings
 from torchfluidwarp.morph.result import MorphResult
 
 FAST = ["--grid", "12", "--steps", "2", "--max-iter", "5", "--frames", "4", "--quiet"]
-SETTINGS = dict(grid=12, steps=2, max_iter=5)  # NaturalSettings' fields
+SETTINGS = dict(grid=SquareCells(12 * 12), steps=2, max_iter=5)  # NaturalSettings' fields: "--grid 12"
 OPTIONS = dict(settings=NaturalSettings(**SETTINGS), frames=4)
 POINTS_A = torch.tensor([[8.0, 8.0], [24.0, 9.0], [15.0, 22.0]])
 
@@ -167,7 +168,7 @@ def test_two_processes_under_torch_distributed_give_the_outputs_of_one(tmp_path,
     pairs = make_pairs(tmp_path, gen, n=3)
     code = (
         "import sys; from torchfluidwarp.apps.batch import morph_pairs; "
-        "from torchfluidwarp.morph import NaturalSettings; "
+        "from torchfluidwarp.morph import NaturalSettings; from torchfluidwarp.core.grid import SquareCells; "
         f"r = morph_pairs(sys.argv[1], sys.argv[2], progress=False, settings=NaturalSettings(**{SETTINGS!r}), "
         "frames=4); "
         "print(sorted(r.morphed), len(r.failed))"

@@ -15,6 +15,7 @@ import torch
 
 from torchfluidwarp.apps.cli import main
 from torchfluidwarp.apps.cli_args import output_bytes
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.io import read_image, read_points, write_animation, write_image, write_points
 from torchfluidwarp.morph import NaturalSettings, morph
 
@@ -54,7 +55,7 @@ def test_streamed_morph_writes_the_materialised_frames(tmp_path, pair, name):
         read_image(data / "b.png"),
         read_points(data / "a.pts"),
         read_points(data / "b.pts"),
-        settings=NaturalSettings(grid=12, steps=2, max_iter=5),
+        settings=NaturalSettings(grid=SquareCells(12 * 12), steps=2, max_iter=5),  # "--grid 12"
         frames=7,
     )
     whole = write_animation(tmp_path / "whole" / name, result.frames)

@@ -73,8 +73,8 @@ _MORPH_TUNING = (
         "--grid",
         "N",
         count(4),
-        "fluid grid N x N cells (default: natural, 6,400 square cells whatever the picture's shape, 80 x 80 on a "
-        "square one; paper, 64)",
+        "fluid grid of N x N cells' worth of square ones, N x N on a square picture (default: natural 80; paper "
+        "64 x 64 rows and columns)",
     ),
     (
         "--compressible",

@@ -33,6 +33,7 @@ from torchfluidwarp.apps.cli_args import (
     progress_bar,
     timing,
 )
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, write_animation, write_image
 from torchfluidwarp.morph import Blending, MorphResult, MorphSequence, MorphSettings, Timing
@@ -120,7 +121,9 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
 
 SETTING_OPTIONS = ("grid", "steps", "control", "compressible", "straightness", "smoothness", "max_iter")
 """The options that set a field of the method's settings of the same name (``--max-iter``: ``max_iter``); ``None``
-(not given) leaves the method's default. ``--align`` and ``--inverse`` set theirs too."""
+(not given) leaves the method's default. ``--grid N`` gives N x N cells' worth of square ones
+(:class:`~torchfluidwarp.core.grid.SquareCells`: N x N on a square picture, never stretched with the picture).
+``--align`` and ``--inverse`` set theirs too."""
 
 
 def morph_settings(args: argparse.Namespace) -> MorphSettings:
@@ -142,7 +145,7 @@ def morph_settings(args: argparse.Namespace) -> MorphSettings:
         if name not in fields:
             owner = next(m for m, other in METHODS.items() if name in {f.name for f in dataclasses.fields(other)})
             raise InputError(f"--{name.replace('_', '-')} applies to --method {owner}, not --method {method}")
-        values[name] = value
+        values[name] = SquareCells(value * value) if name == "grid" else value
     if getattr(args, "no_dense", False):
         if "dense" not in fields:
             raise InputError(f"--no-dense applies to --method natural, not --method {method}")

@@ -147,7 +147,9 @@ def add_average(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--save-points", metavar="FILE", help="write the mean shape (.pts, .json or .csv)")
     p.add_argument("--method", choices=("natural", "paper"), default="natural", help="as morph (default natural)")
     p.add_argument("--align", choices=("similarity", "affine", "none"), default="similarity", help="as morph")
-    p.add_argument("--grid", metavar="N", type=count(4), default=None, help="fluid grid N x N cells, as morph")
+    p.add_argument(
+        "--grid", metavar="N", type=count(4), default=None, help="fluid grid of N x N square cells' worth, as morph"
+    )
     p.add_argument("--steps", type=count(1), default=10, help="fluid steps (default 10)")
     p.add_argument("--compressible", metavar="W", type=NON_NEGATIVE, default=None, help="as morph")
     p.add_argument("--straightness", metavar="S", type=NON_NEGATIVE, default=None, help="--method natural: as morph")

@@ -17,6 +17,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_real
 from torchfluidwarp.control.keyframes import check_points
+from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph import MorphSettings, PaperSettings, Timing
 from torchfluidwarp.morph.settings import METHODS
@@ -110,7 +111,7 @@ def morph_settings(value: object) -> tuple[MorphSettings, Timing]:
     align = choice("align", s.get("align", "similarity"), ("similarity", "affine", "none"))
     fields: dict[str, Any] = {
         "inverse": choice("inverse", s.get("inverse", "flow"), ("flow", "paper")),
-        "grid": integer("grid", s.get("grid", 32), 4, 256),
+        "grid": SquareCells(integer("grid", s.get("grid", 32), 4, 256) ** 2),  # N x N on a square picture
         "steps": integer("steps", s.get("steps", 8), 1, 100),
         "align": None if align == "none" else align,
     }
