@@ -9,10 +9,10 @@ The matcher appends border points to the face landmarks. Two rules pair them, on
   B's longer side, else where it sends A's (left out when that is outside B).
 
 Both morphs run with ``morph()``'s defaults and its placement (the crop of B on A's canvas centred on the median of
-B's points). Figures: crossing pairs among the points (``morph.fit.crossing_pairs``); the fluid's own travel at the
+B's points). Figures: crossing pairs among the points (``morph.marks.crossing_pairs``); the fluid's own travel at the
 face landmarks, after the pre-alignment (median, canvas pixels): the non-rigid motion the flow has to make; the
 landmarks' mean end error, and whether ``morph()`` warned that they lie closer together than the fluid's cells
-(``morph.fit.warn_coarse_grid``); the folded map pixels over 5 rendered frames; and where B's face is at the end:
+(``morph.marks.warn_coarse_grid``); the folded map pixels over 5 rendered frames; and where B's face is at the end:
 the share of B's landmarks on the canvas, under this placement and under the old one (the crop centred on the
 picture). ``--settings`` passes ``NaturalSettings`` fields (``'{"grid": 120}'``), ``--variants`` one pairing.
 """
@@ -34,7 +34,7 @@ from torchfluidwarp.control import apply_alignment
 from torchfluidwarp.correspond.auto import border_points, find_points, usable_pairs
 from torchfluidwarp.io import read_image, write_image
 from torchfluidwarp.morph import NaturalSettings, morph
-from torchfluidwarp.morph.fit import crossing_pairs
+from torchfluidwarp.morph.marks import crossing_pairs
 from torchfluidwarp.morph.morphing import placement
 
 PAIRS = (

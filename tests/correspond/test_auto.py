@@ -13,7 +13,7 @@ from torchfluidwarp.control.images import FoldWarning
 from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice, auto_points, border_points, detect_face_points
 from torchfluidwarp.correspond.auto import BORDER_SLACK, border_pairs, find_points, usable_pairs
 from torchfluidwarp.data import load_sample
-from torchfluidwarp.morph.fit import crossing_pairs
+from torchfluidwarp.morph.marks import crossing_pairs
 from torchfluidwarp.warp.frames import identity_map, warp_image
 
 

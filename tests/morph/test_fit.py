@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
 
-from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area
@@ -16,50 +14,16 @@ from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph.fit import (
     FOCUS_MARGIN,
     MIN_AREA,
-    MIN_POSE_FIT,
     RELEASE,
     fit_natural,
     fit_paper,
     focus,
-    pose,
     straight_paths,
-    warn_coarse_grid,
 )
 from torchfluidwarp.morph.settings import NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import solve_midpoints
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
-
-
-def similarity(scale: float, angle: float, shift: tuple[float, float]) -> torch.Tensor:
-    c, s = scale * math.cos(angle), scale * math.sin(angle)
-    return torch.tensor([[c, -s, shift[0]], [s, c, shift[1]], [0.0, 0.0, 1.0]], dtype=torch.float64)
-
-
-@pytest.mark.parametrize("kind", ["similarity", "affine"])
-def test_a_pose_the_marks_agree_on_is_kept(kind):
-    M = similarity(1.3, 0.4, (5.0, -3.0))
-    pb = apply_alignment(M, PA.double()) + 0.5 * torch.randn(6, 2, generator=torch.Generator().manual_seed(1))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no warning
-        got = pose(PA, pb, kind)
-    moved, want = apply_alignment(got, PA.double()), apply_alignment(M, PA.double())
-    assert float((moved - want).norm(dim=-1).max()) < 1.0  # pixels, against noise of 0.5 px per coordinate
-
-
-@pytest.mark.parametrize("kind", ["similarity", "affine"])
-def test_marks_in_no_common_pose_get_the_identity_and_a_warning(kind, shuffled_marks):
-    with pytest.warns(RuntimeWarning, match=rf"do not agree on a pose: the {kind} pre-alignment explains \d+%"):
-        got = pose(*shuffled_marks, kind)
-    torch.testing.assert_close(got, torch.eye(3, dtype=torch.float64), atol=0, rtol=0)
-    assert 0 < MIN_POSE_FIT < 0.73  # below the worst pair of real faces (see its docstring)
-
-
-def test_no_pre_alignment_asked_is_the_identity_without_a_check():
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        got = pose(PA, PA.flip(0), None)
-    torch.testing.assert_close(got, torch.eye(3, dtype=torch.float64), atol=0, rtol=0)
 
 
 def test_swapped_marks_get_smoothed_paths_that_start_at_the_sources():
@@ -186,35 +150,6 @@ def test_a_picture_narrower_than_the_lattices_spacing_gets_no_lattice_across_it(
     pb = pa + torch.tensor([[0.5, 0.5], [-0.5, 1.0], [0.5, -1.0], [0.0, 0.5]], dtype=torch.float64)
     fit, _, _ = fit_natural(pa, pb, (18, 8), NaturalSettings(grid=4, steps=2, dense=None), None, False)
     assert len(fit.forces.midpoints) == 4 and fit.trajectories.shape[2] == 4  # the marks alone
-
-
-def _lattice(spacing: float, n: int = 5) -> torch.Tensor:
-    ys, xs = torch.meshgrid(torch.arange(float(n)), torch.arange(float(n)), indexing="ij")
-    return 200.0 + spacing * torch.stack([xs, ys], -1).reshape(-1, 2)
-
-
-@pytest.mark.parametrize(
-    "spacing_px, error_px, warns",
-    [
-        (3.0, 2.0, True),  # 0.3 cells apart (10 px cells) and 2 px off: the slow fit of marks sharing cells
-        (20.0, 2.0, False),  # 2 cells apart: whatever left them off, a finer grid is not the remedy
-        (3.0, 0.5, False),  # met within LET_GO: nothing to say
-    ],
-)
-def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(spacing_px, error_px, warns):
-    points = _lattice(spacing_px)
-    error = torch.full((points.shape[0],), error_px)
-    box, grid = (800, 800), 80  # 10 pixels per cell
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        warn_coarse_grid(points, error, box, grid)
-    messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
-    if not warns:
-        assert messages == []
-        return
-    assert len(messages) == 1
-    assert f"{error_px:.1f} px" in messages[0] and "0.30 fluid cells apart" in messages[0]
-    assert "grid" in messages[0] and "max_iter" in messages[0] and "--grid" in messages[0]
 
 
 def _zoom(factor: float, centre: tuple[float, float]) -> torch.Tensor:

@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from torchfluidwarp.core.spline import tps_interpolate
 from torchfluidwarp.correspond.auto import FoundPoints, Note
 from torchfluidwarp.morph import Blending, NaturalSettings, PaperSettings, Timing
-from torchfluidwarp.morph.fit import LET_GO, crossing_pairs
+from torchfluidwarp.morph.marks import LET_GO, crossing_pairs
 from torchfluidwarp.morph.morphing import morph
 from torchfluidwarp.warp import identity_map, jacobian_determinant, warp_image
 

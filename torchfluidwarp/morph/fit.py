@@ -1,5 +1,5 @@
-"""Fitting a morph's flow: checking the marks, the natural morph's straight paths and its fit, the paper's
-keyframe fit, and the paper inverse's small fits.
+"""Fitting a morph's flow: the natural morph's straight paths and its fit, the paper's keyframe fit, and the paper
+inverse's small fits (the marks are checked first, :mod:`~torchfluidwarp.morph.marks`).
 
 Points are ``(M, 2)`` in pixels, ``(x, y)``, pixel centres at integers; the fluid's box is given in the same
 pixels as ``(x0, y0, x1, y1)``. Every fit here is in the fluid box's frame: its points, trajectories, errors,
@@ -15,13 +15,13 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
-from torchfluidwarp._checks import warn
-from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
+from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
 from torchfluidwarp.core.grid import FluidGrid, SquareCells, mean_pixels_per_cell
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area_ratio
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.morph.marks import crossing_pairs
 from torchfluidwarp.morph.settings import MorphSettings, NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints
 
@@ -32,154 +32,6 @@ which no flow crosses, stay outside the picture, and the forces fade to zero bet
 MIN_AREA = 0.1
 """The natural morph never squeezes an area below this fraction of its size in the middle frame (see
 :func:`straight_paths`): a margin that keeps the discrete flow and its resampled maps from folding."""
-
-MIN_POSE_FIT = 0.25
-"""The least share of B's marks' spread that the pre-alignment must explain (:func:`pose`). The 68 marks of two
-different faces give 0.73 to 1 (median 0.96 over the ordered pairs of ``benchmarks/bench_morph_quality.py``'s
-faces); 10 marks listed in a random order give a median of 0.07, and 20 of 0.04. Below it the least-squares
-transform shrinks towards a point, and its inverse would throw B's marks far outside the picture."""
-
-
-def pose(pa: Tensor, pb: Tensor, align: AlignKind | None) -> Tensor:
-    """The morph's global pre-alignment ``(3, 3)`` float64, A's pixels to B's
-    (:func:`~torchfluidwarp.control.alignment.estimate_alignment` of kind ``align``), or the identity, with a
-    warning, when it explains less than :data:`MIN_POSE_FIT` of the spread of B's marks ``pb`` ``(M, 2)``: marks
-    that do not agree on a pose are better morphed by the flow alone."""
-    a, b = pa.double(), pb.double()
-    M = estimate_alignment(a, b, align)
-    spread = float((b - b.mean(0)).square().sum())
-    if align in (None, "none") or spread == 0:
-        return M
-    explained = 1 - float((apply_alignment(M, a) - b).square().sum()) / spread
-    if explained >= MIN_POSE_FIT:
-        return M
-    warn(
-        f"the marks do not agree on a pose: the {align} pre-alignment explains {max(explained, 0):.0%} of how "
-        f"points_b spread (under {MIN_POSE_FIT:.0%}), so the morph runs without it; check that points_a and "
-        "points_b list the same features in the same order",
-        RuntimeWarning,
-    )
-    return torch.eye(3, dtype=torch.float64, device=a.device)
-
-
-def crossing_pairs(pa: Tensor, pb: Tensor) -> Tensor:
-    """``(K, 2)`` int64: the pairs ``i < j`` of marks ``pa``, ``pb`` ``(M, 2)`` (M >= 3) whose order crosses. After a
-    similarity that best maps ``pa`` onto ``pb``, the segment between the two turns by more than 90 degrees (both
-    longer than 2 % of B's spread), or marks close in A (under a tenth of the spread) end far apart in B (over
-    half): what no smooth, fold-free map does."""
-    M = estimate_alignment(pa.double(), pb.double(), "similarity")
-    qa, qb = apply_alignment(M, pa.double()), pb.double()
-    da, db = qa[:, None] - qa[None], qb[:, None] - qb[None]  # (M, M, 2)
-    spread = float((qb - qb.mean(0)).norm(dim=-1).max())
-    la, lb = da.norm(dim=-1), db.norm(dim=-1)
-    turned = ((da * db).sum(-1) < 0) & (la > 0.02 * spread) & (lb > 0.02 * spread)
-    torn = (la < 0.1 * spread) & (lb > 0.5 * spread)
-    return torch.triu(turned | torn, diagonal=1).nonzero()
-
-
-def _repeats(points: Tensor) -> list[tuple[int, int]]:
-    """The pairs ``i < j`` of points ``(M, 2)`` at the same position (within ``1e-6`` px)."""
-    d = torch.cdist(points.double(), points.double())
-    d.fill_diagonal_(math.inf)
-    i, j = torch.nonzero(d < 1e-6, as_tuple=True)
-    return [(int(a), int(b)) for a, b in zip(i, j) if a < b]
-
-
-def drop_repeats(pa: Tensor, pb: Tensor, placed_by: str) -> tuple[Tensor, Tensor]:
-    """Points ``(M, 2)`` that the ``placed_by`` matcher put where an earlier one already is, in either picture,
-    dropped with a warning: a matcher's doing, not the user's, and the later point adds nothing to the morph."""
-    later = sorted({j for p in (pa, pb) for _, j in _repeats(p)})
-    if not later:
-        return pa, pb
-    keep = torch.ones(pa.shape[0], dtype=torch.bool, device=pa.device)
-    keep[later] = False
-    warn(
-        f"the {placed_by} matcher placed {len(later)} point(s) where an earlier one already is (indices "
-        f"{', '.join(map(str, later[:5]))}{' ...' if len(later) > 5 else ''}); the morph uses each position once",
-        RuntimeWarning,
-    )
-    return pa[keep], pb[keep]
-
-
-LET_GO = 1.0
-"""Pixels: a point the library placed that ends farther than this from its target in the last frame was let go
-(the morph meets the rest of its points within a fraction of it). #31 asks marks to be met within 1 px."""
-
-
-def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
-    """Refuse marks that cannot be morphed, and warn about the user's marks whose order crosses. Points the library
-    placed (``placed_by``, the matcher's name) are nobody's order to check: :func:`warn_let_go` names after the fit
-    the crossing pairs that the morph had to let go (points placed twice are dropped before, by
-    :func:`drop_repeats`)."""
-    for name, p in (("points_a", pa), ("points_b", pb)):
-        pairs = _repeats(p)
-        if pairs:
-            raise InputError(
-                f"{name} repeats points: indices {', '.join(f'{a} and {b}' for a, b in pairs[:5])} are at the same "
-                "position; each feature must be marked once",
-                argument=name,
-            )
-    bad = _crossings(pa, pb) if placed_by is None else []
-    if bad:
-        warn(
-            f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
-            "morph can do without folding; check their order (result.error shows which points were not reached)",
-            RuntimeWarning,
-        )
-
-
-def warn_let_go(pa: Tensor, pb: Tensor, error: Tensor, placed_by: str) -> None:
-    """Warn about the pairs of points ``pa``, ``pb`` ``(M, 2)`` that the ``placed_by`` matcher placed whose order
-    crosses (:func:`crossing_pairs`) and of which a point ended more than :data:`LET_GO` px from its target
-    (``error`` ``(M,)``, the last frame's pixels): the morph let them go so as not to fold. Pairs it met say
-    nothing: crossing then was the matcher's noise."""
-    missed = [(a, b) for a, b in _crossings(pa, pb) if max(float(error[a]), float(error[b])) > LET_GO]
-    if missed:
-        warn(
-            f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear apart "
-            "between A and B (as where a head turns and hides part of one side); the morph let them go so as not "
-            "to fold (result.error shows how far each ended from its target)",
-            RuntimeWarning,
-        )
-
-
-MIN_SPACING = 1.0
-"""Fluid cells: marks that lie closer together than this (the median distance from each to its nearest, in A's
-frame) share cells, where the fit converges slowly (see :func:`warn_coarse_grid`). Face crops of 512 pixels put
-their 68 landmarks 1.2 to 2.3 cells apart on the default grid."""
-
-
-def warn_coarse_grid(points: Tensor, error: Tensor, box: tuple[int, int], grid: object) -> None:
-    """Warn when the marks end more than :data:`LET_GO` px from their targets on average (``error`` ``(M,)``, the
-    last frame's pixels) and lie closer together than :data:`MIN_SPACING` of the fluid's cells: ``points``
-    ``(M, 2)`` in A's frame, on a fluid box of ``box`` ``(H, W)`` pixels and a ``grid`` of cells.
-
-    The case: marks that share cells, where the fit's 30 iterations leave them about a pixel off in A's frame and
-    the pre-alignment's zoom magnifies that in the last frame. A small face zoomed into a large one was the first
-    (einstein -> obama2 of ``benchmarks/bench_framing.py``: 0.23 cells apart, 5.2 px at a 4.9x zoom), until the
-    fluid covered only what the last frame shows (:func:`focus`: 0.20 px). Marks that share cells without a zoom
-    to focus on remain (obama3 -> breakingbad, whose border points hold the whole of A: 2.7 px)."""
-    if points.shape[0] < 2 or float(error.mean()) <= LET_GO:
-        return
-    gaps = torch.cdist(points.double(), points.double()).fill_diagonal_(math.inf)
-    spacing = float(gaps.min(1).values.median()) / mean_pixels_per_cell(box, grid)  # type: ignore[arg-type]
-    if spacing >= MIN_SPACING:
-        return
-    warn(
-        f"the marks end {float(error.mean()):.1f} px from their targets on average: they lie {spacing:.2f} fluid "
-        "cells apart in A (median), where the fit converges slowly; a finer grid or more iterations meet them "
-        "closer, at more time (NaturalSettings(grid=..., max_iter=...); the command line's --grid, --max-iter)",
-        RuntimeWarning,
-    )
-
-
-def _crossings(pa: Tensor, pb: Tensor) -> list[tuple[int, int]]:
-    """:func:`crossing_pairs` as a list; none for fewer than 3 marks (no similarity to judge them by)."""
-    return [] if pa.shape[0] < 3 else [(a, b) for a, b in crossing_pairs(pa, pb).tolist()]
-
-
-def _listed(pairs: list[tuple[int, int]]) -> str:
-    return ", ".join(f"{a} and {b}" for a, b in pairs[:5]) + (" ..." if len(pairs) > 5 else "")
 
 
 def _squeeze_points(mids: Tensor, inside: tuple[float, float, float, float]) -> Tensor:
@@ -228,8 +80,9 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     :data:`MIN_AREA` of its area on the way: marks that cross, or squeeze a region to nothing. Where marks cross
     or squeeze (a head that turns: the far jaw line passes behind the nose, the far cheek shrinks to a sliver),
     marks are released one at a time until the spline through the others squeezes no part below
-    :data:`MIN_AREA`: first the marks of crossing pairs (:func:`crossing_pairs`), then those around the worst
-    squeeze, the most shrunken first (:func:`_shrink`), at most :data:`RELEASE` of them. The marks kept still
+    :data:`MIN_AREA`: first the marks of crossing pairs (:func:`~torchfluidwarp.morph.marks.crossing_pairs`),
+    then those around the worst squeeze, the most shrunken first (:func:`_shrink`), at most :data:`RELEASE` of
+    them. The marks kept still
     travel straight, so the features that both pictures show meet at every frame, and the released ones follow
     the spline (the hidden side compresses). Where that is not enough, the spline's smoothing
     (:func:`~torchfluidwarp.core.spline.tps_fit`) is raised, by bisection on its logarithm, until no part is

@@ -40,20 +40,8 @@ from torchfluidwarp.core.grid import FluidGrid, inside_picture, rescale_points, 
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
-from torchfluidwarp.morph.fit import (
-    MIN_AREA,
-    PAD,
-    check_marks,
-    drop_repeats,
-    fit_natural,
-    fit_paper,
-    fluid_grid,
-    focus,
-    paper_flows,
-    pose,
-    warn_coarse_grid,
-    warn_let_go,
-)
+from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
+from torchfluidwarp.morph.marks import check_marks, drop_repeats, pose, warn_coarse_grid, warn_let_go
 from torchfluidwarp.morph.regions import hull_mask
 from torchfluidwarp.morph.render import Scene
 from torchfluidwarp.morph.result import MorphResult

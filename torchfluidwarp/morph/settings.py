@@ -136,7 +136,7 @@ class NaturalSettings:
         max_iter: L-BFGS iterations of the fit (it starts on the straight paths, so few are needed).
         tolerance: pixels; the fit stops once every point is this close to its path at every step.
         align: the global pre-alignment from the points: ``"similarity"``, ``"affine"`` or ``None`` (``"none"``).
-            Marks that do not agree on a pose (:data:`~torchfluidwarp.morph.fit.MIN_POSE_FIT`) are morphed without
+            Marks that do not agree on a pose (:data:`~torchfluidwarp.morph.marks.MIN_POSE_FIT`) are morphed without
             it, with a warning.
         inverse: how image B is pulled back: ``"flow"`` (along the same fitted velocities, no second fit) or
             ``"paper"`` (the paper's stepwise chain of one-step fits; slower, for comparison).
