@@ -72,3 +72,27 @@ def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(
     assert len(messages) == 1
     assert f"{error_px:.1f} px" in messages[0] and "0.30 fluid cells apart" in messages[0]
     assert "grid" in messages[0] and "max_iter" in messages[0] and "--grid" in messages[0]
+
+
+def test_one_mark_far_off_where_the_marks_share_cells_warns_unless_it_was_let_go():
+    # 25 marks 3 px apart on 10-px cells: met within LET_GO on average (0.65 px), but one ends 4 px off
+    points = _lattice(3.0)
+    error = torch.full((points.shape[0],), 0.5)
+    error[7] = 4.0
+    box, grid = (800, 800), 80
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn_coarse_grid(points, error, box, grid)
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 1 and "0.6 px from their targets on average, up to 4.0 px" in messages[0]
+    # the same mark let go so as not to fold is the morph's choice, not the grid's: nothing to say
+    let_go = torch.zeros(points.shape[0], dtype=torch.bool)
+    let_go[7] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_coarse_grid(points, error, box, grid, let_go)
+    # and a mark 2.9 px off (under FAR_OFF x LET_GO) with the mean met says nothing either
+    error[7] = 2.9
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_coarse_grid(points, error, box, grid)

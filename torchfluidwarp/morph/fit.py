@@ -275,8 +275,10 @@ def fit_natural(
     Returns:
         The fit, in the box's frame, of the marks alone (the lattice's points are left out of its points, paths
         and errors); the box ``(x0, y0, x1, y1)`` in A's pixels: the picture (or the ``region``) and :data:`PAD`
-        of its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where A's marks must end,
-        A's pixels (``target``, or where the pixels re-placed it when ``found``).
+        of its longer side around it, or more (:data:`WALL_CLEARANCE`); and ``(M, 2)`` where the paths end A's
+        marks, A's pixels: ``target``, except where a mark was let go so as not to fold (:func:`straight_paths`:
+        where the spline takes it), where it was held clear of the walls, and, when ``found``, where the pixels
+        re-placed it.
     """
     region = region or (0, 0, size[1], size[0])
     H, W = region[3] - region[1], region[2] - region[0]

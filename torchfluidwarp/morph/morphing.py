@@ -41,7 +41,7 @@ from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, hal
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
-from torchfluidwarp.morph.marks import check_marks, drop_repeats, pose, warn_coarse_grid, warn_let_go
+from torchfluidwarp.morph.marks import LET_GO, check_marks, drop_repeats, pose, warn_coarse_grid, warn_let_go
 from torchfluidwarp.morph.regions import hull_mask
 from torchfluidwarp.morph.render import Scene
 from torchfluidwarp.morph.result import MorphResult
@@ -409,10 +409,13 @@ def morph(
                 residual = halfway_alignment(a, b, to_a, to_b, (y1 - y0, x1 - x0), mids - at, disp, options)
                 return lambda p: residual(p - at)
 
-        fit, box, target = fit_natural(
+        fit, box, ends = fit_natural(
             pa_c, target, size, settings, warm_start, progress, dense, found, max_memory, region
         )
-        pb_c = apply_alignment(M, target)  # where found marks end, the pixels placed them
+        planned = apply_alignment(M, ends)  # where the paths take A's marks: B's, or where a mark was let go
+        let_go = (planned - pb_c).norm(dim=-1) > LET_GO  # released so as not to fold
+        if found:  # the pixels placed these marks, and they re-placed B's side: the morph meets them there
+            pb_c, let_go = planned, torch.zeros_like(let_go)
     else:
         if settings.margin is None:
             box = (0, 0, W, H)
@@ -451,5 +454,5 @@ def morph(
     if placed is not None:
         warn_let_go(pa, pb, result.error, placed.matcher)
     if isinstance(settings, NaturalSettings):
-        warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid)
+        warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid, let_go)  # let go on purpose: not the grid's doing
     return result
