@@ -51,17 +51,18 @@ IMAGE_FORM = (
 """How to make a picture the library takes, said when it is given something else."""
 
 
-def check_picture(name: str, x: object, *, ndim: int | Sequence[int] = (3, 4)) -> Tensor:
+def check_picture(name: str, x: object, *, ndim: int | Sequence[int] = (3, 4), features: bool = False) -> Tensor:
     """:func:`check_tensor` for a picture ``(C, H, W)`` or ``(B, C, H, W)``: a value that is not a floating-point
     tensor (a NumPy array, a uint8 tensor as a decoder returns it) is refused with how to make one
     (:data:`IMAGE_FORM`), and so is a picture with its channels last (``(H, W, C)``: 1, 3 or 4 along the last
-    axis and more than 4 along the channels')."""
+    axis and more than 4 along the channels'). ``features``: the tensor may be a model's feature map, with any
+    number of channels over a few pixels (``(B, 256, 4, 4)``), so its layout is not guessed."""
     if not isinstance(x, Tensor) or not x.is_floating_point():
         raise InputTypeError(
             f"{name} must be a floating-point tensor, got {describe(x)}; {IMAGE_FORM}", argument=argument_of(name)
         )
     x = check_tensor(name, x, ndim=ndim)
-    if x.ndim >= 3 and x.shape[-1] in (1, 3, 4) and x.shape[-3] > 4:
+    if not features and x.ndim >= 3 and x.shape[-1] in (1, 3, 4) and x.shape[-3] > 4:
         raise InputError(
             f"{name} has shape {tuple(x.shape)}: its channels look last, (H, W, C); pictures are (C, H, W) "
             f"({name}.permute(2, 0, 1) for one picture, .permute(0, 3, 1, 2) for a batch)",

@@ -112,3 +112,13 @@ def test_velocities_that_overflow_are_refused_naming_the_forces_and_dt(path):
     with pytest.raises(ValueError, match=r"forces overflowed .* dt 1e\+30"):
         out = getattr(FluidWarp(6, 2, dt=1e30), path)(image, forces)
         list(out) if path == "iter_frames" else out
+
+
+def test_a_models_feature_map_of_many_channels_over_a_few_pixels_is_warped_not_taken_for_channels_last():
+    # (B, 256, 4, 4) looks like pictures with their channels last to the morph's check (tests/test_checks.py); the
+    # warp layer takes any
+    # (B, C, H, W), so zero forces give the map back (up to grid_sample's round-off)
+    features = torch.rand(2, 256, 4, 4, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(warp_image(features, identity_map((4, 4)).expand(2, 4, 4, 2)), features)
+    frames = FluidWarp((4, 4), steps=2)(features, torch.zeros(2, 2, 2, 4, 4))
+    torch.testing.assert_close(frames[:, -1], features, atol=1e-5, rtol=0)

@@ -52,7 +52,7 @@ def warp_image(image: Tensor, coords: Tensor, mode: SampleMode = "bilinear") -> 
         >>> torch.allclose(warp_image(img, identity_map((2, 3))), img, atol=1e-6)
         True
     """
-    check_picture("image", image, ndim=4)
+    check_picture("image", image, ndim=4, features=True)
     check_tensor("coords", coords, shape=[None, None, None, 2])
     if image.shape[0] != coords.shape[0] or min(image.shape[-2:]) < 1:
         raise InputError(f"image {tuple(image.shape)} must be non-empty with the batch of coords {tuple(coords.shape)}")

@@ -31,7 +31,7 @@ ForceSource = Tensor | Callable[..., Tensor]
 
 def check_image(image: object) -> Tensor:
     """Validate an image ``(B, C, H, W)`` to warp, with ``B, H, W >= 1``."""
-    x = check_picture("image", image, ndim=4)
+    x = check_picture("image", image, ndim=4, features=True)
     if min(x.shape[0], *x.shape[-2:]) < 1:
         raise InputError(f"image must have B, H and W >= 1, got shape {tuple(x.shape)}")
     return x
