@@ -36,7 +36,7 @@ from torchfluidwarp._checks import check_int, check_positive
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.losses import local_ncc2
 from torchfluidwarp.control.optim import minimize
-from torchfluidwarp.core.grid import pixel_to_normalized
+from torchfluidwarp.core.grid import normalized_affine, pixel_to_normalized
 from torchfluidwarp.core.sampling import sample
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.errors import InputError
@@ -204,6 +204,8 @@ class _Level:
         self.at, self.D, self.ca, self.cb, self.near = (
             t.float() for t in (self.at, self.D, self.ca, self.cb, self.near)
         )
+        # canvas pixels to grid_sample's coordinates, applied fused at every evaluation of the energy
+        self.scale, self.shift = normalized_affine(size, device=self.at.device, dtype=self.at.dtype)
 
     def up(self, control: Tensor) -> Tensor:
         """The residual ``(1, 2, h, w)`` of control values ``(1, 2, k_y, k_x)``: bicubic between them."""
@@ -212,8 +214,8 @@ class _Level:
     def image_term(self, field: Tensor) -> tuple[Tensor, Tensor]:
         """``mean_valid(1 - ncc^2)`` of the pictures read through the travel ``field``, and the valid mask."""
         half = field.permute(0, 2, 3, 1)[0] / 2  # (h, w, 2)
-        ga = pixel_to_normalized(self.at - half, self.size).unsqueeze(0)
-        gb = pixel_to_normalized(self.at + half, self.size).unsqueeze(0)
+        ga = torch.addcmul(self.shift, self.at - half, self.scale).unsqueeze(0)
+        gb = torch.addcmul(self.shift, self.at + half, self.scale).unsqueeze(0)
         wa = sample(self.ca, ga, align_corners=False, check=None)  # finite: the travel is a spline plus R
         wb = sample(self.cb, gb, align_corners=False, check=None)
         valid = (wa[:, 1:] * wb[:, 1:]).detach()
