@@ -261,6 +261,21 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(gen):
     end = r.trajectories[-1]
     torch.testing.assert_close(r.error, (end - pb.double()).norm(dim=-1))  # measured against B's marks
     assert float(r.error[missed].min()) > 10  # let go by most of the 18 px they swap across
+    assert r.let_go.tolist() == [i in missed for i in range(9)]  # the result names the marks it let go
+    kept = r.error[~r.let_go]
+    said = r.error_summary()  # the marks met and those let go, apart
+    met = f"mean point error {float(kept.mean()):.2f} px (max {float(kept.max()):.2f}) over the {9 - len(missed)} marks"
+    assert said.startswith(met + " met; ")
+    assert f"{len(missed)} let go so as not to fold, {float(r.error[missed].min()):.2f} to" in said
+    assert float(kept.max()) <= LET_GO  # the rest are met
+
+
+def test_a_morph_that_lets_no_mark_go_says_its_error_as_one_figure(pair):
+    a, b = pair
+    r = morph(a, b, POINTS_A, POINTS_B, frames=3, progress=False)
+    assert not bool(r.let_go.any()) and r.let_go.shape == r.error.shape
+    assert r.error_summary() == f"mean point error {float(r.error.mean()):.2f} px (max {float(r.error.max()):.2f})"
+    assert r.message.endswith(r.error_summary(4))  # the fit's summary says the same
 
 
 def test_points_the_library_placed_that_cross_are_not_the_users_order_to_check(gen):

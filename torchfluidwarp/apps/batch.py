@@ -65,7 +65,9 @@ __all__ = [
 STREAM_BYTES = 512 * 2**20
 """Bytes of frames (with their maps) rendered at once while streaming a morph: 8 frames, fewer when large."""
 
-SUMMARY_FIELDS = ("name", "output", "status", "error_mean_px", "error_max_px", "folded", "seconds", "warnings")
+SUMMARY_FIELDS = (
+    "name", "output", "status", "error_mean_px", "error_max_px", "let_go", "folded", "seconds", "warnings"
+)  # fmt: skip
 FAILURE_FIELDS = ("row", "name", "reason")
 HEADER = ("image_a", "image_b", "points_a", "points_b")
 OutputFormat = Literal["gif", "mp4", "png"]
@@ -359,13 +361,15 @@ def _morph_pair(
             max_memory=options.max_memory,
         )
         write_animation(target, returning_memory(stream_frames(result)), fps=fps, overwrite=overwrite)
-    err = result.error
+    err = result.error[~result.let_go]  # the marks met; those let go so as not to fold are counted apart
+    err = err if err.numel() else result.error.new_full((1,), float("nan"))
     return {
         "name": pair.name,
         "output": target,
         "status": "morphed",
         "error_mean_px": f"{float(err.mean()):.4f}",
         "error_max_px": f"{float(err.max()):.4f}",
+        "let_go": str(int(result.let_go.sum())),
         "folded": f"{result.folded:.6g}",
         "seconds": f"{time.perf_counter() - t0:.2f}",
         "warnings": " | ".join(first_line(w.message) for w in caught),

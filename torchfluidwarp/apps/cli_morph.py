@@ -282,12 +282,7 @@ def _run_morph(
             report, path = write_measured(result, args, measured)
             print(f"report: {write_report(args.report, report)}", file=sys.stderr)
     if not args.quiet:
-        err = result.error
-        print(
-            f"{PROG} {command}: mean point error {float(err.mean()):.2f} px (max {float(err.max()):.2f}), "
-            f"{clock.summary()}",
-            file=sys.stderr,
-        )
+        print(f"{PROG} {command}: {result.error_summary()}, {clock.summary()}", file=sys.stderr)
     print(path)
     return EXIT_OK
 

@@ -417,6 +417,7 @@ def morph(
         if found:  # the pixels placed these marks, and they re-placed B's side: the morph meets them there
             pb_c, let_go = planned, torch.zeros_like(let_go)
     else:
+        let_go = None  # the paper's fit lets no mark go
         if settings.margin is None:
             box = (0, 0, W, H)
             target = torch.stack([target[:, 0].clamp(-0.5, W - 0.5), target[:, 1].clamp(-0.5, H - 0.5)], -1)
@@ -450,7 +451,7 @@ def morph(
         ]
     )  # (T + 1, M, 2)
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
-    result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory)
+    result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory, let_go)
     if placed is not None:
         warn_let_go(pa, pb, result.error, placed.matcher)
     if isinstance(settings, NaturalSettings):

@@ -64,7 +64,12 @@ class MorphResult:
             gives them in B's own pixels).
         error: ``(M,)`` pixels of the last frame: the distance from each of A's points carried to the last frame
             to its target (divide by B's scale, ``canvas_from_b[0, 0]``, for B's pixels).
-        message: the fit's summary, with :attr:`error`'s mean and maximum.
+        let_go: ``(M,)`` bool: the marks the natural morph let go so as not to fold (they cross, as where a head
+            turns and hides part of one side, or lie around a squeeze): each ends where the spline through the
+            others takes it, and its :attr:`error` says how far that is from its target. False for every mark of
+            the paper's method and of points the pixels placed.
+        message: the fit's summary, with :attr:`error`'s mean and maximum, over the marks met and the marks let
+            go apart when any was let go (:meth:`error_summary`).
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
             inverse's small fits), ``"total"`` (both); ``"render"`` once all frames have been rendered.
         frames: ``(N, C, H, W)`` the morph on the canvas; frame 0 is image A, frame ``N - 1`` is image B, each
@@ -92,6 +97,7 @@ class MorphResult:
         dtype: torch.dtype,
         seconds: dict[str, float],
         max_memory: float | None = None,
+        let_go: Tensor | None = None,
     ) -> None:
         self._scene = scene
         self.fit = fit
@@ -99,6 +105,7 @@ class MorphResult:
         self.trajectories = trajectories
         self.targets = targets
         self.error = (trajectories[-1] - targets.to(trajectories.dtype)).norm(dim=-1)
+        self.let_go = torch.zeros_like(self.error, dtype=torch.bool) if let_go is None else let_go.to(self.error.device)
         self._count = count
         self._dtype = dtype
         self.seconds = seconds
@@ -131,9 +138,24 @@ class MorphResult:
 
     @property
     def message(self) -> str:
+        return f"{self.fit.message}; in the last frame's pixels: {self.error_summary(4)}"
+
+    def error_summary(self, digits: int = 2) -> str:
+        """:attr:`error`'s mean and maximum in words (pixels of the last frame), over the marks met and over those
+        let go (:attr:`let_go`) apart: a mark let go on purpose, however far it ends, says nothing of how well the
+        fit met the rest."""
+        kept, gone = self.error[~self.let_go], self.error[self.let_go]
+        if not gone.numel():
+            return f"mean point error {float(kept.mean()):.{digits}f} px (max {float(kept.max()):.{digits}f})"
+        met = (
+            f"mean point error {float(kept.mean()):.{digits}f} px (max {float(kept.max()):.{digits}f}) over the "
+            f"{kept.numel()} marks met"
+            if kept.numel()
+            else "no mark met"
+        )
         return (
-            f"{self.fit.message}; in the last frame's pixels: mean error {float(self.error.mean()):.4f} px, "
-            f"max {float(self.error.max()):.4f} px"
+            f"{met}; {gone.numel()} let go so as not to fold, {float(gone.min()):.{digits}f} to "
+            f"{float(gone.max()):.{digits}f} px from their targets (result.let_go)"
         )
 
     def __len__(self) -> int:
