@@ -153,9 +153,11 @@ class MorphResult:
             if kept.numel()
             else "no mark met"
         )
+        if gone.numel() == 1:
+            return f"{met}; 1 let go so as not to fold, {float(gone[0]):.{digits}f} px from its target"
         return (
             f"{met}; {gone.numel()} let go so as not to fold, {float(gone.min()):.{digits}f} to "
-            f"{float(gone.max()):.{digits}f} px from their targets (result.let_go)"
+            f"{float(gone.max()):.{digits}f} px from their targets"
         )
 
     def __len__(self) -> int:
