@@ -130,9 +130,11 @@ def test_pixels_place_a_lattice_where_no_feature_is_needed():
     a = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
     b = warped(a)  # scale 1.05 about (128, 128), shift (5, -3): here, a shift of about -1.4 and -9.4 pixels
     pa, pb = auto_points(a, b, match="pixels", pixels=4, border=None)
-    assert pa.shape == pb.shape == (16, 2)
-    # the cat's fur at 64 px: the fitted flow places the lattice within a pixel or so of the map
-    assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 1.5
+    # B is first moved back by its best plain shift (mostly vertical here), whose replicated edge then fills its
+    # bottom rows: a lattice point there may be carried out of B, and is dropped
+    assert pa.shape == pb.shape and 15 <= len(pa) <= 16
+    # the cat's fur at 64 px: the fitted flow places the lattice within a few tenths of a pixel of the map
+    assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 0.5
 
 
 def test_the_pixels_matcher_says_in_its_own_terms_that_its_flow_folds(recwarn):

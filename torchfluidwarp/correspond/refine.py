@@ -5,6 +5,10 @@ as anchors (its point term) and an image term (``1 - NCC`` by default, robust to
 on the images' luminance, then carries a grid of extra points of A through the fitted flow
 (:meth:`~torchfluidwarp.warp.layer.FluidWarp.carry_points`). The pairs come back with the extra ones appended:
 the points still anchor what they marked, and the pixels place the rest. Any point morph can then use them.
+
+With no pairs to anchor it, the pixels must find the main motion alone: B is first moved back by the plain shift
+that best matches A (:func:`~torchfluidwarp.control.alignment.best_shift`), and the flow fits what is left. A
+stereo pair's views, 40 px apart, are the case: the fluid's coarse levels would otherwise stop short of the shift.
 """
 
 from __future__ import annotations
@@ -14,10 +18,12 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive, check_tensor
+from torchfluidwarp.control.alignment import best_shift
 from torchfluidwarp.control.images import ImageFit, fit_images
-from torchfluidwarp.control.losses import LossName
+from torchfluidwarp.control.losses import LossName, image_loss
 from torchfluidwarp.core.grid import rescale_points, scale_factor
 from torchfluidwarp.correspond._image import gray, single_image
+from torchfluidwarp.warp import identity_map, warp_image
 
 __all__ = ["extra_points", "refine_points"]
 
@@ -78,7 +84,9 @@ def refine_points(
     Returns:
         ``(points_a, points_b, fit)``: the given pairs followed by the ``K`` extra ones, ``(M + K, 2)`` each
         (A's dtype and device), and the :class:`~torchfluidwarp.control.images.ImageFit` (compressible,
-        float64; its ``min_det > 0`` says the fitted map does not fold).
+        float64; its ``min_det > 0`` says the fitted map does not fold). With no pairs given, the fit is from A to
+        B (at A's size) moved back by the best plain shift (see the module's docstring): the extra points are
+        the fit's carried points plus that shift.
 
     Raises:
         TypeError / ValueError: as for ``fit_images``, with the argument named.
@@ -96,9 +104,16 @@ def refine_points(
     to_a = scale_factor((Hb, Wb), (Ha, Wa), device=a.device, dtype=torch.float64)
     b_in_a = F.interpolate(b, size=(Ha, Wa), mode="bilinear", align_corners=False, antialias=True)
     anchors = (pa.double(), rescale_points(pb.double(), to_a))
+    source, target = gray(a).double(), gray(b_in_a).double()
+    shift = source.new_zeros(2)  # (dx, dy): B is read at x - shift, so the flow fits what the shift leaves
+    if not len(pa):
+        shift = best_shift(source, target, image_loss(loss))[0]
+        if bool((shift != 0).any()):
+            ident = identity_map((Ha, Wa), device=a.device, dtype=target.dtype)
+            target = warp_image(target, ident - shift)
     fit = fit_images(
-        gray(a).double(),
-        gray(b_in_a).double(),
+        source,
+        target,
         loss=loss,
         points=anchors if len(pa) else None,
         point_weight=point_weight,
@@ -115,7 +130,7 @@ def refine_points(
     step = min(Ha, Wa) / extra
     new_a = extra_points((Ha, Wa), extra, pa.double(), 0.5 * step)
     with torch.no_grad():
-        carried = fit.warp.carry_points(new_a[None], fit.forces)[0, -1]
+        carried = fit.warp.carry_points(new_a[None], fit.forces)[0, -1] - shift  # B at A's size, not moved back
     new_b = rescale_points(carried, to_a, inverse=True)
     out_a = torch.cat([pa, new_a.to(pa.dtype)])
     out_b = torch.cat([pb, new_b.to(pb.dtype)])
