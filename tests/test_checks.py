@@ -54,3 +54,17 @@ def test_pictures_in_the_librarys_form_pass_whatever_their_channels():
     for shape in [(3, 16, 16), (1, 4, 16, 3), (2, 1, 3, 3), (64, 8, 8)]:  # a picture 3 px wide with 4 channels too
         x = torch.rand(shape)
         assert check_picture("image", x) is x
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [
+        ([[10, 12], [40, 8], [25, 30]], r"points_a must be a torch.Tensor, got list .*; torch.as_tensor\(value, "),
+        (torch.tensor([[10, 12], [40, 8], [25, 30]]), r"dtype torch.int64; points_a.float\(\) makes one"),
+    ],
+)
+def test_points_in_another_form_are_refused_with_the_conversion_that_works(value, match):
+    with pytest.raises(TypeError, match=match):
+        check_tensor("points_a", value, shape=[None, 2])
+    made = torch.as_tensor(value, dtype=torch.float32) if isinstance(value, list) else value.float()
+    assert check_tensor("points_a", made, shape=[None, 2]) is made  # the conversion named passes

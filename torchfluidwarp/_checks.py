@@ -110,9 +110,15 @@ def check_tensor(
         InputError: wrong rank, shape, or non-finite values (a ``ValueError``).
     """
     if not isinstance(x, Tensor):
-        raise InputTypeError(f"{name} must be a torch.Tensor, got {describe(x)}", argument=argument_of(name))
+        make = "torch.as_tensor(value, dtype=torch.float32)" if floating else "torch.as_tensor(value)"
+        raise InputTypeError(
+            f"{name} must be a torch.Tensor, got {describe(x)}; {make} makes one", argument=argument_of(name)
+        )
     if floating and not x.is_floating_point():
-        raise InputTypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}", argument=argument_of(name))
+        raise InputTypeError(
+            f"{name} must be a floating-point tensor, got dtype {x.dtype}; {name}.float() makes one",
+            argument=argument_of(name),
+        )
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if x.ndim not in allowed:

@@ -153,3 +153,16 @@ def test_the_pixels_matcher_says_in_its_own_terms_that_its_flow_folds(recwarn):
     cat = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
     plain = find_points(cat, warped(cat), match="pixels", pixels=4, border=None)
     assert not plain.reason.notable and "folds" not in plain.reason.message
+
+
+def test_pictures_too_small_for_features_are_refused_with_their_size_and_the_way_out():
+    # kornia's SIFT pads its scale pyramid past a picture under 32 px a side and raised a bare RuntimeError from
+    # inside torch; the features matcher now finds nothing there, and the refusal says why and what to do
+    a = F.interpolate(load_sample("cat"), size=(24, 40), mode="bilinear", antialias=True)
+    with pytest.raises(ValueError) as caught:
+        find_points(a, a, match="features", border=None)
+    message = str(caught.value)
+    assert "found 0 matching features" in message and "needs 32 px on each side" in message
+    assert "image_a is 40 x 24 px and image_b is 40 x 24 px" in message and "match='pixels'" in message
+    found = find_points(a, a, match="pixels", pixels=3, border=None)  # the way out it names works
+    assert len(found.points_a) == len(found.points_b) >= 3

@@ -31,7 +31,7 @@ from torchfluidwarp.correspond.faces import (
     listing,
     load_mediapipe,
 )
-from torchfluidwarp.correspond.features import match_features
+from torchfluidwarp.correspond.features import MIN_SIDE, match_features
 from torchfluidwarp.correspond.refine import refine_points
 from torchfluidwarp.errors import Hint, InputError
 
@@ -335,9 +335,19 @@ def find_points(
         found = match_features(a, b, max_points=max_points)
         count = len(found[0])
         if count < 3:
+            small = [
+                f"{n} is {x.shape[-1]} x {x.shape[-2]} px"
+                for n, x in zip(names, (a, b))
+                if min(x.shape[-2:]) < MIN_SIDE
+            ]
             raise InputError(
                 (f"{why_not_faces}; " if why_not_faces else "")
-                + f"found {count} matching features between {names[0]} and {names[1]} (need 3 or more)",
+                + f"found {count} matching features between {names[0]} and {names[1]} (need 3 or more)"
+                + (
+                    f"; the feature detector needs {MIN_SIDE} px on each side, and {' and '.join(small)}"
+                    if small
+                    else ""
+                ),
                 argument="match",
                 hint=ValueHint(
                     "give the points by hand, or let the pixels place them ({setting})",

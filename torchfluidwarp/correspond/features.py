@@ -30,6 +30,9 @@ __all__ = ["RansacModel", "consistent_matches", "match_features", "thin_matches"
 
 RansacModel = Literal["homography", "affine", "fundamental"]
 NEIGHBOURS = 8  # matches each match is compared with by the consistency check
+MIN_SIDE = 32
+"""Pixels: the shorter side a picture needs for kornia's SIFT (its scale pyramid pads past a smaller one); on a
+smaller picture :func:`match_features` finds no feature."""
 MIN_RANSAC = {"homography": 4, "affine": 3, "fundamental": 8}  # matches needed for a model and its check
 
 
@@ -155,6 +158,8 @@ def match_features(
     threshold = 0.03 * float(Hb**2 + Wb**2) ** 0.5 if inlier_threshold is None else inlier_threshold
     threshold = check_positive("inlier_threshold", threshold)
 
+    if min(a.shape[-2:]) < MIN_SIDE or min(b.shape[-2:]) < MIN_SIDE:
+        return _empty(a), _empty(a)
     kp_a, desc_a = _sift(gray(a).detach().float().cpu(), num_features)
     kp_b, desc_b = _sift(gray(b).detach().float().cpu(), num_features)
     if len(kp_a) == 0 or len(kp_b) == 0:
