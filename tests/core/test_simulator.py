@@ -101,6 +101,16 @@ def test_bad_forces(bad, match):
         sim(bad)
 
 
+@pytest.mark.parametrize("key", ["device", "presure"])
+def test_an_unknown_setting_is_refused_by_the_simulators_name_with_its_settings(key):
+    # the step's own TypeError named StableFluidsStep.__init__, a class the caller never called
+    with pytest.raises(TypeError, match=rf"FluidSimulator got unexpected keyword argument\(s\) '{key}'") as caught:
+        FluidSimulator((8, 8), **{key: None})
+    assert "pressure, diffusion, adjoint, compressible" in str(caught.value)
+    assert ("there is no device argument" in str(caught.value)) == (key == "device")
+    FluidSimulator((8, 8), pressure=CGConfig())  # a known one passes
+
+
 def test_bad_settings():
     with pytest.raises(ValueError, match="dt must be finite and > 0"):
         FluidSimulator((8, 8), dt=0.0)

@@ -26,7 +26,7 @@ from torchfluidwarp.core.graphs import StepGraphs
 from torchfluidwarp.core.grid import FluidGrid
 from torchfluidwarp.core.linalg import CGConfig
 from torchfluidwarp.core.staggered import StaggeredGrid
-from torchfluidwarp.errors import FlowBlewUp, InputError
+from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack from Python 3.11
@@ -232,6 +232,19 @@ class FluidSimulator(nn.Module):
         self.grid = FluidGrid.of(grid)
         self.layout = StaggeredGrid(self.grid)  # the staggered layout and its constants, held with the simulator
         self.dt = check_positive("dt", dt)
+        unknown = sorted(set(step) - set(StepSettings.__annotations__))
+        if unknown:  # the step's own TypeError would name a class the caller never called
+            raise InputTypeError(
+                f"FluidSimulator got unexpected keyword argument(s) {', '.join(map(repr, unknown))}; its settings "
+                f"are grid, dt, viscosity, cuda_graphs and {', '.join(StepSettings.__annotations__)}"
+                + (
+                    "; there is no device argument: the simulator runs where its forces are (.to(device) moves it "
+                    "and a viscosity field it holds)"
+                    if "device" in unknown
+                    else ""
+                ),
+                argument=unknown[0],
+            )
         self.step = StableFluidsStep(dt, **step)
         for module in (self.step.advect, self.step.diffuse, self.step.project):
             if module is not None:  # the step's modules share this grid's constants and spectral bases
