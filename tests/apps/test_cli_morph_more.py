@@ -158,8 +158,11 @@ def test_a_sequence_needs_one_point_file_per_image(three, tmp_path, capsys):
     images, files = three
     assert main(["morph", *images, "--points", *files[:2], "-o", str(tmp_path / "s.gif"), *FAST]) == 2
     assert "one file per image: 3 images, 2" in capsys.readouterr().err
+    # without point files a sequence looks for each image's face: these noise pictures show none
     assert main(["morph", *images, "-o", str(tmp_path / "s.gif"), *FAST]) == 2
-    assert "needs --points" in capsys.readouterr().err
+    assert f"no face found in {images[0]}" in capsys.readouterr().err
+    assert main(["morph", *images, "--match", "features", "-o", str(tmp_path / "s.gif"), *FAST]) == 2
+    assert "--match features finds the points of two images only" in capsys.readouterr().err
 
 
 def test_average_of_one_image_repeated_is_that_image(three, tmp_path):
@@ -278,3 +281,21 @@ def test_an_existing_output_is_refused_before_the_points_are_searched_for(astron
     assert "already exists" in capsys.readouterr().err and calls == [] and out.read_bytes() == b"keep me"
     assert main(["morph", str(a), str(b), "--frame", "0.5", "-o", str(tmp_path / "mid.xyz"), *FAST]) == 2
     assert "an image needs a suffix" in capsys.readouterr().err and calls == []
+
+
+def test_average_and_sequence_of_faces_need_no_point_files(astronauts, tmp_path, capsys):
+    # without --points each image's face landmarks are found: the same result as those landmarks given as files
+    from torchfluidwarp.correspond import detect_face_points
+
+    (a, b), _, _, _ = astronauts
+    marks = [detect_face_points(read_image(path)) for path in (a, b)]  # the pictures as the command reads them
+    files = [str(write_points(tmp_path / f"{n}.pts", m)) for n, m in zip("ab", marks)]
+    found, given = tmp_path / "found.png", tmp_path / "given.png"
+    settings = ["--grid", "12", "--steps", "3", "--max-iter", "5"]
+    assert main(["average", str(a), str(b), "-o", str(found), *settings]) == 0
+    assert "found the face landmarks (63 points) of each of the 2 images" in capsys.readouterr().err
+    assert main(["average", str(a), str(b), "--points", *files, "-o", str(given), *settings, "-q"]) == 0
+    assert np.abs(iio.imread(found).astype(int) - iio.imread(given).astype(int)).max() <= 1
+    seq = tmp_path / "seq.gif"
+    assert main(["morph", str(a), str(b), str(a), "-o", str(seq), "--frames", "5", *FAST]) == 0
+    assert iio.imread(seq, index=None).shape == (5, 128, 128, 3)

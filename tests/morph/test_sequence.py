@@ -111,3 +111,18 @@ def test_the_average_places_each_picture_on_the_first_canvas_without_stretching(
     # the tall picture's disc stays a disc, warped to the mean shape, and so does the average's
     assert aspect(result.warped[1]) == pytest.approx(1.0, abs=0.04)
     assert aspect(result.image) == pytest.approx(1.0, abs=0.04)
+
+
+def test_without_points_each_images_face_landmarks_are_used():
+    from torchfluidwarp.correspond import detect_face_points
+    from torchfluidwarp.data import load_sample
+
+    a = torch.nn.functional.interpolate(load_sample("astronaut"), size=(160, 160), mode="bilinear", antialias=True)
+    b = torch.roll(a, shifts=(4, -6), dims=(-2, -1))  # the same face 6 px left and 4 px down
+    marks = [detect_face_points(a), detect_face_points(b)]
+    torch.testing.assert_close(marks[1] - marks[0], torch.tensor([-6.0, 4.0]).expand_as(marks[0]), atol=1.0, rtol=0)
+    found, given = average([a, b], **KW), average([a, b], marks, **KW)
+    torch.testing.assert_close(found.image, given.image)
+    torch.testing.assert_close(found.points, given.points)
+    with pytest.raises(ValueError, match=r"no face found in images\[1\]"):
+        average([a, torch.full_like(a, 0.5)], **KW)

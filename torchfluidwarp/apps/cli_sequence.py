@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Generator
 from typing import Any
 
@@ -40,6 +41,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     write_report,
     write_result,
 )
+from torchfluidwarp.correspond import detect_face_points
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
 from torchfluidwarp.metrics import report_frames
@@ -48,8 +50,29 @@ from torchfluidwarp.morph import MorphSequence, average, morph_sequence
 __all__ = ["run_sequence", "add_average"]
 
 
-def _read_all(images: list[str], point_files: list[str]) -> tuple[list[Tensor], list[Tensor]]:
-    """Every image and its points; every point file must have as many points as the first."""
+def _read_all(
+    images: list[str], point_files: list[str] | None, quiet: bool, face_index: int | None = None
+) -> tuple[list[Tensor], list[Tensor]]:
+    """Every image and its points; every point file must have as many points as the first. Without point files,
+    each image's face landmarks (:func:`~torchfluidwarp.correspond.detect_face_points`, named by its file)."""
+    if not point_files:
+        pictures = [read_image(path) for path in images]
+        with warnings.catch_warnings(record=True) as caught:  # several faces: said below, in the command's words
+            warnings.simplefilter("always", UserWarning)
+            found = [detect_face_points(x, face_index=face_index, name=path) for x, path in zip(pictures, images)]
+        for w in caught:
+            several = str(w.message).split("; using the largest")
+            if len(several) == 2 and not quiet:
+                print(f"{PROG}: {several[0]}; used the largest; --face-index I chooses another", file=sys.stderr)
+            elif len(several) != 2:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        if not quiet:
+            print(
+                f"{PROG}: found the face landmarks ({len(found[0])} points) of each of the {len(images)} images; "
+                "give --points FILE... to mark other features",
+                file=sys.stderr,
+            )
+        return pictures, found
     if len(point_files) != len(images):
         raise InputError(f"--points needs one file per image: {len(images)} images, {len(point_files)} files")
     pictures = [read_image(path) for path in images]
@@ -79,16 +102,16 @@ def run_sequence(args: argparse.Namespace) -> int:
 
     ``args`` are the ``morph`` subcommand's (:mod:`torchfluidwarp.apps.cli_morph`), with ``args.output`` set.
     """
-    if not args.points:
+    if not args.points and args.match not in (None, "auto", "faces"):
         raise InputError(
-            f"a sequence of {len(args.images)} images needs --points FILE... (one per image): "
-            "--match finds the points of two images only"
+            f"a sequence of {len(args.images)} images takes --points FILE... (one per image), or finds each one's "
+            f"face landmarks without them; --match {args.match} finds the points of two images only"
         )
     if args.save_points or args.held_out_a or args.held_out_b:
         raise InputError("--save-points and --held-out-a/-b apply to two images only")
     clock = clock_of(args)
     with clock.part("load"):
-        pictures, points = _read_all(args.images, args.points)
+        pictures, points = _read_all(args.images, args.points, args.quiet, args.face_index)
     if args.region not in (None, "points"):
         raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
     settings = morph_settings(args)
@@ -133,7 +156,8 @@ def add_average(commands: argparse._SubParsersAction) -> None:
         description="Average images (faces, objects) that show the same points: the mean shape of the point "
         "sets is found (each set brought onto the first by a similarity, then averaged), every image is warped "
         "to it by its own fitted fold-free flow, and the warped images are averaged.",
-        epilog="example:\n  torchfluidwarp average f1.jpg f2.jpg f3.jpg --points f1.pts f2.pts f3.pts -o mean.png",
+        epilog="examples:\n  torchfluidwarp average f1.jpg f2.jpg f3.jpg -o mean.png   (faces: their landmarks are "
+        "found)\n  torchfluidwarp average f1.jpg f2.jpg f3.jpg --points f1.pts f2.pts f3.pts -o mean.png",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
@@ -142,8 +166,20 @@ def add_average(commands: argparse._SubParsersAction) -> None:
         nargs="+",
         help="two or more images (each placed on the first's canvas by one scale factor, never stretched)",
     )
-    p.add_argument("--points", metavar="FILE", nargs="+", required=True, help="one point file per image, in order")
+    p.add_argument(
+        "--points",
+        metavar="FILE",
+        nargs="+",
+        help="one point file per image, in order (default: each image's face landmarks, the largest face)",
+    )
     p.add_argument("-o", "--output", metavar="OUT", default="average.png", help="the image (default average.png)")
+    p.add_argument(
+        "--face-index",
+        type=count(0),
+        default=None,
+        metavar="I",
+        help="without --points, which face where a photo shows several: 0 = the largest (the default), 1 = the next",
+    )
     p.add_argument("--save-points", metavar="FILE", help="write the mean shape (.pts, .json or .csv)")
     p.add_argument("--method", choices=("natural", "paper"), default="natural", help="as morph (default natural)")
     p.add_argument("--align", choices=("similarity", "affine", "none"), default="similarity", help="as morph")
@@ -166,7 +202,7 @@ def _cmd_average(args: argparse.Namespace) -> int:
         if len(args.images) < 2:
             return fail("average", f"give two or more images, got {len(args.images)}")
         check_image_output(args.output, args.overwrite)
-        pictures, points = _read_all(args.images, args.points)
+        pictures, points = _read_all(args.images, args.points, args.quiet, args.face_index)
         result = average(pictures, points, settings=morph_settings(args), max_memory=max_memory(args))
         path = write_image(args.output, result.image)
         if args.save_points:

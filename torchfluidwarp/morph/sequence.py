@@ -23,6 +23,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_instance, check_int, check_real, check_size
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.correspond import detect_face_points
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
@@ -32,16 +33,19 @@ from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettin
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
 
-def _checked(images: Sequence[Tensor], points: Sequence[Tensor]) -> list[tuple[Tensor, Tensor]]:
+def _checked(images: Sequence[Tensor], points: Sequence[Tensor] | None) -> list[tuple[Tensor, Tensor]]:
     """Each image ``(1, C, H, W)``, in the richest colour model among them (:func:`match_channels`: nothing is
-    dropped), with its points ``(M, 2)`` in its own pixels; neither is resized."""
-    if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple)):
-        raise InputTypeError("images and points must be lists (or tuples) of tensors")
+    dropped), with its points ``(M, 2)`` in its own pixels (``None``: each one's face landmarks,
+    :func:`~torchfluidwarp.correspond.detect_face_points`); neither is resized."""
+    if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple, type(None))):
+        raise InputTypeError("images and points must be lists (or tuples) of tensors (points may be None)")
     if len(images) < 2:
         raise InputError(f"images must hold at least 2 images, got {len(images)}")
-    if len(points) != len(images):
+    if points is not None and len(points) != len(images):
         raise InputError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
     pictures = [_as_image(f"images[{i}]", image) for i, image in enumerate(images)]
+    if points is None:  # the same landmarks of each one's face, in the same order
+        points = [detect_face_points(picture, name=f"images[{i}]") for i, picture in enumerate(pictures)]
     richest = pictures[0][..., :1, :1]  # one pixel stands for the picture's colour model
     for picture in pictures[1:]:
         richest, _ = match_channels(richest, picture[..., :1, :1])
@@ -107,7 +111,7 @@ def _travel(pa: Tensor, pb: Tensor) -> float:
 
 def morph_sequence(
     images: Sequence[Tensor],
-    points: Sequence[Tensor],
+    points: Sequence[Tensor] | None = None,
     *,
     settings: MorphSettings = NaturalSettings(),
     frames: int = 60,
@@ -126,7 +130,9 @@ def morph_sequence(
 
     Args:
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
-        points: one ``(M, 2)`` set per image, in that image's own pixels.
+        points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
+            ``None`` (the default): the landmarks of each image's face, the largest where there are several
+            (:func:`~torchfluidwarp.correspond.detect_face_points`; needs the ``faces`` extra).
         settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
             every segment. With the linear motion (``Timing()``, the default) the frames are shared out in
             proportion to each segment's travel on the canvas, so the points' speed is the same on both sides of
@@ -193,7 +199,7 @@ class AverageResult:
 
 def average(
     images: Sequence[Tensor],
-    points: Sequence[Tensor],
+    points: Sequence[Tensor] | None = None,
     *,
     settings: MorphSettings = NaturalSettings(),
     progress: bool = False,
@@ -210,7 +216,9 @@ def average(
     Args:
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio; the
             average takes the richest colour model among them.
-        points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order.
+        points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
+            ``None`` (the default): the landmarks of each image's face, the largest where there are several
+            (:func:`~torchfluidwarp.correspond.detect_face_points`; needs the ``faces`` extra).
         settings, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for every warp (each
             is rendered at its end only, so there are no frames, timing or region to set).
 
