@@ -87,9 +87,9 @@ def refine_points(
     Returns:
         ``(points_a, points_b, fit)``: the given pairs followed by the ``K`` extra ones, ``(M + K, 2)`` each
         (A's dtype and device), and the :class:`~torchfluidwarp.control.images.ImageFit` (compressible,
-        float64; its ``min_det > 0`` says the fitted map does not fold). With no pairs given, the fit is from A to
-        B (at A's size) moved back by the best plain shift (see the module's docstring): the extra points are
-        the fit's carried points plus that shift.
+        float64; its ``min_det > 0`` says the fitted map does not fold). With no pairs given, the fit may be from
+        A to B (at A's size) read through the best plain shift ``s`` (``B(x - s)``, see the module's docstring):
+        the extra points are then where the fit carries them, less ``s``.
 
     Raises:
         TypeError / ValueError: as for ``fit_images``, with the argument named.
