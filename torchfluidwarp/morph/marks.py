@@ -106,7 +106,8 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
     if bad:
         warn(
             f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
-            "morph can do without folding; check their order (result.error shows which points were not reached)",
+            "morph can do without folding; check their order (result.let_go names the points let go and "
+            "result.error how far each ended; the command line's last line counts them)",
             RuntimeWarning,
         )
 
@@ -121,7 +122,8 @@ def warn_let_go(pa: Tensor, pb: Tensor, error: Tensor, placed_by: str) -> None:
         warn(
             f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear apart "
             "between A and B (as where a head turns and hides part of one side); the morph let them go so as not "
-            "to fold (result.error shows how far each ended from its target)",
+            "to fold (result.let_go names them and result.error how far each ended; the command line's last line "
+            "counts them)",
             RuntimeWarning,
         )
 
