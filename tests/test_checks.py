@@ -60,7 +60,7 @@ def test_pictures_in_the_librarys_form_pass_whatever_their_channels():
     "value, match",
     [
         ([[10, 12], [40, 8], [25, 30]], r"points_a must be a torch.Tensor, got list .*; torch.as_tensor\(value, "),
-        (torch.tensor([[10, 12], [40, 8], [25, 30]]), r"dtype torch.int64; points_a.float\(\) makes one"),
+        (torch.tensor([[10, 12], [40, 8], [25, 30]]), r"dtype torch.int64; .float\(\) makes one"),
     ],
 )
 def test_points_in_another_form_are_refused_with_the_conversion_that_works(value, match):

@@ -116,7 +116,7 @@ def check_tensor(
         )
     if floating and not x.is_floating_point():
         raise InputTypeError(
-            f"{name} must be a floating-point tensor, got dtype {x.dtype}; {name}.float() makes one",
+            f"{name} must be a floating-point tensor, got dtype {x.dtype}; .float() makes one",
             argument=argument_of(name),
         )
     if ndim is not None:

@@ -285,6 +285,7 @@ def test_an_existing_output_is_refused_before_the_points_are_searched_for(astron
 
 def test_average_and_sequence_of_faces_need_no_point_files(astronauts, tmp_path, capsys):
     # without --points each image's face landmarks are found: the same result as those landmarks given as files
+    pytest.importorskip("mediapipe")
     from torchfluidwarp.correspond import detect_face_points
 
     (a, b), _, _, _ = astronauts
@@ -293,9 +294,21 @@ def test_average_and_sequence_of_faces_need_no_point_files(astronauts, tmp_path,
     found, given = tmp_path / "found.png", tmp_path / "given.png"
     settings = ["--grid", "12", "--steps", "3", "--max-iter", "5"]
     assert main(["average", str(a), str(b), "-o", str(found), *settings]) == 0
-    assert "found the face landmarks (63 points) of each of the 2 images" in capsys.readouterr().err
+    assert "average: found the face landmarks (63 points) of each of the 2 pictures" in capsys.readouterr().err
     assert main(["average", str(a), str(b), "--points", *files, "-o", str(given), *settings, "-q"]) == 0
     assert np.abs(iio.imread(found).astype(int) - iio.imread(given).astype(int)).max() <= 1
     seq = tmp_path / "seq.gif"
-    assert main(["morph", str(a), str(b), str(a), "-o", str(seq), "--frames", "5", *FAST]) == 0
-    assert iio.imread(seq, index=None).shape == (5, 128, 128, 3)
+    assert main(["morph", str(a), str(b), str(a), "-o", str(seq), "--frames", "5", *FAST[:-1]]) == 0
+    said = capsys.readouterr().err
+    assert "morph: found the face landmarks (63 points) of each of the 3 pictures" in said
+    assert "morph: 2 segments, mean point error per segment" in said
+    frames = iio.imread(seq, index=None)
+    assert frames.shape == (5, 128, 128, 3)  # through B and back to A: the last frame is A again
+    assert np.abs(frames[-1].astype(int) - iio.imread(a).astype(int)).mean() < 3  # GIF palette, not the morph
+
+
+def test_average_without_the_faces_extra_says_how_to_get_it(astronauts, tmp_path, capsys, monkeypatch):
+    (a, b), _, _, _ = astronauts
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # import mediapipe now raises ImportError
+    assert main(["average", str(a), str(b), "-o", str(tmp_path / "m.png")]) == 2  # the user's to fix: not a bug
+    assert "torchfluidwarp[faces]" in capsys.readouterr().err

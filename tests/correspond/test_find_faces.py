@@ -31,6 +31,7 @@ from torchfluidwarp.correspond import (
     NoFaceFound,
     auto_points,
     detect_face_points,
+    find_each_face,
     find_faces,
     find_points,
 )
@@ -154,6 +155,25 @@ def test_two_faces_the_largest_by_default_and_face_index_picks_the_other(two_fac
         assert torch.equal(detect_face_points(picture, face_index=1), faces[1].mesh[IDX].float())
     with pytest.raises(ValueError, match=rf"face_index=2, but two\.png has 2 face\(s\) \(0 to 1\): {listed}"):
         detect_face_points(picture, face_index=2, name="two.png")
+
+
+def test_each_face_one_index_for_the_pictures_that_show_several(two_faces, astronaut):
+    # a morph through several photographs: face_index picks among the faces of a picture that shows several; a
+    # picture with one face keeps it, whatever the index (it used to refuse: "face_index=1, but ... 1 face(s)")
+    picture, big, small = two_faces
+    one = F.interpolate(astronaut, size=(300, 300), mode="bilinear", antialias=True)
+    faces = find_faces(picture)
+    alone = detect_face_points(one)
+    for index, want in ((None, faces[0]), (1, faces[1])):
+        points, note = find_each_face([picture, one], face_index=index, names=["two.png", "one.png"])
+        assert torch.equal(points[0], want.mesh[IDX].float()) and torch.equal(points[1], alone)
+        which = "the largest" if index is None else "face 1"
+        assert note.notable and f"two.png shows 2 faces (0: {faces[0]}; 1: {faces[1]}): used {which}" in str(note)
+        assert note.explain(CLI_NAMES).endswith("choose another with --face-index I (where a picture shows several)")
+    points, note = find_each_face([one, one])
+    assert not note.notable and str(note) == "found the face landmarks (63 points) of each of the 2 pictures"
+    with pytest.raises(ValueError, match=r"face_index=2, but images\[0\] has 2 face\(s\)"):
+        find_each_face([picture, one], face_index=2)
 
 
 def test_the_automatic_mode_lists_several_faces_in_the_callers_terms(two_faces, astronaut):

@@ -114,6 +114,7 @@ def test_the_average_places_each_picture_on_the_first_canvas_without_stretching(
 
 
 def test_without_points_each_images_face_landmarks_are_used():
+    pytest.importorskip("mediapipe")
     from torchfluidwarp.correspond import detect_face_points
     from torchfluidwarp.data import load_sample
 

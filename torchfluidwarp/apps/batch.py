@@ -12,9 +12,9 @@ folder ``DIR/<name>/`` of PNGs).
   killed run left for the pair it was writing is removed when that pair's turn comes again).
 * A bad row (a missing file, mismatched points, a morph that fails) goes to ``DIR/failures.csv`` (this run's
   failures: ``row,name,reason``) and the others go on.
-* ``DIR/summary.csv`` has one row a pair: the landmark error (``result.error``, pixels), the fraction of
-  folded map pixels (``result.folded``), the seconds it took and the warnings it raised; rows of earlier runs
-  are kept.
+* ``DIR/summary.csv`` has one row a pair: the landmark error over the marks met (``result.met_error``,
+  pixels) and how many the morph let go so as not to fold (``result.let_go``), the fraction of folded map pixels
+  (``result.folded``), the seconds it took and the warnings it raised; rows of earlier runs are kept.
 
 Under ``torchrun`` (``RANK``/``WORLD_SIZE`` set) rank ``r`` of ``n`` takes the pairs ``r, r + n, r + 2n, ...``
 and uses ``cuda:LOCAL_RANK`` when there are GPUs; rank 0 gathers the summaries and failures
@@ -361,7 +361,7 @@ def _morph_pair(
             max_memory=options.max_memory,
         )
         write_animation(target, returning_memory(stream_frames(result)), fps=fps, overwrite=overwrite)
-    err = result.error[~result.let_go]  # the marks met; those let go so as not to fold are counted apart
+    err = result.met_error  # those let go so as not to fold are counted apart
     err = err if err.numel() else result.error.new_full((1,), float("nan"))
     return {
         "name": pair.name,

@@ -7,6 +7,9 @@
 * ``torchfluidwarp average IMG1 IMG2 ... --points F1 F2 ... -o mean.png`` writes the mean of the images, each
   warped to the mean shape of the points by its own fold-free flow (:func:`torchfluidwarp.morph.average`).
 
+Without ``--points`` both use each image's face landmarks (:func:`torchfluidwarp.correspond.find_each_face`),
+say so on stderr, and take ``--face-index I`` for the face to use where a photograph shows several.
+
 Exit status as in :mod:`torchfluidwarp.apps.cli`: 0 on success, 2 for bad input, with one line on stderr.
 """
 
@@ -15,7 +18,8 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
-from collections.abc import Generator
+from collections.abc import Generator, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from torch import Tensor
@@ -41,7 +45,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     write_report,
     write_result,
 )
-from torchfluidwarp.correspond import detect_face_points
+from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
 from torchfluidwarp.metrics import report_frames
@@ -50,36 +54,40 @@ from torchfluidwarp.morph import MorphSequence, average, morph_sequence
 __all__ = ["run_sequence", "add_average"]
 
 
-def _read_all(
-    images: list[str], point_files: list[str] | None, quiet: bool, face_index: int | None = None
-) -> tuple[list[Tensor], list[Tensor]]:
+def _read_all(images: list[str], point_files: list[str] | None) -> tuple[list[Tensor], list[Tensor] | None]:
     """Every image and its points; every point file must have as many points as the first. Without point files,
-    each image's face landmarks (:func:`~torchfluidwarp.correspond.detect_face_points`, named by its file)."""
+    ``None``: the library finds each image's face landmarks (:func:`_faces_said`)."""
+    pictures = [read_image(path) for path in images]
     if not point_files:
-        pictures = [read_image(path) for path in images]
-        with warnings.catch_warnings(record=True) as caught:  # several faces: said below, in the command's words
-            warnings.simplefilter("always", UserWarning)
-            found = [detect_face_points(x, face_index=face_index, name=path) for x, path in zip(pictures, images)]
-        for w in caught:
-            several = str(w.message).split("; using the largest")
-            if len(several) == 2 and not quiet:
-                print(f"{PROG}: {several[0]}; used the largest; --face-index I chooses another", file=sys.stderr)
-            elif len(several) != 2:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        if not quiet:
-            print(
-                f"{PROG}: found the face landmarks ({len(found[0])} points) of each of the {len(images)} images; "
-                "give --points FILE... to mark other features",
-                file=sys.stderr,
-            )
-        return pictures, found
+        return pictures, None
     if len(point_files) != len(images):
         raise InputError(f"--points needs one file per image: {len(images)} images, {len(point_files)} files")
-    pictures = [read_image(path) for path in images]
     points = [read_points(path) for path in point_files]
     for path, p in zip(point_files[1:], points[1:]):
         check_point_counts(points[0], p, point_files[0], path)
     return pictures, points
+
+
+@contextmanager
+def _faces_said(command: str, args: argparse.Namespace, found: bool) -> Iterator[None]:
+    """Around a call that finds each image's face landmarks (``found``): its note, in the command line's words
+    (``--face-index I``), on stderr unless ``--quiet``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MatchNotice)
+        yield
+    notes = [w.message.note for w in caught if isinstance(w.message, MatchNotice)]
+    for w in caught:
+        if not isinstance(w.message, MatchNotice):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if found and not args.quiet:
+        said = (
+            notes[0].explain({"face_index": "--face-index I"})
+            if notes
+            else (
+                f"found the face landmarks ({len(FACE_MESH_INDICES)} points) of each of the {len(args.images)} pictures"
+            )
+        )
+        print(f"{PROG} {command}: {said}; give --points FILE... to mark other features", file=sys.stderr)
 
 
 def _measured(
@@ -111,7 +119,7 @@ def run_sequence(args: argparse.Namespace) -> int:
         raise InputError("--save-points and --held-out-a/-b apply to two images only")
     clock = clock_of(args)
     with clock.part("load"):
-        pictures, points = _read_all(args.images, args.points, args.quiet, args.face_index)
+        pictures, points = _read_all(args.images, args.points)
     if args.region not in (None, "points"):
         raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
     settings = morph_settings(args)
@@ -119,10 +127,12 @@ def run_sequence(args: argparse.Namespace) -> int:
     check_result_output(args, args.frames, pictures[0])
     check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, pictures[0]))
     progress = not args.quiet and sys.stderr.isatty()
-    with clock.part("fit"):
+    with clock.part("fit"), _faces_said("morph", args, points is None):
         sequence = morph_sequence(
             pictures,
             points,
+            face_index=args.face_index,
+            names=args.images,
             settings=settings,
             frames=args.frames,
             timing=timing,
@@ -135,14 +145,17 @@ def run_sequence(args: argparse.Namespace) -> int:
             path = write_result(sequence, args)
     else:  # the animation is written from the segments' report passes: each frame is rendered once
         with clock.part("render, write and report" if args.frame is None else "render, report and write"):
-            reports, path = write_measured(sequence, args, _measured(sequence, pictures, points))
+            reports, path = write_measured(sequence, args, _measured(sequence, pictures, sequence.points))
             print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
     if not args.quiet:
-        errors = [float(segment.error.mean()) for segment in sequence.segments]
+        errors = [float(segment.met_error.mean()) for segment in sequence.segments]
+        let_go = sum(int(segment.let_go.sum()) for segment in sequence.segments)
         print(
             f"{PROG} morph: {len(errors)} segments, mean point error per segment "
             + ", ".join(f"{e:.2f}" for e in errors)
-            + f" px, {clock.summary()}",
+            + " px"
+            + (f" over the marks met ({let_go} let go so as not to fold)" if let_go else "")
+            + f", {clock.summary()}",
             file=sys.stderr,
         )
     print(path)
@@ -202,8 +215,17 @@ def _cmd_average(args: argparse.Namespace) -> int:
         if len(args.images) < 2:
             return fail("average", f"give two or more images, got {len(args.images)}")
         check_image_output(args.output, args.overwrite)
-        pictures, points = _read_all(args.images, args.points, args.quiet, args.face_index)
-        result = average(pictures, points, settings=morph_settings(args), max_memory=max_memory(args))
+        pictures, points = _read_all(args.images, args.points)
+        settings = morph_settings(args)
+        with _faces_said("average", args, points is None):
+            result = average(
+                pictures,
+                points,
+                face_index=args.face_index,
+                names=args.images,
+                settings=settings,
+                max_memory=max_memory(args),
+            )
         path = write_image(args.output, result.image)
         if args.save_points:
             print(f"points: {write_points(args.save_points, result.points)}", file=sys.stderr)
@@ -213,7 +235,7 @@ def _cmd_average(args: argparse.Namespace) -> int:
                 f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}",
                 file=sys.stderr,
             )
-    except OSError as exc:  # a file of the user's: one line
+    except (OSError, ImportError) as exc:  # a file of the user's, or the faces extra missing: one line
         return fail("average", exc)  # every other error goes to cli.main, which says whose fault it is
     print(path)
     return EXIT_OK

@@ -54,7 +54,7 @@ from torchfluidwarp.warp.frames import jacobian_determinant, warp_image
 from torchfluidwarp.warp.layer import FluidWarp
 from torchfluidwarp.warp.maps import iter_backward_maps
 
-__all__ = ["FoldWarning", "ImageFit", "LevelFit", "fit_images", "shift_rivals"]
+__all__ = ["FoldWarning", "ImageFit", "LevelFit", "fit_images", "shift_out", "shift_rivals", "usable_shift"]
 
 
 class FoldWarning(RuntimeWarning):
@@ -101,11 +101,33 @@ def shift_rivals(shift: Tensor, by_shift: float, final: float, initial: float, s
         >>> shift_rivals(torch.tensor([-269.0, -66.0]), 0.5137, 0.3561, 0.8491, (354, 709))  # two face masks
         False
     """
+    rival = SHIFT_RIVAL if shift_out(shift, size) <= SHIFT_OUT else 1.0
+    return max(abs(float(v)) for v in shift) >= 2 and by_shift < min(rival * final, SHIFT_GAIN * initial)
+
+
+def shift_out(shift: Tensor, size: tuple[int, int]) -> float:
+    """The share of a picture of ``size`` ``(H, W)`` that a plain ``shift`` ``(2,)`` ``(dx, dy)`` pixels moves out
+    of the frame: ``1 - (1 - |dx| / W) (1 - |dy| / H)``, each factor at least 0."""
     dx, dy = (abs(float(v)) for v in shift)
     H, W = size
-    out = 1 - max(0.0, 1 - dx / W) * max(0.0, 1 - dy / H)
-    rival = SHIFT_RIVAL if out <= SHIFT_OUT else 1.0
-    return max(dx, dy) >= 2 and by_shift < min(rival * final, SHIFT_GAIN * initial)
+    return 1 - max(0.0, 1 - dx / W) * max(0.0, 1 - dy / H)
+
+
+def usable_shift(shift: Tensor, by_shift: float, initial: float, size: tuple[int, int]) -> bool:
+    """Whether a plain ``shift`` ``(2,)`` pixels of a picture of ``size`` ``(H, W)``, at loss ``by_shift`` against a
+    starting loss ``initial``, is the pictures' main motion, to pre-align them by: at least 2 pixels, moving at
+    most :data:`SHIFT_OUT` of the picture out of the frame, and explaining part of the mismatch itself (its loss
+    below :data:`SHIFT_GAIN` of the starting one): the rules by which :func:`shift_rivals` judges a shift. Between
+    pictures that no shift relates, the best one only moves the picture out of the way.
+
+    Example:
+        >>> usable_shift(torch.tensor([46.0, 0.0]), 0.3092, 0.4652, (500, 741))  # the stereo motorcycle's views
+        True
+        >>> usable_shift(torch.tensor([-185.0, -192.0]), 0.8426, 1.0938, (400, 600))  # a cup against a cat
+        False
+    """
+    far = max(abs(float(v)) for v in shift) >= 2
+    return far and shift_out(shift, size) <= SHIFT_OUT and by_shift < SHIFT_GAIN * initial
 
 
 @dataclass

@@ -7,6 +7,7 @@ and carries passive points along.
 
 from __future__ import annotations
 
+import inspect
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, TypedDict, cast
@@ -234,9 +235,10 @@ class FluidSimulator(nn.Module):
         self.dt = check_positive("dt", dt)
         unknown = sorted(set(step) - set(StepSettings.__annotations__))
         if unknown:  # the step's own TypeError would name a class the caller never called
+            own = [n for n in inspect.signature(FluidSimulator.__init__).parameters if n not in ("self", "step")]
             raise InputTypeError(
                 f"FluidSimulator got unexpected keyword argument(s) {', '.join(map(repr, unknown))}; its settings "
-                f"are grid, dt, viscosity, cuda_graphs and {', '.join(StepSettings.__annotations__)}"
+                f"are {', '.join(own)} and {', '.join(StepSettings.__annotations__)}"
                 + (
                     "; there is no device argument: the simulator runs where its forces are (.to(device) moves it "
                     "and a viscosity field it holds)"

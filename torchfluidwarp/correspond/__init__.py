@@ -10,6 +10,8 @@
   with :func:`~torchfluidwarp.correspond.auto.border_points` anchors, paired as
   :func:`~torchfluidwarp.correspond.auto.border_pairs` says (frame on frame only where the frames correspond);
   :func:`~torchfluidwarp.correspond.auto.find_points`: the same, with which matcher it used and why.
+* :func:`~torchfluidwarp.correspond.auto.find_each_face`: the same face landmarks in each of several pictures
+  (a morph through them, their average).
 * :func:`~torchfluidwarp.correspond.refine.refine_points`: the pixels add pairs to sparse ones, through a flow
   fitted to the images (:func:`~torchfluidwarp.control.images.fit_images`) with the pairs as anchors.
 * :func:`~torchfluidwarp.correspond.halfway.halfway_alignment`: what the marks leave open, aligned by the pixels
@@ -27,6 +29,7 @@ from torchfluidwarp.correspond.auto import (
     auto_points,
     border_pairs,
     border_points,
+    find_each_face,
     find_points,
 )
 from torchfluidwarp.correspond.faces import (
@@ -57,6 +60,7 @@ __all__ = [
     "border_points",
     "detect_face_points",
     "find_faces",
+    "find_each_face",
     "find_points",
     "halfway_alignment",
     "match_features",

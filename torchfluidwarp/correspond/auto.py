@@ -9,7 +9,7 @@ from faces or chose among several.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -45,6 +45,7 @@ __all__ = [
     "auto_points",
     "border_pairs",
     "border_points",
+    "find_each_face",
     "find_points",
     "usable_pairs",
 ]
@@ -245,6 +246,46 @@ def _faces_note(chosen: tuple[Chosen, Chosen], names: tuple[str, str], face_inde
         return Note(message)
     hint = Hint("choose another with {setting}", "face_index", spelling="face_index=(i, j)")
     return Note("; ".join([message, *several]), hint, notable=True)
+
+
+def find_each_face(
+    images: Sequence[Tensor], *, face_index: int | None = None, names: Sequence[str] | None = None
+) -> tuple[list[Tensor], Note]:
+    """The landmarks of one face in each of several pictures: the same :data:`~torchfluidwarp.correspond.faces.
+    FACE_MESH_INDICES` points in the same order, for a morph through them or their average.
+
+    Args:
+        images: pictures ``(C, H, W)`` or ``(1, C, H, W)`` in ``[0, 1]``, any size.
+        face_index: which face where a picture shows several, by size (0 = the largest, the default). A picture
+            that shows one face uses it, whatever the index.
+        names: what to call each picture in messages (file names, say); default ``images[i]``.
+
+    Returns:
+        ``(points, note)``: one ``(63, 2)`` set per picture, in its own pixels with its dtype and device, and a
+        :class:`Note` saying so, notable (with how to choose another) when a picture showed several faces.
+
+    Raises:
+        ImportError: mediapipe is not installed (the message says ``pip install "torchfluidwarp[faces]"``).
+        NoFaceFound: a picture shows no face (the message names it and its size).
+        InputError: ``face_index`` beyond the faces of a picture that shows several (the message lists them).
+    """
+    labels = list(names) if names is not None else [f"images[{i}]" for i in range(len(images))]
+    if face_index is not None:
+        face_index = check_int("face_index", face_index, minimum=0)
+    points, several = [], []
+    for image, name in zip(images, labels):
+        x = single_image(name, image)
+        faces = find_faces(x)
+        chosen = choose_face(faces, face_index if len(faces) > 1 else None, name, (x.shape[-2], x.shape[-1]))
+        points.append(chosen.face.mesh[list(FACE_MESH_INDICES)].to(device=x.device, dtype=x.dtype))
+        if chosen.count > 1:
+            which = "the largest" if chosen.index == 0 else f"face {chosen.index}"
+            several.append(f"{name} shows {chosen.count} faces ({listing(chosen.others)}): used {which}")
+    message = f"found the face landmarks ({len(FACE_MESH_INDICES)} points) of each of the {len(labels)} pictures"
+    if not several:
+        return points, Note(message)
+    hint = Hint("choose another with {setting} (where a picture shows several)", "face_index")
+    return points, Note("; ".join([message, *several]), hint, notable=True)
 
 
 def find_points(

@@ -9,9 +9,10 @@ the points still anchor what they marked, and the pixels place the rest. Any poi
 With no pairs to anchor it, the pixels must find the main motion alone: B is first moved back by the plain shift
 that best matches A (:func:`~torchfluidwarp.control.alignment.best_shift`), and the flow fits what is left. A
 stereo pair's views, 40 px apart, are the case: the fluid's coarse levels would otherwise stop short of the shift.
-A shift that leaves more than :data:`~torchfluidwarp.control.images.SHIFT_OUT` of B out of the frame, or removes
-less than a quarter of the mismatch (:data:`~torchfluidwarp.control.images.SHIFT_GAIN`), is not used: between
-pictures whose content does not correspond it would only move B out of the way.
+Only a shift that :func:`~torchfluidwarp.control.images.usable_shift` accepts is used (it keeps most of B in the
+frame and removes part of the mismatch itself): between pictures whose content does not correspond, the best
+shift only moves B out of the way (a cup against a cat: 64% of B out, 0.77 of the loss; the stereo motorcycle's
+views: 6% out, 0.67).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_positive, check_tensor
 from torchfluidwarp.control.alignment import best_shift
-from torchfluidwarp.control.images import SHIFT_GAIN, SHIFT_OUT, ImageFit, fit_images
+from torchfluidwarp.control.images import ImageFit, fit_images, usable_shift
 from torchfluidwarp.control.losses import LossName, image_loss
 from torchfluidwarp.core.grid import rescale_points, scale_factor
 from torchfluidwarp.correspond._image import gray, single_image
@@ -87,9 +88,9 @@ def refine_points(
     Returns:
         ``(points_a, points_b, fit)``: the given pairs followed by the ``K`` extra ones, ``(M + K, 2)`` each
         (A's dtype and device), and the :class:`~torchfluidwarp.control.images.ImageFit` (compressible,
-        float64; its ``min_det > 0`` says the fitted map does not fold). With no pairs given, the fit may be from
-        A to B (at A's size) read through the best plain shift ``s`` (``B(x - s)``, see the module's docstring):
-        the extra points are then where the fit carries them, less ``s``.
+        float64; its ``min_det > 0`` says the fitted map does not fold). With no pairs given and ``extra > 0``, the
+        fit may be from A to B (at A's size) read through the best plain shift ``s`` (``B(x - s)``, see the
+        module's docstring): the extra points are then where the fit carries them, less ``s``.
 
     Raises:
         TypeError / ValueError: as for ``fit_images``, with the argument named.
@@ -109,14 +110,10 @@ def refine_points(
     anchors = (pa.double(), rescale_points(pb.double(), to_a))
     source, target = gray(a).double(), gray(b_in_a).double()
     shift = source.new_zeros(2)  # (dx, dy): B is read at x - shift, so the flow fits what the shift leaves
-    if not len(pa):
+    if extra and not len(pa):  # the pixels alone: B read through its main motion, if it has one
         objective = image_loss(loss)
         found, by_shift = best_shift(source, target, objective)
-        out = 1 - (1 - abs(float(found[0])) / Wa) * (1 - abs(float(found[1])) / Ha)
-        # only a shift that explains part of the mismatch and keeps most of B in the frame: between pictures whose
-        # content does not correspond, the best shift moves half of B out for little (a cup against a cat: 64%
-        # out, 0.77 of the loss); the stereo motorcycle's views: 6% out, 0.67
-        if out <= SHIFT_OUT and by_shift <= SHIFT_GAIN * float(objective(source, target)):
+        if usable_shift(found, by_shift, float(objective(source, target)), (Ha, Wa)):
             shift = found
             ident = identity_map((Ha, Wa), device=a.device, dtype=target.dtype)
             target = warp_image(target, ident - shift)

@@ -112,12 +112,12 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
         )
 
 
-def warn_let_go(pa: Tensor, pb: Tensor, error: Tensor, placed_by: str) -> None:
+def warn_let_go(pa: Tensor, pb: Tensor, let_go: Tensor, placed_by: str) -> None:
     """Warn about the pairs of points ``pa``, ``pb`` ``(M, 2)`` that the ``placed_by`` matcher placed whose order
-    crosses (:func:`crossing_pairs`) and of which a point ended more than :data:`LET_GO` px from its target
-    (``error`` ``(M,)``, the last frame's pixels): the morph let them go so as not to fold. Pairs it met say
-    nothing: crossing then was the matcher's noise."""
-    missed = [(a, b) for a, b in _crossings(pa, pb) if max(float(error[a]), float(error[b])) > LET_GO]
+    crosses (:func:`crossing_pairs`) and of which the morph let a point go so as not to fold (``let_go``
+    ``(M,)`` bool, as :attr:`~torchfluidwarp.morph.MorphResult.let_go` holds it: its planned end more than
+    :data:`LET_GO` px from its target). Pairs it met say nothing: crossing then was the matcher's noise."""
+    missed = [(a, b) for a, b in _crossings(pa, pb) if bool(let_go[a]) or bool(let_go[b])]
     if missed:
         warn(
             f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear apart "

@@ -453,7 +453,7 @@ def morph(
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
     result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory, let_go)
     if placed is not None:
-        warn_let_go(pa, pb, result.error, placed.matcher)
+        warn_let_go(pa, pb, result.let_go, placed.matcher)
     if isinstance(settings, NaturalSettings):
         warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid, let_go)  # let go on purpose: not the grid's doing
     return result

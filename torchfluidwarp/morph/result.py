@@ -67,7 +67,7 @@ class MorphResult:
         let_go: ``(M,)`` bool: the marks the natural morph let go so as not to fold (they cross, as where a head
             turns and hides part of one side, or lie around a squeeze): each ends where the spline through the
             others takes it, and its :attr:`error` says how far that is from its target. False for every mark of
-            the paper's method and of points the pixels placed.
+            the paper's method and of points that features or the pixels placed.
         message: the fit's summary, with :attr:`error`'s mean and maximum, over the marks met and the marks let
             go apart when any was let go (:meth:`error_summary`).
         seconds: wall time per phase: ``"fit"``, ``"inverse"`` (the fitted flow's roll-out, and the paper
@@ -140,16 +140,25 @@ class MorphResult:
     def message(self) -> str:
         return f"{self.fit.message}; in the last frame's pixels: {self.error_summary(4)}"
 
+    @property
+    def met_error(self) -> Tensor:
+        """``(K,)`` :attr:`error` of the marks the morph did not let go (:attr:`let_go`): how well the fit met
+        them, pixels of the last frame."""
+        return self.error[~self.let_go]
+
     def error_summary(self, digits: int = 2) -> str:
-        """:attr:`error`'s mean and maximum in words (pixels of the last frame), over the marks met and over those
-        let go (:attr:`let_go`) apart: a mark let go on purpose, however far it ends, says nothing of how well the
-        fit met the rest."""
-        kept, gone = self.error[~self.let_go], self.error[self.let_go]
+        """:attr:`error`'s mean and maximum in words, over the marks met and over those let go (:attr:`let_go`)
+        apart: a mark let go on purpose, however far it ends, says nothing of how well the fit met the rest.
+
+        Args:
+            digits: decimals of the figures (pixels of the last frame).
+        """
+        kept, gone = self.met_error, self.error[self.let_go]
         if not gone.numel():
             return f"mean point error {float(kept.mean()):.{digits}f} px (max {float(kept.max()):.{digits}f})"
         met = (
             f"mean point error {float(kept.mean()):.{digits}f} px (max {float(kept.max()):.{digits}f}) over the "
-            f"{kept.numel()} marks met"
+            f"{kept.numel()} mark{'s' if kept.numel() != 1 else ''} met"
             if kept.numel()
             else "no mark met"
         )

@@ -21,9 +21,9 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_instance, check_int, check_real, check_size
+from torchfluidwarp._checks import check_instance, check_int, check_real, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
-from torchfluidwarp.correspond import detect_face_points
+from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_face
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
@@ -33,26 +33,44 @@ from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettin
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
 
-def _checked(images: Sequence[Tensor], points: Sequence[Tensor] | None) -> list[tuple[Tensor, Tensor]]:
+def _checked(
+    images: Sequence[Tensor],
+    points: Sequence[Tensor] | None,
+    face_index: int | None = None,
+    names: Sequence[str] | None = None,
+) -> tuple[list[tuple[Tensor, Tensor]], bool]:
     """Each image ``(1, C, H, W)``, in the richest colour model among them (:func:`match_channels`: nothing is
-    dropped), with its points ``(M, 2)`` in its own pixels (``None``: each one's face landmarks,
-    :func:`~torchfluidwarp.correspond.detect_face_points`); neither is resized."""
+    dropped), with its points ``(M, 2)`` in its own pixels, neither resized; and whether the points were found
+    (``points`` ``None``: each one's face landmarks, :func:`~torchfluidwarp.correspond.find_each_face`, with a
+    :class:`~torchfluidwarp.correspond.MatchNotice` where a picture shows several faces)."""
     if not isinstance(images, (list, tuple)) or not isinstance(points, (list, tuple, type(None))):
         raise InputTypeError("images and points must be lists (or tuples) of tensors (points may be None)")
     if len(images) < 2:
         raise InputError(f"images must hold at least 2 images, got {len(images)}")
     if points is not None and len(points) != len(images):
         raise InputError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
-    pictures = [_as_image(f"images[{i}]", image) for i, image in enumerate(images)]
+    labels = list(names) if names is not None else [f"images[{i}]" for i in range(len(images))]
+    pictures = [_as_image(name, image) for name, image in zip(labels, images)]
+    found = points is None
     if points is None:  # the same landmarks of each one's face, in the same order
-        points = [detect_face_points(picture, name=f"images[{i}]") for i, picture in enumerate(pictures)]
+        points, note = find_each_face(pictures, face_index=face_index, names=labels)
+        if note.notable:
+            warn(MatchNotice(note))
     richest = pictures[0][..., :1, :1]  # one pixel stands for the picture's colour model
     for picture in pictures[1:]:
         richest, _ = match_channels(richest, picture[..., :1, :1])
     out = []
     for i, (picture, p) in enumerate(zip(pictures, points)):
         out.append((match_channels(richest, picture)[1], _as_points(f"points[{i}]", p, picture)))
-    return out
+    return out, found
+
+
+def _marks(pa: Tensor, pb: Tensor, found: bool) -> tuple[Tensor | None, Tensor | None, FoundPoints | None]:
+    """:func:`~torchfluidwarp.morph.morph`'s ``points_a``, ``points_b`` and ``placed``: the user's marks, or the
+    landmarks the library found as ``placed`` (a crossing among them is not the user's order to check)."""
+    if not found:
+        return pa, pb, None
+    return None, None, FoundPoints(pa, pb, "faces", Note("the face landmarks of each picture"))
 
 
 def _placed(image: Tensor, canvas: tuple[int, int], points: Tensor) -> Tensor:
@@ -67,11 +85,14 @@ class MorphSequence:
 
     Segment ``i`` morphs image ``i`` into image ``i + 1``; its last frame is the next one's first, shown once.
     ``len(sequence)`` frames in all; ``frame(t)`` for any ``t`` in ``[0, 1]``; ``iter_frames()`` streams them.
+    ``points`` holds the point set of each image, ``(M, 2)`` in its own pixels: the ones given, or the face
+    landmarks found.
     """
 
-    def __init__(self, segments: list[MorphResult], counts: list[int]) -> None:
+    def __init__(self, segments: list[MorphResult], counts: list[int], points: list[Tensor] | None = None) -> None:
         self.segments = segments
         self.counts = counts  # frames of each segment, joints included in both
+        self.points = points if points is not None else []
         self._starts = [0.0]
         total = sum(c - 1 for c in counts)
         for c in counts:
@@ -113,6 +134,8 @@ def morph_sequence(
     images: Sequence[Tensor],
     points: Sequence[Tensor] | None = None,
     *,
+    face_index: int | None = None,
+    names: Sequence[str] | None = None,
     settings: MorphSettings = NaturalSettings(),
     frames: int = 60,
     timing: Timing = Timing(),
@@ -131,8 +154,11 @@ def morph_sequence(
     Args:
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
         points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
-            ``None`` (the default): the landmarks of each image's face, the largest where there are several
-            (:func:`~torchfluidwarp.correspond.detect_face_points`; needs the ``faces`` extra).
+            ``None`` (the default): the landmarks of each image's face (:func:`~torchfluidwarp.correspond.
+            find_each_face`; needs the ``faces`` extra), where a crossing among them is let go without blaming
+            the caller's order.
+        face_index: with ``points=None``, which face where an image shows several (0 = the largest, the default).
+        names: what to call each image in messages (file names, say); default ``images[i]``.
         settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
             every segment. With the linear motion (``Timing()``, the default) the frames are shared out in
             proportion to each segment's travel on the canvas, so the points' speed is the same on both sides of
@@ -144,7 +170,7 @@ def morph_sequence(
         frame at the joint before segment ``i``.
     """
     check_instance("blending", blending, Blending)
-    pairs = _checked(images, points)
+    pairs, found = _checked(images, points, face_index, names)
     first = pairs[0][0]
     canvas = (first.shape[-2], first.shape[-1]) if blending.size is None else check_size("blending.size", blending.size)
     on_canvas = replace(blending, size=canvas)
@@ -158,22 +184,25 @@ def morph_sequence(
     shares[-1] = max(1, steps_total - sum(shares[:-1]))
     while sum(shares) > steps_total:  # rounding overshot: take from the largest
         shares[shares.index(max(shares))] -= 1
-    results = [
-        morph(
-            pairs[i][0],
-            pairs[i + 1][0],
-            pairs[i][1],
-            pairs[i + 1][1],
-            settings=settings,
-            frames=shares[i] + 1,
-            timing=timing,
-            blending=on_canvas,
-            progress=progress,
-            max_memory=max_memory,
+    results = []
+    for i in range(segments):
+        ma, mb, found_marks = _marks(pairs[i][1], pairs[i + 1][1], found)
+        results.append(
+            morph(
+                pairs[i][0],
+                pairs[i + 1][0],
+                ma,
+                mb,
+                placed=found_marks,
+                settings=settings,
+                frames=shares[i] + 1,
+                timing=timing,
+                blending=on_canvas,
+                progress=progress,
+                max_memory=max_memory,
+            )
         )
-        for i in range(segments)
-    ]
-    return MorphSequence(results, [s + 1 for s in shares])
+    return MorphSequence(results, [s + 1 for s in shares], [p for _, p in pairs])
 
 
 @dataclass
@@ -187,7 +216,7 @@ class AverageResult:
             and warped to the mean shape.
         folded: the fraction of the warps' map pixels that fold (0 for a fold-free average).
         errors: ``(N,)`` each image's mean distance, in the first image's pixels, between its warped points and
-            the mean shape.
+            the mean shape, over the points its morph met (:attr:`~torchfluidwarp.morph.MorphResult.met_error`).
     """
 
     image: Tensor
@@ -201,6 +230,8 @@ def average(
     images: Sequence[Tensor],
     points: Sequence[Tensor] | None = None,
     *,
+    face_index: int | None = None,
+    names: Sequence[str] | None = None,
     settings: MorphSettings = NaturalSettings(),
     progress: bool = False,
     max_memory: float | None = None,
@@ -217,15 +248,17 @@ def average(
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio; the
             average takes the richest colour model among them.
         points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
-            ``None`` (the default): the landmarks of each image's face, the largest where there are several
-            (:func:`~torchfluidwarp.correspond.detect_face_points`; needs the ``faces`` extra).
+            ``None`` (the default): the landmarks of each image's face (:func:`~torchfluidwarp.correspond.
+            find_each_face`; needs the ``faces`` extra).
+        face_index: with ``points=None``, which face where an image shows several (0 = the largest, the default).
+        names: what to call each image in messages (file names, say); default ``images[i]``.
         settings, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for every warp (each
             is rendered at its end only, so there are no frames, timing or region to set).
 
     Returns:
         an :class:`AverageResult`.
     """
-    pairs = _checked(images, points)
+    pairs, found = _checked(images, points, face_index, names)
     first = pairs[0][0]
     H, W = first.shape[-2:]
     canvas = (H, W)
@@ -244,11 +277,13 @@ def average(
         placed = on_canvas(image, place, canvas)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
+            ma, mb, found_marks = _marks(p, back.to(p), found)
             result = morph(
                 image,
                 placed,
-                p,
-                back.to(p),
+                ma,
+                mb,
+                placed=found_marks,
                 settings=settings,
                 frames=2,
                 blending=Blending(size=canvas),
@@ -258,6 +293,6 @@ def average(
             end = result.render([1.0])  # its forward warp at the end: A in the mean shape, on the canvas
         warped.append(end.forward[0])
         folded += end.folded / (2 * H * W)
-        errors.append(float(result.error.mean()))
+        errors.append(float(result.met_error.mean()))  # the marks let go so as not to fold left out
     stack = torch.stack(warped)
     return AverageResult(stack.mean(0), back.to(first.dtype), stack, folded / len(pairs), torch.tensor(errors))
