@@ -202,6 +202,8 @@ def test_morph_preview_frames_and_warm_start(client):
     assert r.status_code == 200, r.text
     meta = r.json()
     assert meta["frames"] == 9 and len(meta["trajectories"]) == 4 and len(meta["alignment"]) == 3
+    assert meta["let_go"] == [False] * 4  # nothing crosses: every mark met, and the mean is over them all
+    assert abs(meta["mean_error"] - sum(meta["error"]) / 4) < 1e-9
     for kind in ("blend", "forward", "backward", "jacobian"):
         img = client.get(f"/api/morph/frame?gen={meta['generation']}&k=4&kind={kind}", headers=AUTH)
         assert img.status_code == 200 and img.content[:4] == b"\x89PNG"
@@ -210,6 +212,16 @@ def test_morph_preview_frames_and_warm_start(client):
     body["points_b"] = PB[:3] + [[25.0, 35.0]]
     r2 = client.post("/api/morph/preview", json=body, headers=AUTH)
     assert r2.status_code == 200 and r2.json()["generation"] == meta["generation"] + 1
+    # a 3 x 3 lattice with marks 0 and 1 swapped between A and B (as tests/morph/test_morph.py's): the morph
+    # lets one go so as not to fold, and the mean error is over the rest
+    lattice = [[x, y] for y in (14.0, 32.0, 50.0) for x in (14.0, 32.0, 50.0)]
+    moved = [[x + 1.0, y + 1.5] for x, y in lattice]
+    crossed = {**body, "points_a": lattice, "points_b": [moved[1], moved[0], *moved[2:]]}
+    swapped = client.post("/api/morph/preview", json=crossed, headers=AUTH).json()
+    gone = [i for i, g in enumerate(swapped["let_go"]) if g]
+    assert gone and set(gone) <= {0, 1}
+    kept = [e for e, g in zip(swapped["error"], swapped["let_go"]) if not g]
+    assert abs(swapped["mean_error"] - sum(kept) / len(kept)) < 1e-9 and swapped["mean_error"] < 1
     # the older generation's frames are gone
     assert client.get(f"/api/morph/frame?gen={meta['generation']}&k=0", headers=AUTH).status_code == 410
 

@@ -133,6 +133,7 @@ async def morph_preview(session: Session, request: Request) -> Response:
     frame_size = (res.frames.shape[-2], res.frames.shape[-1])
     to_a = scale_factor(frame_size, (a.shape[-2], a.shape[-1]), dtype=res.error.dtype)[0]
     err = res.error * to_a  # in A's pixels
+    met = err[~res.let_go] if bool((~res.let_go).any()) else err  # the marks let go so as not to fold apart
     return JSONResponse(
         {
             "generation": gen,
@@ -140,7 +141,8 @@ async def morph_preview(session: Session, request: Request) -> Response:
             "times": (res.times / settings.steps).tolist(),
             "trajectories": res.trajectories.permute(1, 0, 2).tolist(),  # (M, T + 1, 2) frame pixels
             "error": err.tolist(),
-            "mean_error": float(err.mean()),
+            "mean_error": float(met.mean()),
+            "let_go": res.let_go.tolist(),  # (M,) the marks let go so as not to fold (they cross)
             "alignment": proposal(pa, pb, settings.align),
             "seconds": {k: round(v, 4) for k, v in res.seconds.items()},
             "server_seconds": round(time.perf_counter() - t0, 4),

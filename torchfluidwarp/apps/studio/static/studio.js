@@ -434,8 +434,10 @@
       if (seq !== morph.seq) return;
       app.lastLatency = (performance.now() - t0) / 1000;
       app.previews += 1;
-      status(`preview ${app.lastLatency.toFixed(2)} s (fit ${meta.seconds.fit.toFixed(2)} s) · mean error ${meta.mean_error.toFixed(2)} px`);
-      const worst = Math.max(...meta.error);
+      const letGo = (meta.let_go || []).filter(Boolean).length;
+      const gone = letGo ? ` over the marks met · ${letGo} let go so as not to fold (they cross)` : "";
+      status(`preview ${app.lastLatency.toFixed(2)} s (fit ${meta.seconds.fit.toFixed(2)} s) · mean error ${meta.mean_error.toFixed(2)} px${gone}`);
+      const worst = Math.max(0, ...meta.error.filter((e, i) => !(meta.let_go || [])[i]));  // a mark let go stays off
       if (app.autoRefine && worst > GOOD_ENOUGH && refineRounds < REFINE_ROUNDS && !morph.drag) {
         refineRounds += 1;
         schedulePreview(REFINE_DELAY, true);
