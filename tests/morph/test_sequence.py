@@ -127,3 +127,9 @@ def test_without_points_each_images_face_landmarks_are_used():
     torch.testing.assert_close(found.points, given.points)
     with pytest.raises(ValueError, match=r"no face found in images\[1\]"):
         average([a, torch.full_like(a, 0.5)], **KW)
+    # a sequence of found landmarks morphs as a two-image face morph does: the border pairs added per segment
+    seq = morph_sequence([a, b], frames=3, **KW)
+    torch.testing.assert_close(seq.points[0], marks[0])
+    torch.testing.assert_close(seq.points[1], marks[1])
+    # 63 landmarks and up to 8 border pairs (3 a side), less those whose partner the shift puts outside B
+    assert 63 < seq.segments[0].error.shape[0] <= 63 + 8

@@ -24,6 +24,7 @@ from torch import Tensor
 from torchfluidwarp._checks import check_instance, check_int, check_real, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_face
+from torchfluidwarp.correspond.auto import border_pairs, usable_pairs
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
@@ -65,11 +66,20 @@ def _checked(
     return out, found
 
 
-def _marks(pa: Tensor, pb: Tensor, found: bool) -> tuple[Tensor | None, Tensor | None, FoundPoints | None]:
+def _marks(
+    pa: Tensor, pb: Tensor, found: bool, sizes: tuple[tuple[int, int], tuple[int, int]] | None = None
+) -> tuple[Tensor | None, Tensor | None, FoundPoints | None]:
     """:func:`~torchfluidwarp.morph.morph`'s ``points_a``, ``points_b`` and ``placed``: the user's marks, or the
-    landmarks the library found as ``placed`` (a crossing among them is not the user's order to check)."""
+    landmarks the library found as ``placed`` (a crossing among them is not the user's order to check), with the
+    border pairs a two-picture face morph has (:func:`~torchfluidwarp.correspond.auto.border_pairs`) when the
+    pictures' ``sizes`` ``(H, W)`` are given."""
     if not found:
         return pa, pb, None
+    if sizes is not None:
+        ea, eb = border_pairs(pa, pb, *sizes)
+        pa, pb = torch.cat([pa, ea]), torch.cat([pb, eb])
+        keep = usable_pairs(pa, pb, *sizes)
+        pa, pb = pa[keep], pb[keep]
     return None, None, FoundPoints(pa, pb, "faces", Note("the face landmarks of each picture"))
 
 
@@ -155,8 +165,8 @@ def morph_sequence(
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
         points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
             ``None`` (the default): the landmarks of each image's face (:func:`~torchfluidwarp.correspond.
-            find_each_face`; needs the ``faces`` extra), where a crossing among them is let go without blaming
-            the caller's order.
+            find_each_face`; needs the ``faces`` extra), with border pairs and a crossing among them let go, as
+            in a two-image face morph (:func:`~torchfluidwarp.correspond.find_points`).
         face_index: with ``points=None``, which face where an image shows several (0 = the largest, the default).
         names: what to call each image in messages (file names, say); default ``images[i]``.
         settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
@@ -186,11 +196,12 @@ def morph_sequence(
         shares[shares.index(max(shares))] -= 1
     results = []
     for i in range(segments):
-        ma, mb, found_marks = _marks(pairs[i][1], pairs[i + 1][1], found)
+        (a, pa), (b, pb) = pairs[i], pairs[i + 1]
+        ma, mb, found_marks = _marks(pa, pb, found, ((a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])))
         results.append(
             morph(
-                pairs[i][0],
-                pairs[i + 1][0],
+                a,
+                b,
                 ma,
                 mb,
                 placed=found_marks,
