@@ -72,13 +72,16 @@ def _read_all(images: list[str], point_files: list[str] | None) -> tuple[list[Te
 def _faces_said(command: str, args: argparse.Namespace, found: bool) -> Iterator[None]:
     """Around a call that finds each image's face landmarks (``found``): its note, in the command line's words
     (``--face-index I``), on stderr unless ``--quiet``."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", MatchNotice)
-        yield
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MatchNotice)
+            yield
+    finally:  # the call's other warnings go on as they came, even when it fails
+        for w in caught:
+            if not isinstance(w.message, MatchNotice):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     notes = [w.message.note for w in caught if isinstance(w.message, MatchNotice)]
-    for w in caught:
-        if not isinstance(w.message, MatchNotice):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if found and not args.quiet:
         said = (
             notes[0].explain({"face_index": "--face-index I"})
