@@ -316,7 +316,7 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
 
     p = commands.add_parser(
         "animate",
-        help="animate a photo with oscillating brushes (GIF, MP4 or PNG frames)",
+        help="animate a photo with oscillating brushes (GIF, WebP, MP4 or PNG frames)",
         description="Animate a photo: oscillating Gaussian brushes stir a 2-D incompressible fluid that carries "
         "the image's texture coordinates; viscosity regions keep parts of it rigid.",
         epilog=ANIMATE_EPILOG,
@@ -328,7 +328,8 @@ def _add_animate(commands: argparse._SubParsersAction) -> None:
         "--output",
         metavar="OUT",
         required=True,
-        help="output: OUT.gif, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/' or without suffix)",
+        help="output: OUT.gif, OUT.webp, OUT.mp4 (needs imageio-ffmpeg) or a frames folder (ending in '/' or "
+        "without suffix)",
     )
     p.add_argument("--config", metavar="JSON", help="animation settings file (format below)")
     p.add_argument(

@@ -156,7 +156,7 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
 def add_morph(commands: argparse._SubParsersAction) -> None:
     p = commands.add_parser(
         "morph",
-        help="morph image A into image B along corresponding points (GIF, MP4 or PNG frames)",
+        help="morph image A into image B along corresponding points (GIF, WebP, MP4 or PNG frames)",
         description="Morph A into B: fluid forces are fitted (adjoint gradients + L-BFGS) so that A's points reach "
         "B's at the keyframe; A is warped forward, B pulled back along the same flow, and the two are "
         'cross-dissolved. Point files: iBUG .pts, JSON ([[x, y], ...] or {"points": ...}) or CSV, '
