@@ -45,6 +45,7 @@ __all__ = [
     "auto_points",
     "border_pairs",
     "border_points",
+    "bordered_pairs",
     "find_each_face",
     "find_points",
     "usable_pairs",
@@ -215,6 +216,19 @@ def border_pairs(
     return ea, torch.where(agree[:, None], eb, posed.to(eb.dtype))
 
 
+def bordered_pairs(
+    points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], size_b: tuple[int, int], border: int | None = 3
+) -> tuple[Tensor, Tensor]:
+    """Matched points ``(M, 2)`` with their :func:`border_pairs` appended (``border`` a side; ``None``: none), the
+    pairs a morph cannot take left out (:func:`usable_pairs`): what :func:`find_points` returns for a pair of
+    pictures of ``size_a`` and ``size_b`` ``(H, W)``."""
+    if border is not None:
+        ea, eb = border_pairs(points_a, points_b, size_a, size_b, per_side=border)
+        points_a, points_b = torch.cat([points_a, ea]), torch.cat([points_b, eb])
+    keep = usable_pairs(points_a, points_b, size_a, size_b)
+    return points_a[keep], points_b[keep]
+
+
 def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], size_b: tuple[int, int]) -> Tensor:
     """Which pairs a morph can take: both points inside their image, and neither within a pixel of an earlier one.
 
@@ -233,15 +247,17 @@ def usable_pairs(points_a: Tensor, points_b: Tensor, size_a: tuple[int, int], si
     return keep
 
 
+def _several(name: str, chosen: Chosen) -> str:
+    """Which of the faces a picture ``name`` shows was used, in words."""
+    which = "the largest" if chosen.index == 0 else f"face {chosen.index}"
+    return f"{name} shows {chosen.count} faces ({listing(chosen.others)}): used {which}"
+
+
 def _faces_note(chosen: tuple[Chosen, Chosen], names: tuple[str, str], face_index, asked: bool) -> Note:
     """Which faces were matched, and the images that show several when the largest was taken by default."""
     where = " and ".join(f"{name}'s ({c.face})" for name, c in zip(names, chosen))
     message = f"matched the face landmarks of {where}" + (", as asked" if asked else "")
-    several = [
-        f"{name} shows {c.count} faces ({listing(c.others)}): used the largest"
-        for name, c, i in zip(names, chosen, face_index)
-        if i is None and c.count > 1
-    ]
+    several = [_several(name, c) for name, c, i in zip(names, chosen, face_index) if i is None and c.count > 1]
     if not several:
         return Note(message)
     hint = Hint("choose another with {setting}", "face_index", spelling="face_index=(i, j)")
@@ -279,8 +295,7 @@ def find_each_face(
         chosen = choose_face(faces, face_index if len(faces) > 1 else None, name, (x.shape[-2], x.shape[-1]))
         points.append(chosen.face.mesh[list(FACE_MESH_INDICES)].to(device=x.device, dtype=x.dtype))
         if chosen.count > 1:
-            which = "the largest" if chosen.index == 0 else f"face {chosen.index}"
-            several.append(f"{name} shows {chosen.count} faces ({listing(chosen.others)}): used {which}")
+            several.append(_several(name, chosen))
     message = f"found the face landmarks ({len(FACE_MESH_INDICES)} points) of each of the {len(labels)} pictures"
     if not several:
         return points, Note(message)
@@ -407,11 +422,7 @@ def find_points(
         raise RuntimeError("find_points chose no matcher")
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
     size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
-    if border is not None:
-        ea, eb = border_pairs(points_a, points_b, size_a, size_b, per_side=border)
-        points_a, points_b = torch.cat([points_a, ea]), torch.cat([points_b, eb])
-    keep = usable_pairs(points_a, points_b, size_a, size_b)
-    return FoundPoints(points_a[keep], points_b[keep], matcher, reason)
+    return FoundPoints(*bordered_pairs(points_a, points_b, size_a, size_b, border), matcher, reason)
 
 
 def auto_points(

@@ -24,7 +24,7 @@ from torch import Tensor
 from torchfluidwarp._checks import check_instance, check_int, check_real, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_face
-from torchfluidwarp.correspond.auto import border_pairs, usable_pairs
+from torchfluidwarp.correspond.auto import bordered_pairs
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
@@ -71,15 +71,12 @@ def _marks(
 ) -> tuple[Tensor | None, Tensor | None, FoundPoints | None]:
     """:func:`~torchfluidwarp.morph.morph`'s ``points_a``, ``points_b`` and ``placed``: the user's marks, or the
     landmarks the library found as ``placed`` (a crossing among them is not the user's order to check), with the
-    border pairs a two-picture face morph has (:func:`~torchfluidwarp.correspond.auto.border_pairs`) when the
+    border pairs a two-picture face morph has (:func:`~torchfluidwarp.correspond.auto.bordered_pairs`) when the
     pictures' ``sizes`` ``(H, W)`` are given."""
     if not found:
         return pa, pb, None
     if sizes is not None:
-        ea, eb = border_pairs(pa, pb, *sizes)
-        pa, pb = torch.cat([pa, ea]), torch.cat([pb, eb])
-        keep = usable_pairs(pa, pb, *sizes)
-        pa, pb = pa[keep], pb[keep]
+        pa, pb = bordered_pairs(pa, pb, *sizes)
     return None, None, FoundPoints(pa, pb, "faces", Note("the face landmarks of each picture"))
 
 
