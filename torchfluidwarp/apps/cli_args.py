@@ -391,6 +391,18 @@ MAX_MINUTES = 10.0
 """The longest projected render a command starts without ``--max-minutes`` or ``--no-limit``, in minutes."""
 
 
+def add_face_index(p: argparse.ArgumentParser, when: str = "") -> None:
+    """``--face-index I``: which face of a photograph that shows several the points are found on (``when`` says
+    when it applies, as a prefix of its help)."""
+    p.add_argument(
+        "--face-index",
+        type=count(0),
+        default=None,
+        metavar="I",
+        help=f"{when}which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next",
+    )
+
+
 def add_limit_options(p: argparse.ArgumentParser) -> None:
     """``--max-minutes`` and ``--no-limit``: how long a run's frames may be projected to take (:func:`check_work`)."""
     p.add_argument(

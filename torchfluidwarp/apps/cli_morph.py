@@ -33,6 +33,7 @@ from torchfluidwarp.apps.cli_args import (
     NON_NEGATIVE,
     POSITIVE,
     PROG,
+    add_face_index,
     add_limit_options,
     check_batch_work,
     check_work,
@@ -191,13 +192,7 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
         "'torchfluidwarp[faces]'), matched SIFT features, a lattice placed by the pixels, or faces when both "
         "images show one and features otherwise (default)",
     )
-    p.add_argument(
-        "--face-index",
-        type=count(0),
-        default=None,
-        metavar="I",
-        help="which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next",
-    )
+    add_face_index(p)
     p.add_argument(
         "--save-points",
         nargs=2,

@@ -29,6 +29,7 @@ from torchfluidwarp.apps.cli_args import (
     NON_NEGATIVE,
     POSITIVE,
     PROG,
+    add_face_index,
     check_image_output,
     check_work,
     clock_of,
@@ -189,13 +190,7 @@ def add_average(commands: argparse._SubParsersAction) -> None:
         help="one point file per image, in order (default: each image's face landmarks, the largest face)",
     )
     p.add_argument("-o", "--output", metavar="OUT", default="average.png", help="the image (default average.png)")
-    p.add_argument(
-        "--face-index",
-        type=count(0),
-        default=None,
-        metavar="I",
-        help="without --points, which face where a photo shows several: 0 = the largest (the default), 1 = the next",
-    )
+    add_face_index(p, "without --points, ")
     p.add_argument("--save-points", metavar="FILE", help="write the mean shape (.pts, .json or .csv)")
     p.add_argument("--method", choices=("natural", "paper"), default="natural", help="as morph (default natural)")
     p.add_argument("--align", choices=("similarity", "affine", "none"), default="similarity", help="as morph")
