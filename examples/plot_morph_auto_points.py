@@ -8,7 +8,8 @@ as ``torchfluidwarp morph a.jpg b.jpg -o out.gif`` does:
 * ``match="features"``: SIFT features matched both ways, checked by RANSAC (kornia; nothing downloaded);
 * ``match="faces"``: 63 face landmarks (mediapipe's bundled face mesh, the ``faces`` extra);
 * ``match="pixels"``: a lattice of points placed by a flow fitted to the pixels;
-* ``match="auto"`` (default): faces when both pictures show one, features otherwise.
+* ``match="auto"`` (default): faces when both pictures show one, features otherwise, the pixels where fewer than 8
+  features match.
 
 Border points (the corners and edge midpoints) are added so that the picture's frame stays put. Here image B is
 the bundled astronaut under a known mild map (a 4 degree turn, 5% smaller, a small shift), so the points found

@@ -1,4 +1,5 @@
-"""auto_points: faces when both images show one, features otherwise, with border anchors; border_points."""
+"""auto_points: faces when both images show one, features otherwise (the pixels where too few match), with border
+anchors; border_points."""
 
 from __future__ import annotations
 
@@ -10,8 +11,15 @@ import torch.nn.functional as F
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.control.images import FoldWarning
-from torchfluidwarp.correspond import FACE_MESH_INDICES, MatchNotice, auto_points, border_points, detect_face_points
-from torchfluidwarp.correspond.auto import BORDER_SLACK, border_pairs, find_points, usable_pairs
+from torchfluidwarp.correspond import (
+    FACE_MESH_INDICES,
+    MatchNotice,
+    auto,
+    auto_points,
+    border_points,
+    detect_face_points,
+)
+from torchfluidwarp.correspond.auto import BORDER_SLACK, TRUSTED_MATCHES, border_pairs, find_points, usable_pairs
 from torchfluidwarp.data import load_sample
 from torchfluidwarp.morph.marks import crossing_pairs
 from torchfluidwarp.warp.frames import identity_map, warp_image
@@ -166,3 +174,41 @@ def test_pictures_too_small_for_features_are_refused_with_their_size_and_the_way
     assert "image_a is 40 x 24 px and image_b is 40 x 24 px" in message and "match='pixels'" in message
     found = find_points(a, a, match="pixels", pixels=3, border=None)  # the way out it names works
     assert len(found.points_a) == len(found.points_b) >= 3
+
+
+def test_unrelated_pictures_are_placed_by_the_pixels_not_by_chance_features(monkeypatch: pytest.MonkeyPatch):
+    # a person against a cat matches 2 features by chance at 256 px; a morph on them would twist the picture. The
+    # automatic mode lets the pixels place the points, says so, and warns; asked for features, it refuses 2
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # the same path with or without the faces extra
+    person, cat = half(load_sample("astronaut")), half(load_sample("cat"))
+    found = find_points(person, cat, names=("person.png", "cat.png"), pixels=4, border=None)
+    assert found.matcher == "pixels" and found.reason.notable
+    text = found.reason.explain({"match": "--match"})
+    assert text.startswith("no face detector (") and "image features match between person.png and cat.png" in text
+    assert "so the pixels placed the points: placed " in text and "lattice of 4 x 4" in text
+    assert found.reason.hint is None  # fewer than 3: nothing to fall back on
+    assert len(found.points_a) == len(found.points_b) >= 3
+    with pytest.warns(MatchNotice, match="as few as unrelated pictures match by chance"):
+        auto_points(person, cat, pixels=4, border=None)
+    with pytest.raises(ValueError, match=r"between image_a and image_b \(need 3 or more\)"):
+        find_points(person, cat, match="features", border=None)
+
+
+def test_a_few_features_are_trusted_only_when_asked_for(monkeypatch: pytest.MonkeyPatch):
+    # 5 pairs (3 <= 5 < TRUSTED_MATCHES): the automatic mode places points with the pixels and names the way
+    # back to the 5; match="features" keeps them with a notable note that names the pixels
+    monkeypatch.setitem(sys.modules, "mediapipe", None)
+    five = torch.tensor([[10.0, 10.0], [50.0, 12.0], [30.0, 40.0], [12.0, 50.0], [52.0, 52.0]])
+    monkeypatch.setattr(auto, "match_features", lambda a, b, max_points: (five, five + 2))
+    assert 3 <= len(five) < TRUSTED_MATCHES
+    cat = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
+    found = find_points(cat, warped(cat), pixels=4, border=None)
+    assert found.matcher == "pixels" and found.reason.notable
+    assert str(found.reason).endswith("use match='features' to morph on those 5")
+    assert found.reason.explain({"match": "--match"}).endswith("use --match features to morph on those 5")
+    # the lattice follows the map, not the 5 pairs' shift of (2, 2)
+    assert float((shifted_and_scaled(found.points_b) - found.points_a).norm(dim=-1).median()) < 0.5
+    asked = find_points(cat, warped(cat), match="features", border=None)
+    assert asked.matcher == "features" and torch.equal(asked.points_a, five) and asked.reason.notable
+    assert str(asked.reason).startswith("matched image features (5 pairs), as asked; unrelated pictures")
+    assert str(asked.reason).endswith("match='pixels' places points that follow the pixels")

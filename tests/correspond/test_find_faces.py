@@ -222,11 +222,17 @@ def test_the_automatic_mode_says_it_fell_back_to_features_and_how_to_skip_the_se
 
 def test_too_few_features_suggests_the_pixels_in_the_callers_terms():
     blank = torch.full((3, 160, 160), 0.5)
-    with pytest.raises(ValueError, match=r"^no face found in a\.png .* found 0 matching features") as caught:
-        find_points(blank, blank, names=("a.png", "b.png"))
+    with pytest.raises(ValueError, match=r"^found 0 matching features") as caught:
+        find_points(blank, blank, match="features", names=("a.png", "b.png"))
     assert str(caught.value).endswith("let the pixels place them (match='pixels')")
     assert caught.value.explain(CLI_NAMES).endswith("let the pixels place them (--match pixels)")
     assert caught.value.explain({}).endswith("(need 3 or more); give the points by hand")
+    # the automatic mode lets the pixels place them itself, and says why in the caller's terms
+    found = find_points(blank, blank, names=("a.png", "b.png"), pixels=3)
+    assert found.matcher == "pixels" and found.reason.notable
+    assert found.reason.explain(CLI_NAMES).startswith(
+        "no face found in a.png (160 x 160 pixels); only 0 image features match between a.png and b.png"
+    )
 
 
 def test_a_value_hint_names_the_setting_with_its_value():

@@ -190,7 +190,7 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
         default="auto",
         help="with no point files, how to find the points: face landmarks (pip install "
         "'torchfluidwarp[faces]'), matched SIFT features, a lattice placed by the pixels, or faces when both "
-        "images show one and features otherwise (default)",
+        "images show one and features otherwise, the pixels where fewer than 8 features match (default)",
     )
     add_face_index(p)
     p.add_argument(

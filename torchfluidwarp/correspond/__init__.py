@@ -6,8 +6,8 @@
   63 landmarks of one of them.
 * :func:`~torchfluidwarp.correspond.features.match_features`: matched SIFT features (kornia; no weights),
   filtered by RANSAC and by their neighbours, thinned to a well-spread subset.
-* :func:`~torchfluidwarp.correspond.auto.auto_points`: faces when both images show one, features otherwise,
-  with :func:`~torchfluidwarp.correspond.auto.border_points` anchors, paired as
+* :func:`~torchfluidwarp.correspond.auto.auto_points`: faces when both images show one, features otherwise (the
+  pixels where too few match), with :func:`~torchfluidwarp.correspond.auto.border_points` anchors, paired as
   :func:`~torchfluidwarp.correspond.auto.border_pairs` says (frame on frame only where the frames correspond);
   :func:`~torchfluidwarp.correspond.auto.find_points`: the same, with which matcher it used and why.
 * :func:`~torchfluidwarp.correspond.auto.find_each_face`: the same face landmarks in each of several pictures

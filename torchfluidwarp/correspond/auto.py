@@ -1,4 +1,5 @@
-"""Landmarks for a morph from the two pictures alone: faces when both show one, matched features otherwise.
+"""Landmarks for a morph from the two pictures alone: faces when both show one, matched features otherwise, and
+the pixels where too few features match.
 
 :func:`find_points` says which matcher it used and why (:attr:`FoundPoints.reason`, a :class:`Note` that a
 caller words in its own terms, as it does an :class:`~torchfluidwarp.errors.InputError`'s hint);
@@ -303,6 +304,35 @@ def find_each_face(
     return points, Note("; ".join([message, *several]), hint, notable=True)
 
 
+TRUSTED_MATCHES = 8
+"""Feature pairs that :func:`find_points`' automatic mode trusts: with fewer it lets the pixels place the points
+(``match="pixels"``). Unrelated pictures match a few features by chance, and a morph on them twists the picture:
+on 12 pairs of unrelated photographs (a person against a cat, a rocket against a camera man, two different
+people) :func:`~torchfluidwarp.correspond.features.match_features` kept 0-6 pairs; on 7 pairs of one scene
+(a stereo pair, crops, zooms, rotations, a photograph against itself at half size) it kept 27-64."""
+
+
+def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor], str, bool]:
+    """``n x n`` lattice points of ``a`` ``(1, C, H, W)`` and where a flow fitted to the pixels carries them in
+    ``b`` (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors), what was done, in words, and
+    whether that flow folds (the note is then notable)."""
+    none = a.new_zeros(0, 2)
+    with warnings.catch_warnings(record=True) as caught:  # the flow's own fold warning is said below, as ours
+        warnings.simplefilter("always")
+        refined = refine_points(a, b, none, none, extra=n)
+    folds = bool((refined[2].min_det <= 0).any())
+    for w in caught:
+        if not (folds and issubclass(w.category, FoldWarning)):  # the flow only places points
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    message = f"placed {len(refined[0])} points of a lattice of {n} x {n} through a flow fitted to the pixels"
+    if folds:  # pictures whose content does not correspond: the points there are guesses
+        message += (
+            "; that flow folds in places (it crushes part of image_a onto itself, as between pictures whose "
+            "content does not correspond), so points it placed there may cross, and the morph lets those go"
+        )
+    return (refined[0], refined[1]), message, folds
+
+
 def find_points(
     image_a: Tensor,
     image_b: Tensor,
@@ -369,36 +399,31 @@ def find_points(
                 matcher = "faces"
                 reason = _faces_note(chosen, names, face_index, asked=match == "faces")
     elif match == "pixels":
-        none = a.new_zeros(0, 2)
-        n = check_int("pixels", pixels)
-        with warnings.catch_warnings(record=True) as caught:  # the flow's own fold warning is said below, as ours
-            warnings.simplefilter("always")
-            refined = refine_points(a, b, none, none, extra=n)
-        folds = bool((refined[2].min_det <= 0).any())
-        for w in caught:
-            if not (folds and issubclass(w.category, FoldWarning)):  # the flow only places points
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        found = (refined[0], refined[1])
+        found, message, folds = _pixel_lattice(a, b, check_int("pixels", pixels))
         matcher = "pixels"
-        message = f"placed {len(found[0])} points on a {n} x {n} lattice through a flow fitted to the pixels"
-        if folds:  # pictures whose content does not correspond: the points there are guesses
-            message += (
-                "; that flow folds in places (it crushes part of image_a onto itself, as between pictures whose "
-                "content does not correspond), so points it placed there may cross, and the morph lets those go"
-            )
         reason = Note(message, notable=folds)
     if found is None:
         found = match_features(a, b, max_points=max_points)
         count = len(found[0])
-        if count < 3:
+        chance = f"found {count} matching features between {names[0]} and {names[1]}"
+        if match == "auto" and count < TRUSTED_MATCHES:  # no more than unrelated pictures match by chance
+            found, message, folds = _pixel_lattice(a, b, check_int("pixels", pixels))
+            matcher = "pixels"
+            back = ValueHint(f"use {{setting}} to morph on those {count}", "match", value="features")
+            reason = Note(
+                f"{why_not_faces}; only {count} image features match between {names[0]} and {names[1]}, as few as "
+                f"unrelated pictures match by chance, so the pixels placed the points: {message}",
+                back if count >= 3 else None,
+                notable=True,
+            )
+        elif count < 3:
             small = [
                 f"{n} is {x.shape[-1]} x {x.shape[-2]} px"
                 for n, x in zip(names, (a, b))
                 if min(x.shape[-2:]) < MIN_SIDE
             ]
             raise InputError(
-                (f"{why_not_faces}; " if why_not_faces else "")
-                + f"found {count} matching features between {names[0]} and {names[1]} (need 3 or more)"
+                f"{chance} (need 3 or more)"
                 + (
                     f"; the feature detector needs {MIN_SIDE} px on each side, and {' and '.join(small)}"
                     if small
@@ -412,7 +437,14 @@ def find_points(
                     otherwise="give the points by hand",
                 ),
             )
-        if why_not_faces:
+        elif count < TRUSTED_MATCHES:
+            reason = Note(
+                f"matched image features ({count} pairs), as asked; unrelated pictures match as many by chance "
+                f"(fewer than {TRUSTED_MATCHES}), and a morph on chance pairs twists the picture",
+                ValueHint("{setting} places points that follow the pixels", "match", value="pixels"),
+                notable=True,
+            )
+        elif why_not_faces:
             reason = Note(
                 f"{why_not_faces}; matched image features instead ({count} pairs)", _skip_faces(), notable=True
             )
@@ -445,10 +477,11 @@ def auto_points(
             needs the ``faces`` extra); ``"features"``: matched SIFT features
             (:func:`~torchfluidwarp.correspond.features.match_features`); ``"auto"``: faces when mediapipe is
             installed and both images show a face (:func:`~torchfluidwarp.correspond.faces.find_faces`: whole
-            portraits, any size, grey or colour), features otherwise, with a :class:`MatchNotice` that says
-            so; ``"pixels"``: a lattice of ``pixels x pixels`` points placed by a flow fitted to the images
-            (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors; slower: a coarse-to-fine
-            image fit).
+            portraits, any size, grey or colour), features otherwise, and the pixels (as ``"pixels"``) where
+            fewer than :data:`TRUSTED_MATCHES` features match, as between unrelated pictures, with a
+            :class:`MatchNotice` that says so; ``"pixels"``: a lattice of ``pixels x pixels`` points placed by a
+            flow fitted to the images (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors;
+            slower: a coarse-to-fine image fit).
         face_index: which face in A and in B (0 = largest; ``None``: the largest, with a :class:`MatchNotice`
             that lists them when there are several).
         names: the images' names in messages (their file names, say).
