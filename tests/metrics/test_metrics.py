@@ -199,3 +199,34 @@ def test_a_report_yields_its_frames_as_it_goes_and_measures_the_same(image):
         torch.testing.assert_close(frame, expected, rtol=0, atol=0)
     with pytest.raises(ValueError, match="held_out"):  # checked before any frame is rendered
         metrics.report_frames(r, image, b, POINTS, POINTS + SHIFT, held_out=(HELD, HELD[:1]))
+
+
+def _blobs(centers: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """``(3, 64, 64)``: a Gaussian blob (3 px) at each of ``centers`` ``(M, 2)``, in turn on each channel, on faint
+    noise."""
+    ys, xs = torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij")
+    img = 0.1 * torch.rand(3, 64, 64, generator=gen)
+    for k, (x, y) in enumerate(centers.tolist()):
+        img[k % 3] += torch.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * 3.0**2))
+    return img.clamp(0, 1)
+
+
+def test_the_report_gives_the_landmark_error_over_the_marks_met_and_names_those_let_go(gen):
+    # a 3 x 3 lattice of blobs whose first two marks swap places in B: the morph lets one or both go so as not to
+    # fold, and the report's mean and max are over the rest, as result.met_error is; every mark keeps its figure
+    ys, xs = torch.meshgrid(torch.tensor([14.0, 32.0, 50.0]), torch.tensor([14.0, 32.0, 50.0]), indexing="ij")
+    pa = torch.stack([xs, ys], -1).reshape(-1, 2)
+    pb = pa + torch.tensor([1.0, 1.5])
+    a, b = _blobs(pa, gen), _blobs(pb, gen)
+    pb[[0, 1]] = pb[[1, 0]]  # after drawing B: its marks 0 and 1 now name each other's blob
+    with pytest.warns(RuntimeWarning, match="marks cross"):
+        r = morph(a, b, pa, pb, frames=3, **KW)
+    rep = metrics.morph_report(r, a, b, pa, pb)["landmark_error_px"]
+    gone = r.let_go.nonzero()[:, 0].tolist()
+    assert gone and set(gone) <= {0, 1} and rep["let_go"] == gone
+    assert rep["met"] == 9 - len(gone)
+    assert rep["mean"] == pytest.approx(float(r.met_error.mean()), abs=1e-9)
+    assert rep["max"] == pytest.approx(float(r.met_error.max()), abs=1e-9)
+    assert rep["max"] < min(rep["per_point"][i] for i in gone)  # the marks let go end farther than any met
+    assert rep["per_point"] == pytest.approx(r.error.tolist(), abs=1e-9)
+    json.dumps(rep)  # JSON-ready

@@ -25,6 +25,7 @@ class Morph(Protocol):
 
     fit: KeyframeFit
     error: Tensor  # (M,) pixels of the last frame
+    let_go: Tensor  # (M,) bool: the marks let go so as not to fold
 
     @property
     def canvas_from_b(self) -> Tensor: ...  # (3, 3) B's pixels to the frames' (canvas) pixels
@@ -113,11 +114,15 @@ def morph_report(
 
     Returns:
         ``{"frames", "size": [H, W], "mid_frame", "mid_t", "folds": {"a", "b": per-frame counts, "total",
-        "fraction"}, "landmark_error_px": {"mean", "max", "per_point"}, "marked": {"end", "ghost"}, "held_out":
-        {"end", "ghost"} or None, "image_ghost": {"median", "p90", "mean", "covered", "textured", "scale"},
-        "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean", "max", "variance"}}``; each
+        "fraction"}, "landmark_error_px": {"mean", "max", "met", "let_go", "per_point"}, "marked": {"end",
+        "ghost"}, "held_out": {"end", "ghost"} or None, "image_ghost": {"median", "p90", "mean", "covered",
+        "textured", "scale"}, "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean", "max",
+        "variance"}}``; each
         ``"end"``/``"ghost"`` holds ``mean``, ``median``, ``max`` (pixels of the frame; ``None`` when no point was
-        located), ``located``, ``of`` and ``per_point``. The middle frame is ``N // 2``; "end" is measured in the
+        located), ``located``, ``of`` and ``per_point``. ``"landmark_error_px"`` is ``result.error`` (pixels of
+        the last frame): its ``mean`` and ``max`` over the ``met`` marks (``result.met_error``; ``None`` when
+        every mark was let go), ``let_go`` the indices of the marks let go so as not to fold
+        (``result.let_go``), and ``per_point`` every mark's. The middle frame is ``N // 2``; "end" is measured in the
         last frame, "ghost" in the middle one. ``"image_ghost"`` is the ghosting seen in the middle frame's
         pixels, with no points (:func:`~torchfluidwarp.metrics.image_ghosting`): how far apart A's and B's
         structures stand there, from A warped forward and B pulled back, over the pixels both maps read inside
@@ -217,6 +222,8 @@ def _report_pass(
             "ghost": _stats(*ghosting(*kept[mid], pa, pb)),
         }
     err = result.error.detach().reshape(-1).double().cpu()  # the last frame's pixels (MorphResult.error)
+    gone = result.let_go.detach().reshape(-1).cpu()
+    met = err[~gone]
     seam_a, seam_b = seam_figure(kept[mid][0]), seam_figure(kept[mid][1])
     folded = sum(folds_a) + sum(folds_b)
     return {
@@ -226,8 +233,10 @@ def _report_pass(
         "mid_t": mid / (n - 1),
         "folds": {"a": folds_a, "b": folds_b, "total": folded, "fraction": folded / (2 * n * size[0] * size[1])},
         "landmark_error_px": {
-            "mean": _number(float(err.mean())),
-            "max": _number(float(err.max())),
+            "mean": _number(float(met.mean())) if met.numel() else None,
+            "max": _number(float(met.max())) if met.numel() else None,
+            "met": int(met.numel()),
+            "let_go": gone.nonzero()[:, 0].tolist(),
             "per_point": [_number(float(e)) for e in err],
         },
         "marked": figures["marked"],
