@@ -119,3 +119,35 @@ def test_a_transparent_gif_streams_in_one_frames_memory(tmp_path):
     alpha = iio.imread(tmp_path / "t200.gif", index=None, mode="RGBA")[..., 3]
     for k in (0, 57, 199):
         assert (alpha[k, :, : 8 + k % 40] == 0).all() and (alpha[k, :, 8 + k % 40 :] == 255).all()
+
+
+@pytest.mark.parametrize("c", [3, 4])
+def test_a_gif_quantized_ahead_in_threads_is_the_gif_quantized_in_turn(tmp_path, gen, monkeypatch, c):
+    # frames small enough to be quantized QUANTIZE_AHEAD at a time, against the same frames quantized one by one
+    # (a byte budget below one frame): the same bytes, frames in their order
+    from torchfluidwarp.io import animation
+
+    video = frames(gen, 9, c)
+    ahead = write_animation(tmp_path / "ahead.gif", iter(video))
+    monkeypatch.setattr(animation, "QUANTIZE_BYTES", 1)
+    in_turn = write_animation(tmp_path / "in_turn.gif", iter(video))
+    assert ahead.read_bytes() == in_turn.read_bytes()
+    truth = np.round(video.permute(0, 2, 3, 1).numpy() * 255).astype(np.int16)
+    if c == 3:
+        data = decoded(ahead)
+        assert data.shape[0] == 9 and np.abs(data - truth).mean(axis=(1, 2, 3)).max() < 4
+    else:  # transparent where alpha < 0.5, frame by frame
+        alpha = iio.imread(ahead, index=None, mode="RGBA")[..., 3]
+        assert alpha.shape[0] == 9 and np.array_equal(alpha == 0, truth[..., 3] < 128)
+
+
+def test_a_frame_that_fails_while_others_are_quantized_leaves_no_gif(tmp_path, gen):
+    video = frames(gen, 6)
+
+    def failing():
+        yield from video[:4]
+        raise RuntimeError("frame 4 could not be made")
+
+    with pytest.raises(RuntimeError, match="frame 4 could not be made"):
+        write_animation(tmp_path / "a.gif", failing())
+    assert list(tmp_path.iterdir()) == []  # neither the file nor its temporary sibling

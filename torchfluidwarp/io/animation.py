@@ -14,7 +14,9 @@ import itertools
 import os
 import struct
 import tempfile
+from collections import deque
 from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
@@ -59,6 +61,14 @@ all frames at once, so unlike the other formats a WebP is not streamed: its fram
 last one, and a longer or larger animation is refused (write a GIF or PNG frames instead)."""
 TRANSPARENT = 255
 """The GIF palette index of transparent pixels (the colours are quantized to the other 255)."""
+QUANTIZE_AHEAD = 2
+"""GIF frames quantized at once, each in a thread of its own, while the next one is made: Pillow lets go of
+Python's lock while it quantizes, so its median cut (about half a second for a 3-megapixel frame) overlaps the
+rendering of the frames after it instead of adding to it."""
+QUANTIZE_BYTES = 2**26
+"""The most frame bytes (``H * W * C``, 8-bit) a GIF writer holds in the frames it quantizes ahead (64 MiB): a
+frame larger than a :data:`QUANTIZE_AHEAD`-th of it is quantized in turn, so that a streamed 6000 x 6000 morph
+still holds one frame at a time."""
 
 
 def write_animation(
@@ -85,7 +95,8 @@ def write_animation(
     Gray frames are repeated to RGB for GIF, MP4 and WebP; MP4 drops an alpha channel.
 
     Frames are encoded as they come, so an iterable (e.g. ``result.iter_frames()`` of a morph) is written in
-    the memory of one frame whatever its length. The output goes to a temporary sibling that is moved into
+    the memory of one frame whatever its length (a GIF's: of up to :data:`QUANTIZE_AHEAD` more 8-bit frames,
+    within :data:`QUANTIZE_BYTES`, whose colours are chosen in threads while the next frame is made). The output goes to a temporary sibling that is moved into
     place only once the last frame is written; an error on the way (a bad frame, a full disk) removes it.
 
     Args:
@@ -307,39 +318,71 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
     Every frame of a file has one mode, that of the first frame: opaque colour, or colour with transparency.
 
     * Opaque frames (grey or RGB) are quantized each on its own (median cut, 256 colours, no dithering) and
-      written whole with their own colour table, so nothing is held but the frame at hand and no frame is merged
-      with the one before it (Pillow's multi-frame writer keeps every frame until the end, and drops repeated
-      ones).
+      written whole with their own colour table, so no frame is merged with the one before it (Pillow's
+      multi-frame writer keeps every frame until the end, and drops repeated ones).
     * RGBA frames all use one global palette, :func:`_cube_palette` (dithered), with index :data:`TRANSPARENT`
       where ``alpha < 128`` in every frame, and each replaces the one before (disposal 2). A streamed file cannot
       choose one palette for frames it has not seen, and a frame with its own colour table is decoded by Pillow
       (hence imageio) in another mode than the first frame of a transparent GIF, so that
       ``imageio.v3.imread(path, index=None)`` could not stack the frames.
+
+    Up to :data:`QUANTIZE_AHEAD` frames are quantized in threads while the next one is made (within
+    :data:`QUANTIZE_BYTES`), and written in order: at most that many frames and the one being made are held.
     """
     delay_ms = max(10, 10 * round(100.0 / fps))  # GIF delays count hundredths of a second
+    first = next(frames, None)
+    if first is None:
+        return
+    h, w = first.shape[:2]
     cube: Image.Image | None = None
-    first = True
-    for frame in frames:  # not enumerate(frames): it would keep the last frame while the next one is made
-        rgb = _rgb(frame)
-        if first:
-            first = False
-            h, w = rgb.shape[:2]
-            if frame.shape[-1] == 4:
-                cube = _cube_palette()
-                table = bytes(cube.getpalette() or [])[:768].ljust(768, b"\0")
-                fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0xF7, 0, 0) + table)  # a 256-colour global table
-            else:
-                fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
-            fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
-        extra: dict[str, Any] = {"include_color_table": True}
-        if cube is not None:
-            quantized = _transparent(rgb, frame[..., 3], cube)
-            extra = {"include_color_table": False, "transparency": TRANSPARENT, "disposal": 2}
-        else:
-            quantized = Image.fromarray(rgb).quantize(colors=256)
+    if first.shape[-1] == 4:
+        cube = _cube_palette()
+        table = bytes(cube.getpalette() or [])[:768].ljust(768, b"\0")
+        fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0xF7, 0, 0) + table)  # a 256-colour global table
+        extra: dict[str, Any] = {"include_color_table": False, "transparency": TRANSPARENT, "disposal": 2}
+    else:
+        fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
+        extra = {"include_color_table": True}
+    fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
+    ahead = min(QUANTIZE_AHEAD, QUANTIZE_BYTES // first.nbytes)
+    stream = itertools.chain([first], frames)
+    del first  # held by the stream until it is quantized, not while the frames after it are made
+    for quantized in _quantized(stream, cube, ahead):
         fp.writelines(GifImagePlugin.getdata(quantized, duration=delay_ms, **extra))
-        del frame, rgb, quantized  # none of them held while the next frame is made
+        del quantized  # not held while the next frame is made
     fp.write(b";")
+
+
+def _quantize(frame: np.ndarray, cube: Image.Image | None) -> Image.Image:
+    """One GIF frame's palette image: :func:`_transparent` in ``cube``'s colours, or its own 256 (median cut)."""
+    rgb = _rgb(frame)
+    if cube is not None:
+        return _transparent(rgb, frame[..., 3], cube)
+    return Image.fromarray(rgb).quantize(colors=256)
+
+
+def _quantized(frames: Iterator[np.ndarray], cube: Image.Image | None, ahead: int) -> Iterator[Image.Image]:
+    """:func:`_quantize` of each frame, in order, up to ``ahead`` of them at once in threads (0: in turn)."""
+    if ahead < 1:
+        for frame in frames:  # not enumerate(frames): it would keep the last frame while the next one is made
+            out = _quantize(frame, cube)
+            del frame
+            yield out
+            del out
+        return
+    with ThreadPoolExecutor(max_workers=ahead, thread_name_prefix="gif") as pool:
+        pending: deque[Future[Image.Image]] = deque()
+        try:
+            for frame in frames:
+                pending.append(pool.submit(_quantize, frame, cube))
+                del frame
+                if len(pending) >= ahead:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:  # a frame that failed to be made, or a writer that stopped: the rest is not quantized
+            for future in pending:
+                future.cancel()
 
 
 def _transparent(rgb: np.ndarray, alpha: np.ndarray, palette: Image.Image) -> Image.Image:
