@@ -84,6 +84,7 @@ def main() -> None:
         for fmt in args.formats.split(","):
             out = str(folder / ("frames/" if fmt == "png" else f"morph.{fmt}"))
             argv = ["morph", a, b, "--points-a", pa, "--points-b", pb, "--frames", str(frames), "-o", out, "-q"]
+            argv += ["--max-size", "0"]  # the frames at the pictures' own 6000 x 6000, as the GIF's default is not
             runs.append((f"morph -o {Path(out).name}{'/' if fmt == 'png' else ''}", "morph", argv))
         for label, child, argv in runs:
             log(f"{label} ...")

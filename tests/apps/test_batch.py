@@ -107,6 +107,42 @@ def test_batch_output_matches_a_single_morph(tmp_path, gen):
     np.testing.assert_array_equal(iio.imread(single, index=None), iio.imread(tmp_path / "out/pair0.gif", index=None))
 
 
+def test_max_size_shrinks_each_pairs_animation_as_a_single_morph_is_shrunk(tmp_path, gen):
+    # 36 x 32 pictures, --max-size 18: each GIF at 18 x 16, the frames the single morph writes with the same
+    # option; PNG frames keep A's size; the batch's projection counts the shrunk frames
+    pairs = make_pairs(tmp_path, gen, n=1, bad=False)
+    morph_pairs(pairs, tmp_path / "out", progress=False, max_size=18, **OPTIONS)
+    assert planned_work(pairs, tmp_path / "new", max_size=18)[0][1] == (3, 16, 18)
+    assert planned_work(pairs, tmp_path / "new", fmt="png", max_size=18)[0][1] == (3, 32, 36)
+    data = tmp_path / "data"
+    single = tmp_path / "single.gif"
+    argv = ["morph", str(data / "a0.png"), str(data / "b0.png"), "--points-a", str(data / "a0.pts")]
+    assert main([*argv, "--points-b", str(data / "b0.json"), "-o", str(single), "--max-size", "18", *FAST]) == 0
+    batched = iio.imread(tmp_path / "out/pair0.gif", index=None)
+    assert batched.shape[:3] == (4, 16, 18)
+    np.testing.assert_array_equal(iio.imread(single, index=None), batched)
+    assert (
+        main(
+            [
+                "morph",
+                "--pairs",
+                str(pairs),
+                "--out",
+                str(tmp_path / "png"),
+                "--format",
+                "png",
+                "--max-size",
+                "18",
+                *FAST,
+            ]
+        )
+        == 0
+    )
+    assert iio.imread(tmp_path / "png/pair0/frame_0000.png").shape[:2] == (32, 36)
+    with pytest.raises(ValueError, match="max_size"):
+        morph_pairs(pairs, tmp_path / "out", progress=False, max_size=-1, **OPTIONS)
+
+
 def test_a_batch_projected_past_max_minutes_is_refused_before_any_pair_and_a_rerun_counts_what_is_left(
     tmp_path, gen, capsys
 ):

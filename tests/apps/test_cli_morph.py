@@ -190,3 +190,35 @@ def test_size_sets_the_frames_size_and_is_checked(pair, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "20000" in err and "--max-minutes" in err
     assert not (tmp_path / "big.gif").exists()
+
+
+def test_max_size_shrinks_an_animation_of_a_larger_first_image_and_says_so(pair, tmp_path, capsys):
+    # A is 48 x 40: with --max-size 24 its animations are written at 24 x 20 (one factor, rounded), with a note that
+    # names the way back; --size, --max-size 0, a folder of PNG frames and --frame's image keep their sizes
+    a, b, pa, pb = pair
+    base = ["morph", str(a), str(b), "--points-a", str(pa), "--points-b", str(pb), "--frames", "3", *FAST[:-1]]
+    for name in ("s.gif", "s.webp"):
+        assert main([*base, "-o", str(tmp_path / name), "--max-size", "24"]) == 0
+        assert iio.imread(tmp_path / name, index=0).shape[:2] == (20, 24)
+        err = capsys.readouterr().err
+        assert "frames written at 24 x 20 px: the first image's 48 x 40 shrunk to --max-size 24" in err
+        assert err.count("--size 40 48 (or --max-size 0) writes them at its size") == 1
+    kept = {
+        "sized.gif": ["--max-size", "24", "--size", "30", "36"],
+        "whole.gif": ["--max-size", "0"],
+        "fits.gif": ["--max-size", "48"],  # the longer side is already within it
+        "frames/": ["--max-size", "24"],
+    }
+    for name, options in kept.items():
+        assert main([*base, "-o", str(tmp_path / name), *options]) == 0
+        assert "shrunk" not in capsys.readouterr().err
+    assert iio.imread(tmp_path / "sized.gif", index=None).shape[1:3] == (30, 36)
+    assert iio.imread(tmp_path / "whole.gif", index=None).shape[1:3] == (40, 48)
+    assert iio.imread(tmp_path / "fits.gif", index=None).shape[1:3] == (40, 48)
+    assert iio.imread(tmp_path / "frames" / "frame_0000.png").shape[:2] == (40, 48)
+    assert main([*base, "--frame", "0.5", "-o", str(tmp_path / "mid.png"), "--max-size", "24"]) == 0
+    assert iio.imread(tmp_path / "mid.png").shape[:2] == (40, 48)
+    assert "shrunk" not in capsys.readouterr().err
+    assert main([*base, "-o", str(tmp_path / "quiet.gif"), "--max-size", "24", "--quiet"]) == 0
+    assert capsys.readouterr().err == ""  # --quiet says nothing, and still shrinks
+    assert iio.imread(tmp_path / "quiet.gif", index=None).shape[1:3] == (20, 24)

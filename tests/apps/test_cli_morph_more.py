@@ -147,6 +147,32 @@ def test_a_sequence_report_renders_each_frame_once_and_writes_the_same_animation
     assert sum(s["frames"] for s in segments) == 7 + 1  # the joint is measured in both segments
 
 
+def test_a_sequence_animation_is_shrunk_to_max_size_as_a_morph_is(three, tmp_path, capsys):
+    images, files = three  # 40 x 36 pictures
+    out = tmp_path / "small.gif"
+    assert main(["morph", *images, "--points", *files, "-o", str(out), "--frames", "4", "--max-size", "20", *FAST]) == 0
+    assert iio.imread(out, index=None).shape[:3] == (4, 18, 20)
+    assert (
+        main(
+            [
+                "morph",
+                *images,
+                "--points",
+                *files,
+                "-o",
+                str(tmp_path / "s.gif"),
+                "--frames",
+                "4",
+                "--max-size",
+                "20",
+                *FAST[:-1],
+            ]
+        )
+        == 0
+    )
+    assert "frames written at 20 x 18 px: the first image's 40 x 36 shrunk to --max-size 20" in capsys.readouterr().err
+
+
 def test_sequence_frame_at_one_is_the_last_image(three, tmp_path):
     images, files = three
     out = tmp_path / "end.png"

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import ctypes
+import dataclasses
 import glob
 import importlib.util
 import os
@@ -44,10 +45,10 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from torchfluidwarp._checks import check_instance, check_size
+from torchfluidwarp._checks import check_instance, check_int, check_size
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, write_animation
+from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, shrunk_size, write_animation
 from torchfluidwarp.morph import Blending, MorphSequence, MorphSettings, NaturalSettings, Timing, morph
 from torchfluidwarp.morph.result import MorphResult
 
@@ -185,6 +186,7 @@ def morph_pairs(
     timing: Timing = Timing(),
     blending: Blending = Blending(),
     max_memory: float | None = None,
+    max_size: int = 0,
 ) -> BatchReport:
     """Morph every pair of the CSV ``pairs`` into the folder ``out``, one after another.
 
@@ -200,6 +202,9 @@ def morph_pairs(
             ``RANK`` and ``WORLD_SIZE`` variables that ``torchrun`` sets (0 and 1 without them).
         settings, frames, timing, blending, max_memory: :func:`~torchfluidwarp.morph.morph`'s, for every pair
             (``blending.region`` may be ``"points"`` or ``None``: one pair of masks cannot serve every pair).
+        max_size: without ``blending.size``, each pair's GIF or MP4 is written with its image A's size shrunk so
+            that its longer side is at most this many pixels (:func:`~torchfluidwarp.io.shrunk_size`; 0 keeps
+            it, as do PNG frames).
 
     Returns:
         This process's :class:`BatchReport` (with several ranks, its ``failed`` lists every rank's failures).
@@ -215,7 +220,8 @@ def morph_pairs(
         raise InputError(
             "blending.region must be 'points' or None for a batch: one pair of masks cannot serve every pair"
         )
-    options = _MorphOptions(settings, frames, timing, blending, max_memory)
+    check_int("max_size", max_size, minimum=0)
+    options = _MorphOptions(settings, frames, timing, blending, max_memory, 0 if fmt == "png" else max_size)
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise InputError(FFMPEG_HINT)
     rank, world_size = _ranks(rank, world_size)
@@ -268,9 +274,11 @@ def planned_work(
     overwrite: bool = False,
     rank: int | None = None,
     world_size: int | None = None,
+    max_size: int = 0,
 ) -> list[tuple[str, tuple[int, int, int]]]:
     """What :func:`morph_pairs` with the same arguments would write: ``(output, (C, H, W))`` for each pair it would
-    morph, the frames' shape being image A's (the canvas), read from its file's header (no pixels are decoded).
+    morph, the frames' shape being image A's (the canvas), read from its file's header (no pixels are decoded),
+    shrunk to ``max_size`` as :func:`morph_pairs` shrinks it.
 
     This process's share of the CSV's good rows, less those a rerun skips (their output exists and not
     ``overwrite``), less those whose image A cannot be read (they fail when their turn comes, with the reason).
@@ -286,7 +294,7 @@ def planned_work(
     for pair, target, done in _plan(rows, Path(out), fmt, overwrite, rank, world_size):
         shape = None if done else _frame_shape(pair.image_a)
         if shape is not None:
-            work.append((target, shape))
+            work.append((target, (shape[0], *shrunk_size(shape[1:], 0 if fmt == "png" else max_size))))
     return work
 
 
@@ -332,6 +340,7 @@ class _MorphOptions:
     timing: Timing
     blending: Blending
     max_memory: float | None
+    max_size: int  # 0: image A's size (PNG frames, or not asked)
 
 
 def _morph_pair(
@@ -343,8 +352,10 @@ def _morph_pair(
     b = read_image(pair.image_b).to(device)
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
-    size = options.blending.size
-    height, width = (a.shape[-2], a.shape[-1]) if size is None else check_size("blending.size", size)
+    blending, size_a = options.blending, (a.shape[-2], a.shape[-1])
+    if blending.size is None and shrunk_size(size_a, options.max_size) != size_a:  # its longer side at max_size
+        blending = dataclasses.replace(blending, size=shrunk_size(size_a, options.max_size))
+    height, width = size_a if blending.size is None else check_size("blending.size", blending.size)
     check_disk_space(target, options.frames, height, width, a.shape[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -356,7 +367,7 @@ def _morph_pair(
             settings=options.settings,
             frames=options.frames,
             timing=options.timing,
-            blending=options.blending,
+            blending=blending,
             progress=False,
             max_memory=options.max_memory,
         )

@@ -49,6 +49,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     morph_settings,
     output_size,
     result_options,
+    shrink_to_max_size,
     write_measured,
     write_report,
     write_result,
@@ -306,7 +307,7 @@ def _run_pairs(args: argparse.Namespace) -> int:
     if not args.output:
         raise InputError("--pairs needs --out DIR/, the folder for the outputs")
     # the whole batch's work, before any pair is morphed: the pairs a rerun skips add none
-    work = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite)
+    work = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite, max_size=args.max_size)
     size = output_size(args)
     if size is not None:  # every pair's frames at --size
         work = [(target, (shape[0], *size)) for target, shape in work]
@@ -324,6 +325,7 @@ def _run_pairs(args: argparse.Namespace) -> int:
         timing=timing,
         blending=blending,
         max_memory=max_memory(args),
+        max_size=args.max_size,
     )
     print(  # even with --quiet, as the failures below: the command's result
         f"{PROG} morph: {len(report.morphed)} morphed, {len(report.skipped)} skipped (done before), "
@@ -354,6 +356,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         clock = clock_of(args)
         with clock.part("load"):
             a, b = (read_image(path) for path in args.images)
+        shrink_to_max_size("morph", args, a)
         check_result_output(args, args.frames, a)  # before the points are searched for
         check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, a))
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)

@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import json
 import os
+import sys
 from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
@@ -26,6 +27,7 @@ from torchfluidwarp.apps.batch import returning_memory, stream_frames
 from torchfluidwarp.apps.cli_args import (
     FRACTION,
     NON_NEGATIVE,
+    PROG,
     check_disk_space,
     check_image_output,
     check_output,
@@ -35,7 +37,7 @@ from torchfluidwarp.apps.cli_args import (
 )
 from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import read_image, write_animation, write_image
+from torchfluidwarp.io import read_image, shrunk_size, write_animation, write_image
 from torchfluidwarp.morph import Blending, MorphResult, MorphSequence, MorphSettings, Timing
 from torchfluidwarp.morph.settings import METHODS
 
@@ -47,6 +49,7 @@ __all__ = [
     "max_memory",
     "result_options",
     "output_size",
+    "shrink_to_max_size",
     "frame_shape",
     "check_result_output",
     "write_result",
@@ -55,9 +58,18 @@ __all__ = [
 ]
 
 
+MAX_SIZE = 1080
+"""Pixels: the longest side of an animation's frames (GIF, MP4, WebP) when neither ``--size`` nor ``--max-size``
+says otherwise. A phone's 4032 x 3024 photograph morphed at its own size made a 137 MB GIF in 102 s (render and
+write 97 s of it, 2 CPU cores); a GIF is for a screen, and an MP4 of more than about 9 megapixels exceeds what
+H.264's common levels play. A folder of PNG frames and ``--frame``'s image keep the first image's size."""
+
+ANIMATION_SUFFIXES = (".gif", ".mp4", ".webp")
+
+
 def add_result_options(p: argparse.ArgumentParser) -> None:
     """``--motion``, ``--blend``, ``--region``, ``--region-margin``, ``--background``, ``--frame``, ``--size``,
-    ``--report``."""
+    ``--max-size``, ``--report``."""
     p.add_argument(
         "--motion",
         metavar="SCHEDULE",
@@ -110,6 +122,15 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the frames' size in pixels: N (square) or H W (default: the first image's); each picture is placed "
         "on them by one scale factor, the smallest that covers them, never stretched",
+    )
+    p.add_argument(
+        "--max-size",
+        metavar="PX",
+        type=count(0),
+        default=MAX_SIZE,
+        help=f"an animation (GIF, MP4, WebP) of a larger first image is written with its longer side at PX pixels, "
+        f"with a note (default {MAX_SIZE}; 0 keeps the first image's size); --size, PNG frames and --frame's "
+        "image are never shrunk",
     )
     p.add_argument(
         "--report",
@@ -171,6 +192,30 @@ def output_size(args: argparse.Namespace) -> tuple[int, int] | None:
     if len(size) > 2:
         raise InputError(f"--size takes 1 or 2 integers (N, or H W), got {len(size)}: {' '.join(map(str, size))}")
     return size[0], size[-1]
+
+
+def shrink_to_max_size(command: str, args: argparse.Namespace, image: Tensor) -> None:
+    """``--max-size``: with no ``--size``, an animation file (``-o`` ending in .gif, .mp4 or .webp; not ``--frame``'s
+    image, not a folder of PNG frames) of a first picture ``image`` ``(1, C, H, W)`` whose longer side passes
+    ``--max-size`` gets ``args.size`` set to the picture's size shrunk to it
+    (:func:`~torchfluidwarp.io.images.shrunk_size`), and the ``command`` says so on stderr (unless ``--quiet``)."""
+    limit = getattr(args, "max_size", 0)
+    if args.size is not None or args.frame is not None or not limit:
+        return
+    out = os.fspath(args.output)
+    if out.endswith(("/", os.sep)) or Path(out).is_dir() or Path(out).suffix.lower() not in ANIMATION_SUFFIXES:
+        return
+    H, W = image.shape[-2], image.shape[-1]
+    h, w = shrunk_size((H, W), limit)
+    if (h, w) == (H, W):
+        return
+    args.size = [h, w]
+    if not args.quiet:
+        print(
+            f"{PROG} {command}: frames written at {w} x {h} px: the first image's {W} x {H} shrunk to --max-size "
+            f"{limit}; --size {H} {W} (or --max-size 0) writes them at its size",
+            file=sys.stderr,
+        )
 
 
 def frame_shape(args: argparse.Namespace, image: Tensor) -> tuple[int, int, int]:

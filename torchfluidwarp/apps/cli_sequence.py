@@ -42,6 +42,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     max_memory,
     morph_settings,
     result_options,
+    shrink_to_max_size,
     write_measured,
     write_report,
     write_result,
@@ -124,6 +125,7 @@ def run_sequence(args: argparse.Namespace) -> int:
     clock = clock_of(args)
     with clock.part("load"):
         pictures, points = _read_all(args.images, args.points)
+    shrink_to_max_size("morph", args, pictures[0])
     if args.region not in (None, "points"):
         raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
     settings = morph_settings(args)

@@ -25,6 +25,7 @@ from torchfluidwarp.io.images import (
     read_image_bytes,
     resize_image,
     shrink_image,
+    shrunk_size,
     write_image,
 )
 from torchfluidwarp.io.points import MAX_POINTS_BYTES, check_point_counts, read_points, write_points
@@ -36,6 +37,7 @@ __all__ = [
     "write_image",
     "resize_image",
     "shrink_image",
+    "shrunk_size",
     "read_points",
     "write_points",
     "check_point_counts",

@@ -96,8 +96,9 @@ def write_animation(
 
     Frames are encoded as they come, so an iterable (e.g. ``result.iter_frames()`` of a morph) is written in
     the memory of one frame whatever its length (a GIF's: of up to :data:`QUANTIZE_AHEAD` more 8-bit frames,
-    within :data:`QUANTIZE_BYTES`, whose colours are chosen in threads while the next frame is made). The output goes to a temporary sibling that is moved into
-    place only once the last frame is written; an error on the way (a bad frame, a full disk) removes it.
+    within :data:`QUANTIZE_BYTES`, whose colours are chosen in threads while the next frame is made). The output
+    goes to a temporary sibling that is moved into place only once the last frame is written; an error on the way
+    (a bad frame, a full disk) removes it.
 
     Args:
         path: the output file or folder. Missing parent folders are created.

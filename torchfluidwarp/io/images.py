@@ -40,7 +40,15 @@ from torchfluidwarp.io._files import (
     make_parents,
 )
 
-__all__ = ["read_image", "read_image_bytes", "write_image", "resize_image", "shrink_image", "MAX_IMAGE_PIXELS"]
+__all__ = [
+    "read_image",
+    "read_image_bytes",
+    "write_image",
+    "resize_image",
+    "shrink_image",
+    "shrunk_size",
+    "MAX_IMAGE_PIXELS",
+]
 
 # ITU-R BT.601 luma weights, the ones Pillow uses for RGB -> L.
 _LUMA = (0.299, 0.587, 0.114)
@@ -236,12 +244,25 @@ def shrink_image(image: Tensor, longest: int) -> Tensor:
         torch.Size([1, 3, 150, 100])
     """
     check_tensor("image", image, ndim=4)  # as resize_image: NaN or inf is refused, shrunk or not
+    size = (image.shape[-2], image.shape[-1])
+    smaller = shrunk_size(size, longest)
+    return image if smaller == size else resize_image(image, smaller).clamp(0, 1)
+
+
+def shrunk_size(size: tuple[int, int], longest: int) -> tuple[int, int]:
+    """``size`` ``(H, W)`` pixels shrunk by one factor so that its longer side is at most ``longest`` (0: kept),
+    each side rounded and at least 2 pixels: what :func:`shrink_image` resizes to.
+
+    Example:
+        >>> shrunk_size((4032, 3024), 1080)
+        (1080, 810)
+    """
     check_int("longest", longest, minimum=0)
-    H, W = image.shape[-2:]
+    H, W = size
     if longest == 0 or max(H, W) <= longest:
-        return image
+        return H, W
     scale = longest / max(H, W)
-    return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale)))).clamp(0, 1)
+    return max(2, round(H * scale)), max(2, round(W * scale))
 
 
 def _check_image_options(channels: int | None, dtype: torch.dtype, max_pixels: int) -> None:
