@@ -5,6 +5,8 @@ scale factor for both axes (the smallest that covers it, the crop centred on its
 the last frame B.
 """
 
+import warnings
+
 import imageio.v3 as iio
 import numpy as np
 import pytest
@@ -186,6 +188,27 @@ def test_marks_that_the_output_size_crops_away_are_left_out_with_a_warning(gen):
     with pytest.raises(ValueError, match=r"only 1 of its 5 points stay on it") as caught:
         morph(a, b, spread, spread + 1.0, frames=3, blending=Blending(size=40), **FAST)
     assert caught.value.argument == "blending"
+
+
+def test_a_canvas_of_the_pictures_shape_up_to_rounding_is_filled_exactly_and_keeps_its_border_points(gen):
+    # 97 x 44 shrunk by half and rounded is 49 x 22: one cover factor (49 / 97) would crop 0.2 px off the width
+    # and leave the right border's points off the canvas; the picture fills it instead, each axis by its own factor
+    place, scale = placement((97, 44), (49, 22))
+    corners = torch.tensor([[-0.5, -0.5], [43.5, 96.5]], dtype=torch.float64)  # the picture's outer corners
+    torch.testing.assert_close(apply_alignment(place, corners), torch.tensor([[-0.5, -0.5], [21.5, 48.5]]).double())
+    assert scale == pytest.approx(max(49 / 97, 22 / 44)) and abs(49 / 97 - 22 / 44) * 97 < 1
+    assert torch.equal(placement((40, 40), (40, 40))[0], torch.eye(3, dtype=torch.float64))  # the same size
+    a = disc_picture((97, 44), (22.0, 48.0), 10.0, [0.9, 0.9, 0.9], gen)
+    b = disc_picture((97, 44), (23.0, 50.0), 11.0, [0.9, 0.9, 0.9], gen)
+    border = torch.tensor([[0.0, 0.0], [43.0, 0.0], [43.0, 96.0], [0.0, 96.0]])
+    pa, pb = torch.cat([disc_marks((22.0, 48.0), 10.0), border]), torch.cat([disc_marks((23.0, 50.0), 11.0), border])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no point is left out: no "crops image_a" warning
+        r = morph(a, b, pa, pb, frames=3, blending=Blending(size=(49, 22)), **FAST)
+    assert r.points.shape == (9, 2) and r.frames.shape == (3, 3, 49, 22)
+    # the first frame is A shrunk to the canvas, as resize_image shrinks it (the same two factors)
+    shrunk = resize_image(a[None] if a.ndim == 3 else a, (49, 22))
+    assert float((r.frames[0] - shrunk[0]).abs().mean()) < 0.02
 
 
 def test_the_output_size_is_a_setting(gen):

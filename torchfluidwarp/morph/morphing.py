@@ -141,10 +141,19 @@ def placement(size: tuple[int, int], canvas: tuple[int, int], points: Tensor | N
     marked content (a face at the edge of a group photograph) stays on the canvas. Without points, on the
     picture. Pixel centres at integers, so a picture of the canvas's size is placed by the identity:
     ``y = s (x + 0.5) + o - 0.5``, with the offset ``o`` between ``W_c - s W`` and ``0``.
+
+    A canvas of the picture's aspect ratio up to rounding, which the cover would crop by less than a pixel (the
+    picture's size shrunk and rounded, as the command line's ``--max-size`` does), is filled exactly instead:
+    each axis by its own factor, ``W_c / W`` and ``H_c / H``, which differ by under a pixel over the picture, so
+    that no sliver of its border, and no point on it, is cut off. The scale returned is the larger.
     """
     (H, W), (Hc, Wc) = size, canvas
     s = max(Hc / H, Wc / W)
     out = torch.eye(3, dtype=torch.float64)
+    if max(s * W - Wc, s * H - Hc) < 1:  # the same shape up to rounding: filled exactly, nothing cropped
+        out[0, 0], out[1, 1] = Wc / W, Hc / H
+        out[0, 2], out[1, 2] = 0.5 * Wc / W - 0.5, 0.5 * Hc / H - 0.5
+        return out, s
     out[0, 0] = out[1, 1] = s
     for axis, (extent, side) in enumerate(((W, Wc), (H, Hc))):
         low = side - s * extent  # <= 0: the offset that puts the picture's far edge on the canvas's
