@@ -3,6 +3,7 @@ argument, or a valid result, before any work starts."""
 
 from __future__ import annotations
 
+import importlib
 import warnings
 
 import pytest
@@ -126,3 +127,34 @@ def test_without_points_the_morph_finds_them_from_the_pictures():
     shift = (pb - pa).median(0).values.float()  # the matched points moved with the picture
     torch.testing.assert_close(shift, torch.tensor([-4.0, 3.0]), atol=1.0, rtol=0)
     assert r.folded == 0
+
+
+def test_match_takes_the_mode_alone_as_the_matchers_hints_spell_it():
+    # the notes and errors of the matchers say match='pixels' or match='features': morph takes that as given
+    gen = torch.Generator().manual_seed(5)
+    small = torch.nn.functional.interpolate(torch.rand(1, 3, 6, 6, generator=gen), size=(40, 40), mode="bicubic")
+    a = small[0].clamp(0, 1)
+    b = torch.roll(a, shifts=(2, -1), dims=(1, 2))
+    by_mode = _morph(a, b, frames=3, match="pixels")
+    by_settings = _morph(a, b, frames=3, match=Matching("pixels"))
+    torch.testing.assert_close(by_mode.points, by_settings.points, atol=0, rtol=0)
+    torch.testing.assert_close(by_mode.frames, by_settings.frames, atol=0, rtol=0)
+    with pytest.raises(ValueError, match=r"match must be a Matching or one of \('auto', .*'pixels'\), got 'optical'"):
+        _morph(a, b, frames=3, match="optical")
+
+
+def test_a_matchers_note_is_warned_in_the_morphs_own_terms(monkeypatch):
+    # the faces matcher's hint names face_index, which morph() takes inside Matching
+    from torchfluidwarp.correspond import FoundPoints, MatchNotice
+    from torchfluidwarp.correspond.auto import Note
+    from torchfluidwarp.errors import Hint
+
+    note = Note("b.jpg shows 2 faces: used the largest", Hint("choose another with {setting}", "face_index"), True)
+    found = FoundPoints(PA, PA + 0.5, "faces", note)
+    monkeypatch.setattr(importlib.import_module("torchfluidwarp.morph.morphing"), "find_points", lambda *a, **k: found)
+    with pytest.warns(MatchNotice) as caught:
+        _morph(A, A, frames=3)
+    assert str(caught[0].message) == (
+        "b.jpg shows 2 faces: used the largest; choose another with match=Matching(face_index=(i, j))"
+    )
+    assert caught[0].message.note is note

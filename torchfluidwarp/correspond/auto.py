@@ -112,12 +112,15 @@ class Note:
 class MatchNotice(UserWarning):
     """:func:`auto_points` fell back from faces to features, or chose the largest of several faces.
 
+    Its message is the note with its hint as the library's functions spell the setting, or in the ``names`` given
+    (a caller's own, as :meth:`Note.explain` takes them).
+
     Attributes:
         note: the :class:`Note`, to word it in a caller's terms (:meth:`Note.explain`).
     """
 
-    def __init__(self, note: Note) -> None:
-        super().__init__(str(note))
+    def __init__(self, note: Note, names: Mapping[str, str] | None = None) -> None:
+        super().__init__(str(note) if names is None else note.explain(names))
         self.note = note
 
 

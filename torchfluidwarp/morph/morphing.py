@@ -37,7 +37,7 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, inside_picture, rescale_points, scale_factor
-from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points, halfway_alignment
+from torchfluidwarp.correspond import FoundPoints, MatchMode, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
@@ -57,6 +57,9 @@ from torchfluidwarp.morph.settings import (
 from torchfluidwarp.morph.timing import schedule
 
 __all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
+
+MATCH_MODES: tuple[MatchMode, ...] = ("auto", "faces", "features", "pixels")
+"""The modes ``morph(match=...)`` takes as a string (:class:`~torchfluidwarp.morph.settings.Matching`'s)."""
 
 
 def _as_image(name: str, image: Tensor) -> Tensor:
@@ -260,7 +263,7 @@ def morph(
     frames: int = 30,
     timing: Timing = Timing(),
     blending: Blending = Blending(),
-    match: Matching = Matching(),
+    match: Matching | MatchMode = Matching(),
     warm_start: KeyframeFit | None = None,
     placed: FoundPoints | None = None,
     progress: bool = True,
@@ -303,7 +306,8 @@ def morph(
             (:class:`~torchfluidwarp.morph.settings.Timing`).
         blending: how each frame puts the two warped images together, and an optional region
             (:class:`~torchfluidwarp.morph.settings.Blending`).
-        match: how the points are found when none are given (:class:`~torchfluidwarp.morph.settings.Matching`).
+        match: how the points are found when none are given (:class:`~torchfluidwarp.morph.settings.Matching`),
+            or its mode alone: ``match="pixels"`` is ``match=Matching("pixels")``.
         warm_start: a previous morph's ``result.fit`` of the same method and number of points: its forces
             start this fit (the studio's live previews).
         placed: points that :func:`~torchfluidwarp.correspond.auto.find_points` already found for this pair (the
@@ -344,6 +348,10 @@ def morph(
     check_instance("settings", settings, (NaturalSettings, PaperSettings))
     check_instance("timing", timing, Timing)
     check_instance("blending", blending, Blending)
+    if isinstance(match, str):  # the mode alone, as the matchers' notes and hints spell it
+        if match not in MATCH_MODES:
+            raise InputError(f"match must be a Matching or one of {MATCH_MODES}, got {match!r}", argument="match")
+        match = Matching(match)
     check_instance("match", match, Matching)
     check_instance("warm_start", warm_start, KeyframeFit, optional=True)
     a = _as_image("image_a", image_a)
@@ -365,8 +373,8 @@ def morph(
             )
     elif points_a is None:
         placed = find_points(a, b, match=match.mode, face_index=match.face_index)
-        if placed.reason.notable:
-            warn(MatchNotice(placed.reason))
+        if placed.reason.notable:  # its hint in this call's terms: the face index is Matching's
+            warn(MatchNotice(placed.reason, {"match": "match", "face_index": "match=Matching(face_index=(i, j))"}))
     found = False  # marks placed by features or a flow are the pixels' guess: the pixels' alignment may move them
     if placed is not None:
         points_a, points_b, found = placed.points_a, placed.points_b, placed.matcher != "faces"
