@@ -7,9 +7,11 @@ import warnings
 import pytest
 import torch
 import torch.nn.functional as F
+from PIL import Image
 
 from torchfluidwarp.core.spline import tps_interpolate
 from torchfluidwarp.correspond.auto import FoundPoints, Note
+from torchfluidwarp.io import write_animation
 from torchfluidwarp.morph import Blending, NaturalSettings, PaperSettings, Timing
 from torchfluidwarp.morph.marks import LET_GO, crossing_pairs
 from torchfluidwarp.morph.morphing import morph
@@ -484,3 +486,14 @@ def test_an_edge_that_travels_towards_the_walls_widens_the_margin_and_nothing_is
     kept = morph(a, b, pa, pb, frames=3, settings=NaturalSettings(grid=32, steps=6, viscosity=field), progress=False)
     assert kept.box == (-12, -12, 108, 108)  # PAD of 96 px on each side
     assert kept.fit.warp.grid.shape == (32, 32)
+
+
+def test_a_result_saves_the_animation_its_frames_make(pair, tmp_path):
+    a, b = pair
+    r = morph(a, b, POINTS_A, POINTS_B, frames=5, **KW)
+    saved = r.save(tmp_path / "m.gif")
+    written = write_animation(tmp_path / "w.gif", r.frames, fps=15)  # the same frames, the default rate
+    assert saved.read_bytes() == written.read_bytes()
+    assert r.save(tmp_path / "m.gif", overwrite=True, fps=5, loop=2) == tmp_path / "m.gif"
+    with Image.open(tmp_path / "m.gif") as gif:
+        assert gif.n_frames == 5 and gif.info["duration"] == 200 and gif.info["loop"] == 2

@@ -7,7 +7,7 @@ import torch
 from discs import aspect, crop, crop_offset, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
-from torchfluidwarp.io import resize_image
+from torchfluidwarp.io import resize_image, write_animation
 from torchfluidwarp.morph import NaturalSettings, average, morph_sequence
 from torchfluidwarp.morph.morphing import placement
 
@@ -39,6 +39,18 @@ def test_a_sequence_passes_through_every_image_at_one_speed():
     assert abs(speeds[1] / speeds[0] - 1) < 0.15, (seq.counts, speeds)  # an even split would give 2.0
     streamed = torch.stack(list(seq.iter_frames(chunk=3)))
     torch.testing.assert_close(streamed, seq.frames)
+
+
+def test_a_sequence_saves_the_animation_its_frames_make(tmp_path):
+    sets = [BASE, BASE + torch.tensor([2.0, 0.0]), BASE + torch.tensor([6.0, 0.0])]
+    seq = morph_sequence([_blobs(p) for p in sets], sets, frames=7, **KW)
+    saved = seq.save(tmp_path / "seq.gif", fps=20)
+    written = write_animation(tmp_path / "frames.gif", seq.frames, fps=20)
+    assert saved == tmp_path / "seq.gif" and saved.read_bytes() == written.read_bytes()
+    folder = seq.save(tmp_path / "seq/")
+    assert sorted(q.name for q in folder.iterdir()) == [f"frame_{k:04d}.png" for k in range(7)]
+    with pytest.raises(FileExistsError):
+        seq.save(tmp_path / "seq.gif")  # overwrite=False, as write_animation
 
 
 def test_sequence_arguments_are_checked():

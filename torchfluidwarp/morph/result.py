@@ -11,8 +11,10 @@ Nothing is rendered until asked for, so a morph of any length holds only its fit
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -20,6 +22,7 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_memory, check_real, warn
 from torchfluidwarp.control.keyframes import KeyframeFit
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.io import write_animation
 from torchfluidwarp.morph.render import MorphFrames, Scene, raster_bytes, raster_maps, render
 
 RASTER_BYTES = 2**26
@@ -223,6 +226,23 @@ class MorphResult:
             return
         for part in self.iter_rendered(chunk, keep=False):  # frames only: the warped images and maps come back empty
             yield from part.frames.unbind(0)
+
+    def save(self, path: str | os.PathLike[str], *, fps: float = 15.0, overwrite: bool = False, loop: int = 0) -> Path:
+        """Write the morph's ``N`` frames to ``path``, rendering them as they are written (:meth:`iter_frames`):
+        a GIF, an MP4, an animated WebP or, for a path ending in ``/``, a folder of PNG frames, as
+        :func:`~torchfluidwarp.io.write_animation` writes them (its ``fps``, ``overwrite`` and ``loop``; 15 frames
+        a second by default, as the command line's). Returns the path written.
+
+        Example:
+            >>> import tempfile, torch
+            >>> from torchfluidwarp import morph
+            >>> a = torch.rand(3, 32, 32)
+            >>> pa = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
+            >>> result = morph(a, a.flip(-1), pa, pa + 1, frames=4, progress=False)
+            >>> result.save(tempfile.mkdtemp() + "/morph.gif").name
+            'morph.gif'
+        """
+        return write_animation(path, self.iter_frames(), fps=fps, overwrite=overwrite, loop=loop)
 
     def iter_rendered(self, chunk: int = 8, keep: bool = True) -> Iterator[MorphFrames]:
         """Render the ``N`` frames in order, ``chunk`` at a time: each chunk's frames in A's and B's dtype, with

@@ -14,9 +14,11 @@ axes: :func:`~torchfluidwarp.morph.morphing.placement`), never stretched.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -26,6 +28,7 @@ from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_face
 from torchfluidwarp.correspond.auto import bordered_pairs
 from torchfluidwarp.errors import InputError, InputTypeError
+from torchfluidwarp.io import write_animation
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
 from torchfluidwarp.morph.result import MorphResult
@@ -130,6 +133,11 @@ class MorphSequence:
     def frames(self) -> Tensor:
         """``(N, C, H, W)`` all frames at once."""
         return torch.stack(list(self.iter_frames()))
+
+    def save(self, path: str | os.PathLike[str], *, fps: float = 15.0, overwrite: bool = False, loop: int = 0) -> Path:
+        """Write the sequence's frames to ``path``, rendering them as they are written, as
+        :meth:`MorphResult.save <torchfluidwarp.morph.result.MorphResult.save>` does. Returns the path written."""
+        return write_animation(path, self.iter_frames(), fps=fps, overwrite=overwrite, loop=loop)
 
 
 def _travel(pa: Tensor, pb: Tensor) -> float:
