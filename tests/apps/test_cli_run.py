@@ -49,7 +49,11 @@ def files(tmp_path: Path, gen: torch.Generator) -> Path:
     [
         (["morph", "missing.png", "a.png", "-o", "o.gif"], "cannot read image 'missing.png': no such file"),
         (["morph", "a.png", "a.png", "--frames", "30", "--points-a", "a.pts", "--points-b", "no.pts"], "'no.pts'"),
-        (["morph", "a.png", "a.png", "-o", "o.txt"], "unknown suffix '.txt'"),
+        (
+            ["morph", "a.png", "a.png", "-o", "o.txt"],
+            "unknown suffix '.txt'; use .gif, .mp4, .webp or a folder ending in '/'",
+        ),
+        (["morph", "a.png", "a.png", "-o", "mid.png"], "or add --frame T (--frame 0.5: the middle image) to write the"),
         (["morph", "a.png", "a.png", "--output=taken.gif"], "already exists"),
         (["morph", "a.png", "a.png", "--frame", "0.5", "-o", "mid.xyz"], "an image needs a suffix"),
         (["animate", "missing.png", "-o", "o.gif", "--brush", BRUSH], "cannot read image 'missing.png'"),

@@ -53,6 +53,7 @@ from torchfluidwarp.apps.cli_args import (
     EXIT_TERMINATED,
     FPS,
     NON_NEGATIVE,
+    ONE_IMAGE,
     POSITIVE,
     PROG,
     Clock,
@@ -275,7 +276,7 @@ def _check_files(command: str, positional: list[str], given: dict[str, list[str]
     if command == "average" or "--frame" in given:
         check_image_output(outputs[-1], overwrite)
     else:
-        check_output(outputs[-1], overwrite)
+        check_output(outputs[-1], overwrite, one_image=ONE_IMAGE if command in ("morph", "demo") else "")
 
 
 def _check_numbers(given: dict[str, list[str]]) -> None:

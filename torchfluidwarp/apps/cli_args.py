@@ -244,17 +244,32 @@ def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[
     return parse
 
 
-def check_output(path: str, overwrite: bool) -> None:
+ONE_IMAGE = "--frame T (--frame 0.5: the middle image)"
+"""How ``morph`` and ``demo`` write a single image instead of an animation, said when ``-o`` names an image."""
+
+
+def check_output(path: str, overwrite: bool, one_image: str = "") -> None:
     """Fail before rendering on what :func:`~torchfluidwarp.io.write_animation` would refuse after it.
+
+    ``one_image``: how the command writes a single image instead (``"--frame T"``), said when ``path`` names an
+    image file (``mid.png``).
 
     Raises:
         InputError: an unknown suffix, MP4 without imageio-ffmpeg, or an existing output without ``overwrite``.
     """
+    from PIL import Image
+
     target = Path(path)
     folder = _is_folder(path)
     if not folder and target.suffix.lower() not in (".gif", ".mp4", ".webp"):
+        image = one_image and target.suffix.lower() in Image.registered_extensions()
         raise InputError(
             f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4, .webp or a folder ending in '/'"
+            + (
+                f" for the animation, or add {one_image} to write the single image at time T to {path!r}"
+                if image
+                else ""
+            )
         )
     if not folder and target.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         from torchfluidwarp.io import FFMPEG_HINT

@@ -27,6 +27,7 @@ from torchfluidwarp.apps.batch import returning_memory, stream_frames
 from torchfluidwarp.apps.cli_args import (
     FRACTION,
     NON_NEGATIVE,
+    ONE_IMAGE,
     PROG,
     check_disk_space,
     check_image_output,
@@ -248,7 +249,7 @@ def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) ->
     if args.frame is not None:
         check_image_output(args.output, args.overwrite)
     else:
-        check_output(args.output, args.overwrite)
+        check_output(args.output, args.overwrite, one_image=ONE_IMAGE)
         channels, height, width = frame_shape(args, image)
         check_disk_space(args.output, frames, height, width, channels)
     if args.report and Path(args.report).exists() and not args.overwrite:
