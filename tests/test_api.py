@@ -28,6 +28,9 @@ def test_the_top_level_is_small_and_every_name_resolves():
         for name in tfw.__all__:
             assert getattr(tfw, name) is not None
     assert set(tfw.__all__) <= set(dir(tfw))
+    # what dir() (and so tab completion) offers: the public names and the subpackages, not the module's imports
+    assert set(dir(tfw)) == set(tfw.__all__) | {"core", "warp", "control", "correspond", "morph", "metrics",
+                                                 "augment", "io", "data", "apps"}  # fmt: skip
 
 
 def test_the_top_level_random_fluid_warp_is_the_v2_transform():

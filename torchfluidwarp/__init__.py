@@ -99,7 +99,8 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+    """The public names and the subpackages (not this module's own imports: ``importlib``, ``Any``, ...)."""
+    return sorted(set(__all__) | _SUBPACKAGES)
 
 
 class _TopLevel(types.ModuleType):
