@@ -149,17 +149,12 @@ def test_pickles_and_runs_in_a_dataloader_with_two_workers():
 @pytest.mark.slow  # a fresh interpreter imports torch: about 10 s on 2 busy cores
 def test_torchvision_is_imported_only_when_asked_for():
     code = (
-        "import sys, torchfluidwarp as t, torchfluidwarp.augment as a, torchfluidwarp.augment.tensor; "
+        "import sys, torchfluidwarp as t, torchfluidwarp.augment.tensor; "
         "assert not {'torchvision', 'starlette', 'uvicorn'} & set(sys.modules), sorted(sys.modules); "
         "t.RandomFluidWarp; assert 'torchvision' in sys.modules"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
     assert torchfluidwarp.RandomFluidWarp is RandomFluidWarp
-    from torchfluidwarp.augment import RandomFluidWarp as from_augment  # its subpackage names it too
-
-    assert from_augment is RandomFluidWarp
-    with pytest.raises(AttributeError, match="has no attribute 'RandomWarp'"):
-        torchfluidwarp.augment.RandomWarp  # noqa: B018
 
 
 def test_plain_tensors_of_any_rank_and_dtype_are_images():

@@ -9,14 +9,11 @@
 * :mod:`~torchfluidwarp.augment.tensor`: the tensor-level :class:`FluidWarpAugment` (an ``nn.Module``) and
   :func:`random_fluid_warp`;
 * :mod:`~torchfluidwarp.augment.transforms`: :class:`~torchfluidwarp.augment.transforms.RandomFluidWarp`, the
-  torchvision v2 transform over ``tv_tensors`` (the only module that imports torchvision: imported on first
-  access, as ``torchfluidwarp.augment.RandomFluidWarp`` or ``torchfluidwarp.RandomFluidWarp``).
+  torchvision v2 transform over ``tv_tensors`` (the only module that imports torchvision; reach it as
+  ``torchfluidwarp.RandomFluidWarp``).
 """
 
 from __future__ import annotations
-
-import importlib
-from typing import TYPE_CHECKING, Any
 
 from torchfluidwarp.augment.carry import (
     apply_fluid_warp,
@@ -37,16 +34,12 @@ from torchfluidwarp.augment.draw import (
 from torchfluidwarp.augment.settings import MAX_SHEAR, FluidWarpSettings
 from torchfluidwarp.augment.tensor import FluidWarpAugment, random_fluid_warp
 
-if TYPE_CHECKING:  # imported on first access (PEP 562): torchvision is needed only then
-    from torchfluidwarp.augment.transforms import RandomFluidWarp
-
 __all__ = [
     "MAX_SHEAR",
     "MIN_DET",
     "FluidWarpAugment",
     "FluidWarpParams",
     "FluidWarpSettings",
-    "RandomFluidWarp",
     "apply_fluid_warp",
     "box_outline",
     "brush_forces",
@@ -59,9 +52,3 @@ __all__ = [
     "random_fluid_warp",
     "raster_map",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    if name == "RandomFluidWarp":  # the torchvision transform: its module imports torchvision
-        return importlib.import_module("torchfluidwarp.augment.transforms").RandomFluidWarp
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
