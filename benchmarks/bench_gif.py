@@ -5,13 +5,17 @@ A morph is fitted once per pair (the bundled 512 x 512 pair with its points; and
 breakingbad.jpg`` does), then its 30 frames are streamed three ways, in turn, ``--repeats`` times: rendered only
 (``iter_frames``, the floor of writing them), into a GIF with ``io.animation``'s defaults (``QUANTIZE_AHEAD``
 frames quantized in threads while the next is rendered), and into a GIF with every frame quantized in turn
-(``QUANTIZE_BYTES`` set to 1 byte for the run). Figures: docs/benchmarks.md, "A GIF's frames quantized while the
-next renders".
+(``QUANTIZE_BYTES`` set to 1 byte for the run). ``--cli``: instead, the command line on a phone's 4032 x 3024 pair
+(obama and biden of ``morph_quality_data.py`` enlarged to it, as JPEGs), ``torchfluidwarp morph A B -o out.gif``
+with its defaults (frames shrunk to ``--max-size`` 1080) and with ``--max-size 0``, each a fresh process: wall
+time and the GIF's size. Figures: docs/benchmarks.md, "A GIF's frames quantized while the next renders".
 """
 
 from __future__ import annotations
 
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 import warnings
@@ -20,6 +24,7 @@ from typing import Any
 
 from _common import finish, log, parser, start, table
 from morph_quality_data import photo_path
+from PIL import Image
 
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.io import animation, read_image, write_animation
@@ -57,11 +62,47 @@ def _render(result: Any) -> float:
     return time.perf_counter() - t0
 
 
+def phone_pair(folder: Path) -> tuple[Path, Path]:
+    """Two 3024 x 4032 JPEGs (a phone's portrait): obama and biden enlarged (Lanczos), biden's top cropped."""
+    a, b = folder / "phone_a.jpg", folder / "phone_b.jpg"
+    Image.open(photo_path("obama")).resize((3024, 4032), Image.LANCZOS).save(a, quality=90)
+    with Image.open(photo_path("biden")) as im:
+        tall = im.resize((3024, round(im.height * 3024 / im.width)), Image.LANCZOS)
+    tall.crop((0, 0, 3024, 4032)).save(b, quality=90)
+    return a, b
+
+
+def command_line(folder: Path) -> list[list[str]]:
+    """``torchfluidwarp morph`` on :func:`phone_pair`, by default and with ``--max-size 0``: table rows."""
+    a, b = phone_pair(folder)
+    rows = []
+    for label, extra in (("defaults (--max-size 1080)", []), ("--max-size 0", ["--max-size", "0"])):
+        out = folder / "phone.gif"
+        argv = [sys.executable, "-m", "torchfluidwarp.apps.cli", "morph", str(a), str(b), "-o", str(out)]
+        log(f"torchfluidwarp morph phone_a.jpg phone_b.jpg -o phone.gif {' '.join(extra)}")
+        t0 = time.perf_counter()
+        done = subprocess.run([*argv, "--overwrite", *extra], capture_output=True, text=True, check=True)
+        seconds = time.perf_counter() - t0
+        with Image.open(out) as gif:
+            size = f"{gif.width} x {gif.height}"
+        rows.append([label, size, f"{out.stat().st_size / 1e6:.1f}", f"{seconds:.1f}"])
+        print(done.stderr.strip().splitlines()[-1])  # the command's own line
+    return rows
+
+
 def main() -> None:
     p = parser(__doc__, quick="the bundled pair only, 1 repeat", threads=2)
     p.add_argument("--repeats", type=int, default=3, help="rounds of the three ways (default 3)")
+    p.add_argument("--cli", action="store_true", help="the command line on a phone-size pair instead")
     args = p.parse_args()
     info = start("bench_gif", args.threads)
+    if args.cli:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = command_line(Path(tmp))
+        print("\ntorchfluidwarp morph on a 3024 x 4032 pair, 30 frames (each run a fresh process)")
+        print(table(["run", "frames", "GIF MB", "wall s"], rows))
+        finish(info, {"cli": rows}, args.json)
+        return
     repeats = 1 if args.quick else args.repeats
     rows, out = [], {}
     with tempfile.TemporaryDirectory() as tmp:
