@@ -121,8 +121,9 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
         nargs="+",
         type=count(1),
         default=None,
-        help="the frames' size in pixels: N (square) or H W (default: the first image's); each picture is placed "
-        "on them by one scale factor, the smallest that covers them, never stretched",
+        help="the frames' size in pixels: N (square) or H W (default: the first image's, for an animation at most "
+        "--max-size); each picture is placed on them by one scale factor, the smallest that covers them, never "
+        "stretched",
     )
     p.add_argument(
         "--max-size",
