@@ -219,6 +219,10 @@ def test_max_size_shrinks_an_animation_of_a_larger_first_image_and_says_so(pair,
     assert main([*base, "--frame", "0.5", "-o", str(tmp_path / "mid.png"), "--max-size", "24"]) == 0
     assert iio.imread(tmp_path / "mid.png").shape[:2] == (40, 48)
     assert "shrunk" not in capsys.readouterr().err
+    report = tmp_path / "r.json"  # the report measures the shrunk frames
+    assert main([*base, "-o", str(tmp_path / "r.gif"), "--max-size", "24", "--report", str(report)]) == 0
+    assert json.loads(report.read_text())["size"] == [20, 24]
+    capsys.readouterr()
     assert main([*base, "-o", str(tmp_path / "quiet.gif"), "--max-size", "24", "--quiet"]) == 0
     assert capsys.readouterr().err == ""  # --quiet says nothing, and still shrinks
     assert iio.imread(tmp_path / "quiet.gif", index=None).shape[1:3] == (20, 24)

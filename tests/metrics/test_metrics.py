@@ -6,7 +6,7 @@ import torch.nn.functional as F
 
 from torchfluidwarp import metrics
 from torchfluidwarp.core.grid import rescale_points, scale_factor
-from torchfluidwarp.morph import NaturalSettings, morph
+from torchfluidwarp.morph import Blending, NaturalSettings, morph
 from torchfluidwarp.warp import identity_map
 
 SIZE = 48
@@ -120,6 +120,20 @@ def test_bad_arguments_are_named():
 
 
 # ----------------------------------------------------------------------------------------------- whole morphs
+
+
+def test_a_morph_on_a_canvas_of_another_size_is_reported_in_the_frames_pixels(image):
+    # frames at 36 x 36 of a 48 x 48 morph (Blending.size, the command line's --size or --max-size): the report
+    # measures them, and still refuses a picture that is not the morph's, by name, before any frame is rendered
+    r = morph(image, image, POINTS, POINTS, frames=3, blending=Blending(size=36), **KW)
+    rep = metrics.morph_report(r, image, image, POINTS, POINTS, held_out=(HELD, HELD))
+    assert rep["size"] == [36, 36] and rep["folds"]["total"] == 0 and rep["landmark_error_px"]["max"] < 1e-4
+    for kind in ("marked", "held_out"):
+        assert rep[kind]["end"]["located"] == rep[kind]["end"]["of"] and rep[kind]["end"]["max"] < 1e-3
+    assert r.sizes == ((48, 48), (48, 48))
+    for args, name in (((image[:, :24], image), "image_a"), ((image, image[:, :, :40]), "image_b")):
+        with pytest.raises(ValueError, match=rf"{name} must be the morph's image ., of size \(48, 48\), got"):
+            metrics.morph_report(r, *args, POINTS, POINTS)
 
 
 def test_an_identity_morph_scores_zero(image):

@@ -28,6 +28,9 @@ class Morph(Protocol):
     let_go: Tensor  # (M,) bool: the marks let go so as not to fold
 
     @property
+    def sizes(self) -> tuple[tuple[int, int], tuple[int, int]]: ...  # image A's and image B's (H, W)
+
+    @property
     def canvas_from_b(self) -> Tensor: ...  # (3, 3) B's pixels to the frames' (canvas) pixels
 
     def __len__(self) -> int: ...
@@ -117,13 +120,13 @@ def morph_report(
         "fraction"}, "landmark_error_px": {"mean", "max", "met", "let_go", "per_point"}, "marked": {"end",
         "ghost"}, "held_out": {"end", "ghost"} or None, "image_ghost": {"median", "p90", "mean", "covered",
         "textured", "scale"}, "seam": {"a", "b", "max"}, "path": {"kind", "distances", "total", "mean", "max",
-        "variance"}}``; each
-        ``"end"``/``"ghost"`` holds ``mean``, ``median``, ``max`` (pixels of the frame; ``None`` when no point was
-        located), ``located``, ``of`` and ``per_point``. ``"landmark_error_px"`` is ``result.error`` (pixels of
-        the last frame): its ``mean`` and ``max`` over the ``met`` marks (``result.met_error``; ``None`` when
-        every mark was let go), ``let_go`` the indices of the marks let go so as not to fold
-        (``result.let_go``), and ``per_point`` every mark's. The middle frame is ``N // 2``; "end" is measured in the
-        last frame, "ghost" in the middle one. ``"image_ghost"`` is the ghosting seen in the middle frame's
+        "variance"}}``; ``"size"`` is the frames' (A's, or ``Blending.size``), and each ``"end"``/``"ghost"``
+        holds ``mean``, ``median``, ``max`` (pixels of the frame; ``None`` when no point was located),
+        ``located``, ``of`` and ``per_point``. ``"landmark_error_px"`` is ``result.error`` (pixels of the last
+        frame): its ``mean`` and ``max`` over the ``met`` marks (``result.met_error``; ``None`` when every mark
+        was let go), ``let_go`` the indices of the marks let go so as not to fold (``result.let_go``), and
+        ``per_point`` every mark's. The middle frame is ``N // 2``; "end" is measured in the last frame, "ghost"
+        in the middle one. ``"image_ghost"`` is the ghosting seen in the middle frame's
         pixels, with no points (:func:`~torchfluidwarp.metrics.image_ghosting`): how far apart A's and B's
         structures stand there, from A warped forward and B pulled back, over the pixels both maps read inside
         their picture (``"covered"``, a fraction of the frame) and where both show structure (``"textured"``);
@@ -171,6 +174,13 @@ def report_frames(
     check_tensor("points_a", points_a, shape=[None, 2])
     check_tensor("points_b", points_b, shape=[points_a.shape[0], 2])
     chunk = check_int("chunk", chunk)
+    for name, image, size in zip(("image_a", "image_b"), (image_a, image_b), result.sizes):
+        if (image.shape[-2], image.shape[-1]) != tuple(size):
+            raise InputError(
+                f"{name} must be the morph's image {name[-1].upper()}, of size {tuple(size)}, got "
+                f"{(image.shape[-2], image.shape[-1])}",
+                argument=name,
+            )
     pairs = {"marked": (points_a, points_b)}
     if held_out is not None:
         check_tensor("held_out[0]", held_out[0], shape=[None, 2])
@@ -209,10 +219,7 @@ def _report_pass(
             )
         yield frame
     distances = tally.distances()
-    if tuple(kept[mid][0].shape[:2]) != size:
-        raise InputError(
-            f"image_a must be the morph's image A of size {kept[mid][0].shape[:2]}, got {size}", argument="image_a"
-        )
+    canvas = (kept[mid][0].shape[0], kept[mid][0].shape[1])  # the frames' (H, W): A's size, or Blending.size
     figures: dict[str, Any] = {}
     for name, (pa, pb) in pairs.items():
         pa, pb = pa.detach().cpu().double(), pb.detach().cpu().double()  # maps_b read B's own pixels
@@ -228,10 +235,10 @@ def _report_pass(
     folded = sum(folds_a) + sum(folds_b)
     return {
         "frames": n,
-        "size": list(size),
+        "size": list(canvas),
         "mid_frame": mid,
         "mid_t": mid / (n - 1),
-        "folds": {"a": folds_a, "b": folds_b, "total": folded, "fraction": folded / (2 * n * size[0] * size[1])},
+        "folds": {"a": folds_a, "b": folds_b, "total": folded, "fraction": folded / (2 * n * canvas[0] * canvas[1])},
         "landmark_error_px": {
             "mean": _number(float(met.mean())) if met.numel() else None,
             "max": _number(float(met.max())) if met.numel() else None,

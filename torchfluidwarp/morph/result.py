@@ -121,9 +121,16 @@ class MorphResult:
         return self._scene.box
 
     @property
+    def sizes(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """``((H_a, W_a), (H_b, W_b))``: the sizes of image A and image B as the morph was given them (the frames'
+        size, the canvas, is ``frames.shape[-2:]``)."""
+        assert self._scene.size_a is not None and self._scene.size_b is not None
+        return tuple(self._scene.size_a), tuple(self._scene.size_b)  # type: ignore[return-value]
+
+    @property
     def canvas_from_a(self) -> Tensor:
-        """``(3, 3)`` float64: image A's pixels to the frames' (one scale factor and a shift; the identity when
-        the canvas is A's size)."""
+        """``(3, 3)`` float64: image A's pixels to the frames' (one scale factor and a shift, or one factor per
+        axis on a canvas of A's shape up to rounding; the identity when the canvas is A's size)."""
         assert self._scene.place_a is not None
         return self._scene.place_a
 
