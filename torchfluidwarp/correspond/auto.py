@@ -336,6 +336,51 @@ def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor],
     return (refined[0], refined[1]), message, folds
 
 
+def _features_or_pixels(
+    a: Tensor, b: Tensor, auto: bool, why_not_faces: str, names: tuple[str, str], max_points: int, pixels: int
+) -> tuple[tuple[Tensor, Tensor], Matcher, Note]:
+    """:func:`find_points` past the faces: matched features, or (``auto``, where fewer than
+    :data:`TRUSTED_MATCHES` match) the pixels' lattice; the points, the matcher and why, in words.
+    ``why_not_faces``: the automatic mode's reason not to use faces ("" when features were asked for)."""
+    found = match_features(a, b, max_points=max_points)
+    count = len(found[0])
+    between = f"{names[0]} and {names[1]}"
+    if auto and count < TRUSTED_MATCHES:  # no more than unrelated pictures match by chance
+        lattice, message, _ = _pixel_lattice(a, b, check_int("pixels", pixels))
+        back = ValueHint(f"use {{setting}} to morph on those {count}", "match", value="features")
+        said = (
+            f"{why_not_faces}; only {count} image features match between {between}, as few as unrelated pictures "
+            f"match by chance, so the pixels placed the points: {message}"
+        )
+        return lattice, "pixels", Note(said, back if count >= 3 else None, notable=True)
+    if count < 3:
+        small = [
+            f"{n} is {x.shape[-1]} x {x.shape[-2]} px" for n, x in zip(names, (a, b)) if min(x.shape[-2:]) < MIN_SIDE
+        ]
+        raise InputError(
+            f"found {count} matching features between {between} (need 3 or more)"
+            + (f"; the feature detector needs {MIN_SIDE} px on each side, and {' and '.join(small)}" if small else ""),
+            argument="match",
+            hint=ValueHint(
+                "give the points by hand, or let the pixels place them ({setting})",
+                "match",
+                value="pixels",
+                otherwise="give the points by hand",
+            ),
+        )
+    if count < TRUSTED_MATCHES:
+        said = (
+            f"matched image features ({count} pairs), as asked; unrelated pictures match as many by chance "
+            f"(fewer than {TRUSTED_MATCHES}), and a morph on chance pairs twists the picture"
+        )
+        hint = ValueHint("{setting} places points that follow the pixels", "match", value="pixels")
+        return found, "features", Note(said, hint, notable=True)
+    if why_not_faces:
+        said = f"{why_not_faces}; matched image features instead ({count} pairs)"
+        return found, "features", Note(said, _skip_faces(), notable=True)
+    return found, "features", Note(f"matched image features ({count} pairs), as asked")
+
+
 def find_points(
     image_a: Tensor,
     image_b: Tensor,
@@ -406,53 +451,7 @@ def find_points(
         matcher = "pixels"
         reason = Note(message, notable=folds)
     if found is None:
-        found = match_features(a, b, max_points=max_points)
-        count = len(found[0])
-        chance = f"found {count} matching features between {names[0]} and {names[1]}"
-        if match == "auto" and count < TRUSTED_MATCHES:  # no more than unrelated pictures match by chance
-            found, message, folds = _pixel_lattice(a, b, check_int("pixels", pixels))
-            matcher = "pixels"
-            back = ValueHint(f"use {{setting}} to morph on those {count}", "match", value="features")
-            reason = Note(
-                f"{why_not_faces}; only {count} image features match between {names[0]} and {names[1]}, as few as "
-                f"unrelated pictures match by chance, so the pixels placed the points: {message}",
-                back if count >= 3 else None,
-                notable=True,
-            )
-        elif count < 3:
-            small = [
-                f"{n} is {x.shape[-1]} x {x.shape[-2]} px"
-                for n, x in zip(names, (a, b))
-                if min(x.shape[-2:]) < MIN_SIDE
-            ]
-            raise InputError(
-                f"{chance} (need 3 or more)"
-                + (
-                    f"; the feature detector needs {MIN_SIDE} px on each side, and {' and '.join(small)}"
-                    if small
-                    else ""
-                ),
-                argument="match",
-                hint=ValueHint(
-                    "give the points by hand, or let the pixels place them ({setting})",
-                    "match",
-                    value="pixels",
-                    otherwise="give the points by hand",
-                ),
-            )
-        elif count < TRUSTED_MATCHES:
-            reason = Note(
-                f"matched image features ({count} pairs), as asked; unrelated pictures match as many by chance "
-                f"(fewer than {TRUSTED_MATCHES}), and a morph on chance pairs twists the picture",
-                ValueHint("{setting} places points that follow the pixels", "match", value="pixels"),
-                notable=True,
-            )
-        elif why_not_faces:
-            reason = Note(
-                f"{why_not_faces}; matched image features instead ({count} pairs)", _skip_faces(), notable=True
-            )
-        else:
-            reason = Note(f"matched image features ({count} pairs), as asked")
+        found, matcher, reason = _features_or_pixels(a, b, match == "auto", why_not_faces, names, max_points, pixels)
     if reason is None:  # every branch above says why (or raised)
         raise RuntimeError("find_points chose no matcher")
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
