@@ -141,6 +141,18 @@ def test_max_size_shrinks_each_pairs_animation_as_a_single_morph_is_shrunk(tmp_p
     assert iio.imread(tmp_path / "png/pair0/frame_0000.png").shape[:2] == (32, 36)
     with pytest.raises(ValueError, match="max_size"):
         morph_pairs(pairs, tmp_path / "out", progress=False, max_size=-1, **OPTIONS)
+    with pytest.raises(ValueError, match="max_size"):
+        planned_work(pairs, tmp_path / "out", max_size=-1)
+
+
+def test_the_command_line_says_how_many_pairs_max_size_shrinks(tmp_path, gen, capsys):
+    pairs = make_pairs(tmp_path, gen, n=2, bad=False)  # 36 x 32 pictures
+    argv = ["morph", "--pairs", str(pairs), *FAST[:-1]]  # not --quiet
+    assert main([*argv, "--out", str(tmp_path / "small"), "--max-size", "18"]) == 0
+    err = capsys.readouterr().err
+    assert "2 of the 2 pairs' animations are written with their longer side at --max-size 18" in err
+    assert main([*argv, "--out", str(tmp_path / "whole"), "--max-size", "36"]) == 0  # within it: nothing said
+    assert "--max-size" not in capsys.readouterr().err
 
 
 def test_a_batch_projected_past_max_minutes_is_refused_before_any_pair_and_a_rerun_counts_what_is_left(

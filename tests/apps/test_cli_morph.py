@@ -223,6 +223,11 @@ def test_max_size_shrinks_an_animation_of_a_larger_first_image_and_says_so(pair,
     assert main([*base, "-o", str(tmp_path / "r.gif"), "--max-size", "24", "--report", str(report)]) == 0
     assert json.loads(report.read_text())["size"] == [20, 24]
     capsys.readouterr()
+    assert main([*base, "-o", str(tmp_path / "r.gif"), "--max-size", "24"]) == 2  # exists: refused, no note first
+    assert "shrunk" not in capsys.readouterr().err
+    assert main(["demo", "-o", str(tmp_path / "demo.gif"), "--frames", "2", "--max-size", "128", *FAST[:-1]]) == 0
+    assert "the first image's 512 x 512 shrunk to --max-size 128" in capsys.readouterr().err
+    assert iio.imread(tmp_path / "demo.gif", index=0).shape[:2] == (128, 128)
     assert main([*base, "-o", str(tmp_path / "quiet.gif"), "--max-size", "24", "--quiet"]) == 0
     assert capsys.readouterr().err == ""  # --quiet says nothing, and still shrinks
     assert iio.imread(tmp_path / "quiet.gif", index=None).shape[1:3] == (20, 24)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import tracemalloc
 
 import imageio.v3 as iio
@@ -128,9 +129,19 @@ def test_a_gif_quantized_ahead_in_threads_is_the_gif_quantized_in_turn(tmp_path,
     from torchfluidwarp.io import animation
 
     video = frames(gen, 9, c)
+    quantize, threads = animation._quantize, []
+
+    def recorded(frame, cube):
+        threads.append(threading.current_thread().name)
+        return quantize(frame, cube)
+
+    monkeypatch.setattr(animation, "_quantize", recorded)
     ahead = write_animation(tmp_path / "ahead.gif", iter(video))
+    assert len(threads) == 9 and all(name.startswith("gif") for name in threads)  # each frame in the pool
+    threads.clear()
     monkeypatch.setattr(animation, "QUANTIZE_BYTES", 1)
     in_turn = write_animation(tmp_path / "in_turn.gif", iter(video))
+    assert threads == [threading.current_thread().name] * 9  # each frame in turn, by the writer's own thread
     assert ahead.read_bytes() == in_turn.read_bytes()
     truth = np.round(video.permute(0, 2, 3, 1).numpy() * 255).astype(np.int16)
     if c == 3:
@@ -151,3 +162,20 @@ def test_a_frame_that_fails_while_others_are_quantized_leaves_no_gif(tmp_path, g
     with pytest.raises(RuntimeError, match="frame 4 could not be made"):
         write_animation(tmp_path / "a.gif", failing())
     assert list(tmp_path.iterdir()) == []  # neither the file nor its temporary sibling
+
+
+def test_a_frame_that_fails_to_quantize_in_its_thread_leaves_no_gif(tmp_path, gen, monkeypatch):
+    from torchfluidwarp.io import animation
+
+    quantize, count = animation._quantize, []
+
+    def third_fails(frame, cube):
+        count.append(1)
+        if len(count) == 3:
+            raise MemoryError("no room to quantize frame 2")
+        return quantize(frame, cube)
+
+    monkeypatch.setattr(animation, "_quantize", third_fails)
+    with pytest.raises(MemoryError, match="frame 2"):  # raised in the pool, given to the writer's caller
+        write_animation(tmp_path / "a.gif", iter(frames(gen, 6)))
+    assert list(tmp_path.iterdir()) == []

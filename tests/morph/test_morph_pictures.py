@@ -198,6 +198,13 @@ def test_a_canvas_of_the_pictures_shape_up_to_rounding_is_filled_exactly_and_kee
     torch.testing.assert_close(apply_alignment(place, corners), torch.tensor([[-0.5, -0.5], [21.5, 48.5]]).double())
     assert scale == pytest.approx(max(49 / 97, 22 / 44)) and abs(49 / 97 - 22 / 44) * 97 < 1
     assert torch.equal(placement((40, 40), (40, 40))[0], torch.eye(3, dtype=torch.float64))  # the same size
+    # a panorama 8000 x 1508 shrunk to 1080 x 204: the one cover factor would cut 2.2 px off its width
+    wide, _ = placement((1508, 8000), (204, 1080))
+    ends = apply_alignment(wide, torch.tensor([[-0.5, -0.5], [7999.5, 1507.5]], dtype=torch.float64))
+    torch.testing.assert_close(ends, torch.tensor([[-0.5, -0.5], [1079.5, 203.5]], dtype=torch.float64))
+    # a picture of another shape is still covered by one factor and cropped
+    other, _ = placement((100, 60), (50, 50))
+    assert float(other[0, 0]) == float(other[1, 1]) == pytest.approx(50 / 60)
     a = disc_picture((97, 44), (22.0, 48.0), 10.0, [0.9, 0.9, 0.9], gen)
     b = disc_picture((97, 44), (23.0, 50.0), 11.0, [0.9, 0.9, 0.9], gen)
     border = torch.tensor([[0.0, 0.0], [43.0, 0.0], [43.0, 96.0], [0.0, 96.0]])

@@ -288,6 +288,7 @@ def planned_work(
         OSError: the CSV cannot be read.
         ValueError: a bad ``rank`` or ``world_size``.
     """
+    check_int("max_size", max_size, minimum=0)
     rank, world_size = _ranks(rank, world_size)
     rows, _ = read_pairs(pairs)
     work = []

@@ -244,6 +244,9 @@ def numbers(build: Callable[[Sequence[float], str], T], where: str) -> Callable[
     return parse
 
 
+ANIMATION_SUFFIXES = (".gif", ".mp4", ".webp")
+"""The file suffixes of an animation output (a path ending in ``/``, or without a suffix, is a folder of PNGs)."""
+
 ONE_IMAGE = "--frame T (--frame 0.5: the middle image)"
 """How ``morph`` and ``demo`` write a single image instead of an animation, said when ``-o`` names an image."""
 
@@ -261,7 +264,7 @@ def check_output(path: str, overwrite: bool, one_image: str = "") -> None:
 
     target = Path(path)
     folder = _is_folder(path)
-    if not folder and target.suffix.lower() not in (".gif", ".mp4", ".webp"):
+    if not folder and target.suffix.lower() not in ANIMATION_SUFFIXES:
         image = one_image and target.suffix.lower() in Image.registered_extensions()
         raise InputError(
             f"-o {path!r}: unknown suffix {target.suffix!r}; use .gif, .mp4, .webp or a folder ending in '/'"
@@ -299,6 +302,11 @@ def check_image_output(path: str, overwrite: bool) -> None:
 def _is_folder(path: str) -> bool:
     target = Path(path)
     return path.endswith(("/", "\\")) or target.is_dir() or not target.suffix
+
+
+def is_animation_file(path: str) -> bool:
+    """Whether ``-o path`` is an animation file (:data:`ANIMATION_SUFFIXES`), not a folder of PNG frames."""
+    return not _is_folder(path) and Path(path).suffix.lower() in ANIMATION_SUFFIXES
 
 
 def output_bytes(path: str, frames: int, height: int, width: int, channels: int) -> float:

@@ -57,6 +57,7 @@ from torchfluidwarp.apps.cli_morph_output import (
 from torchfluidwarp.apps.cli_sequence import run_sequence
 from torchfluidwarp.control import apply_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points
+from torchfluidwarp.correspond.auto import MATCH_MODES, TRUSTED_MATCHES
 from torchfluidwarp.data import load_sample, load_sample_points
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
@@ -187,11 +188,12 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--match",
-        choices=("auto", "faces", "features", "pixels"),
+        choices=MATCH_MODES,
         default="auto",
         help="with no point files, how to find the points: face landmarks (pip install "
         "'torchfluidwarp[faces]'), matched SIFT features, a lattice placed by the pixels, or faces when both "
-        "images show one and features otherwise, the pixels where fewer than 8 features match (default)",
+        f"images show one and features otherwise, the pixels where fewer than {TRUSTED_MATCHES} features match "
+        "(default)",
     )
     add_face_index(p)
     p.add_argument(
@@ -312,6 +314,15 @@ def _run_pairs(args: argparse.Namespace) -> int:
     if size is not None:  # every pair's frames at --size
         work = [(target, (shape[0], *size)) for target, shape in work]
     check_batch_work(args, work, args.frames, args.output)
+    if size is None and args.max_size and not args.quiet:  # the pairs whose frames --max-size shrinks, said once
+        whole = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite)
+        shrunk = sum(shape != kept for (_, shape), (_, kept) in zip(work, whole))
+        if shrunk:
+            print(
+                f"{PROG} morph: {shrunk} of the {len(work)} pairs' animations are written with their longer side at "
+                f"--max-size {args.max_size} (their figures are in those pixels); --max-size 0 keeps their sizes",
+                file=sys.stderr,
+            )
     timing, blending = result_options(args)
     report = morph_pairs(
         args.pairs,
@@ -356,9 +367,11 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         clock = clock_of(args)
         with clock.part("load"):
             a, b = (read_image(path) for path in args.images)
-        shrink_to_max_size("morph", args, a)
+        shrunk = shrink_to_max_size(args, a)
         check_result_output(args, args.frames, a)  # before the points are searched for
         check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, a))
+        if shrunk and not args.quiet:
+            print(f"{PROG} morph: {shrunk}", file=sys.stderr)
         files = args.points or ([args.points_a, args.points_b] if args.points_a else None)
         if files:
             if args.save_points:
@@ -390,8 +403,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         clock = clock_of(args)
         with clock.part("load"):
             a, b = load_sample("astronaut"), load_sample("cat")
+        shrunk = shrink_to_max_size(args, a)
         check_result_output(args, args.frames, a)
         check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, a))
+        if shrunk and not args.quiet:
+            print(f"{PROG} demo: {shrunk}", file=sys.stderr)
         with clock.part("points"):
             pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
         return _run_morph("demo", args, a, b, pa, pb)

@@ -16,7 +16,6 @@ import argparse
 import dataclasses
 import json
 import os
-import sys
 from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
@@ -28,11 +27,11 @@ from torchfluidwarp.apps.cli_args import (
     FRACTION,
     NON_NEGATIVE,
     ONE_IMAGE,
-    PROG,
     check_disk_space,
     check_image_output,
     check_output,
     count,
+    is_animation_file,
     progress_bar,
     timing,
 )
@@ -61,11 +60,10 @@ __all__ = [
 
 MAX_SIZE = 1080
 """Pixels: the longest side of an animation's frames (GIF, MP4, WebP) when neither ``--size`` nor ``--max-size``
-says otherwise. A phone's 4032 x 3024 photograph morphed at its own size made a 137 MB GIF in 102 s (render and
-write 97 s of it, 2 CPU cores); a GIF is for a screen, and an MP4 of more than about 9 megapixels exceeds what
-H.264's common levels play. A folder of PNG frames and ``--frame``'s image keep the first image's size."""
-
-ANIMATION_SUFFIXES = (".gif", ".mp4", ".webp")
+says otherwise. A phone's 4032 x 3024 pair morphed at its own size made a 136.9 MB GIF in 99.1 s, against 13.4 MB
+in 17.2 s at 1080 (``benchmarks/bench_gif.py --cli``, 2 CPU cores); a GIF is for a screen, and an MP4 of more
+than about 9 megapixels exceeds what H.264's common levels play. A folder of PNG frames and ``--frame``'s image
+keep the first image's size."""
 
 
 def add_result_options(p: argparse.ArgumentParser) -> None:
@@ -196,28 +194,24 @@ def output_size(args: argparse.Namespace) -> tuple[int, int] | None:
     return size[0], size[-1]
 
 
-def shrink_to_max_size(command: str, args: argparse.Namespace, image: Tensor) -> None:
+def shrink_to_max_size(args: argparse.Namespace, image: Tensor) -> str | None:
     """``--max-size``: with no ``--size``, an animation file (``-o`` ending in .gif, .mp4 or .webp; not ``--frame``'s
     image, not a folder of PNG frames) of a first picture ``image`` ``(1, C, H, W)`` whose longer side passes
     ``--max-size`` gets ``args.size`` set to the picture's size shrunk to it
-    (:func:`~torchfluidwarp.io.images.shrunk_size`), and the ``command`` says so on stderr (unless ``--quiet``)."""
+    (:func:`~torchfluidwarp.io.images.shrunk_size`). Returns the note that says so, for the command to print once
+    its output is checked, or ``None`` when nothing is shrunk."""
     limit = getattr(args, "max_size", 0)
-    if args.size is not None or args.frame is not None or not limit:
-        return
-    out = os.fspath(args.output)
-    if out.endswith(("/", os.sep)) or Path(out).is_dir() or Path(out).suffix.lower() not in ANIMATION_SUFFIXES:
-        return
+    if args.size is not None or args.frame is not None or not limit or not is_animation_file(os.fspath(args.output)):
+        return None
     H, W = image.shape[-2], image.shape[-1]
     h, w = shrunk_size((H, W), limit)
     if (h, w) == (H, W):
-        return
+        return None
     args.size = [h, w]
-    if not args.quiet:
-        print(
-            f"{PROG} {command}: frames written at {w} x {h} px: the first image's {W} x {H} shrunk to --max-size "
-            f"{limit}; --size {H} {W} (or --max-size 0) writes them at its size",
-            file=sys.stderr,
-        )
+    return (
+        f"frames written at {w} x {h} px: the first image's {W} x {H} shrunk to --max-size {limit} (its figures "
+        f"are in these pixels); --size {H} {W} (or --max-size 0) writes them at its size"
+    )
 
 
 def frame_shape(args: argparse.Namespace, image: Tensor) -> tuple[int, int, int]:

@@ -125,13 +125,15 @@ def run_sequence(args: argparse.Namespace) -> int:
     clock = clock_of(args)
     with clock.part("load"):
         pictures, points = _read_all(args.images, args.points)
-    shrink_to_max_size("morph", args, pictures[0])
+    shrunk = shrink_to_max_size(args, pictures[0])
     if args.region not in (None, "points"):
         raise InputError("a sequence takes --region points only (a pair of masks is for two images)")
     settings = morph_settings(args)
     timing, blending = result_options(args)
     check_result_output(args, args.frames, pictures[0])
     check_work(args, args.output, 1 if args.frame is not None else args.frames, frame_shape(args, pictures[0]))
+    if shrunk and not args.quiet:
+        print(f"{PROG} morph: {shrunk}", file=sys.stderr)
     progress = not args.quiet and sys.stderr.isatty()
     with clock.part("fit"), _faces_said("morph", args, points is None):
         sequence = morph_sequence(

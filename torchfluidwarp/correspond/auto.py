@@ -12,7 +12,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 from torch import Tensor
@@ -38,6 +38,7 @@ from torchfluidwarp.errors import Hint, InputError
 
 __all__ = [
     "FoundPoints",
+    "MATCH_MODES",
     "MatchMode",
     "MatchNotice",
     "Matcher",
@@ -53,6 +54,8 @@ __all__ = [
 ]
 
 MatchMode = Literal["auto", "faces", "features", "pixels"]
+MATCH_MODES: tuple[MatchMode, ...] = get_args(MatchMode)
+"""The matchers' modes, :data:`MatchMode`'s values in order."""
 Matcher = Literal["faces", "features", "pixels"]
 
 
@@ -89,8 +92,9 @@ class Note:
         message: what was used and why (``"no face found in a.jpg (817 x 1024 pixels); matched image features
             instead"``).
         hint: what to change, naming the setting (:class:`ValueHint`), or ``None``.
-        notable: whether the user may want to act on it: the automatic mode fell back from faces, or picked the
-            largest of several faces. :func:`auto_points` warns with the notable ones.
+        notable: whether the user may want to act on it: the automatic mode fell back from faces, or from
+            features to the pixels, or picked the largest of several faces; features asked for matched so few that
+            they may be chance; the pixels' flow folds. :func:`auto_points` warns with the notable ones.
     """
 
     message: str
@@ -110,7 +114,8 @@ class Note:
 
 
 class MatchNotice(UserWarning):
-    """:func:`auto_points` fell back from faces to features, or chose the largest of several faces.
+    """:func:`auto_points` fell back from faces to features, or from features to the pixels, or chose the largest of
+    several faces (a notable :class:`Note`).
 
     Its message is the note with its hint as the library's functions spell the setting, or in the ``names`` given
     (a caller's own, as :meth:`Note.explain` takes them).
@@ -310,9 +315,10 @@ def find_each_face(
 TRUSTED_MATCHES = 8
 """Feature pairs that :func:`find_points`' automatic mode trusts: with fewer it lets the pixels place the points
 (``match="pixels"``). Unrelated pictures match a few features by chance, and a morph on them twists the picture:
-on 12 pairs of unrelated photographs (a person against a cat, a rocket against a camera man, two different
-people) :func:`~torchfluidwarp.correspond.features.match_features` kept 0-6 pairs; on 7 pairs of one scene
-(a stereo pair, crops, zooms, rotations, a photograph against itself at half size) it kept 27-64."""
+on 12 pairs of pictures of different scenes (a person against a cat, a rocket against a camera man, portraits
+taken apart, one pair of them of one man) :func:`~torchfluidwarp.correspond.features.match_features` kept 0-6
+pairs; on 7 pairs of one scene (a stereo pair, crops, zooms, rotations, a photograph against itself at half
+size) it kept 27-64 (``benchmarks/bench_correspond.py``)."""
 
 
 def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor], str, bool]:
@@ -346,7 +352,7 @@ def _features_or_pixels(
     count = len(found[0])
     between = f"{names[0]} and {names[1]}"
     if auto and count < TRUSTED_MATCHES:  # no more than unrelated pictures match by chance
-        lattice, message, _ = _pixel_lattice(a, b, check_int("pixels", pixels))
+        lattice, message, _ = _pixel_lattice(a, b, pixels)
         back = ValueHint(f"use {{setting}} to morph on those {count}", "match", value="features")
         said = (
             f"{why_not_faces}; only {count} image features match between {between}, as few as unrelated pictures "
@@ -412,10 +418,11 @@ def find_points(
         no face found in cat.png (512 x 512 pixels); matched image features instead (... pairs); use --match ...
     """
     a, b = single_image("image_a", image_a), single_image("image_b", image_b)
-    if match not in ("auto", "faces", "features", "pixels"):
+    if match not in MATCH_MODES:
         raise InputError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}", argument="match")
     fa, fb = (None if i is None else check_int("face_index", i, minimum=0) for i in face_index)
     face_index = (fa, fb)
+    pixels = check_int("pixels", pixels)  # checked whatever the matcher: the automatic mode may fall back to it
     found: tuple[Tensor, Tensor] | None = None
     matcher: Matcher = "features"
     reason: Note | None = None
@@ -447,7 +454,7 @@ def find_points(
                 matcher = "faces"
                 reason = _faces_note(chosen, names, face_index, asked=match == "faces")
     elif match == "pixels":
-        found, message, folds = _pixel_lattice(a, b, check_int("pixels", pixels))
+        found, message, folds = _pixel_lattice(a, b, pixels)
         matcher = "pixels"
         reason = Note(message, notable=folds)
     if found is None:

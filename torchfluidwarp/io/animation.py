@@ -66,9 +66,9 @@ QUANTIZE_AHEAD = 2
 Python's lock while it quantizes, so its median cut (about half a second for a 3-megapixel frame) overlaps the
 rendering of the frames after it instead of adding to it."""
 QUANTIZE_BYTES = 2**26
-"""The most frame bytes (``H * W * C``, 8-bit) a GIF writer holds in the frames it quantizes ahead (64 MiB): a
-frame larger than a :data:`QUANTIZE_AHEAD`-th of it is quantized in turn, so that a streamed 6000 x 6000 morph
-still holds one frame at a time."""
+"""The most bytes of 8-bit RGB (``3 H W`` a frame) a GIF writer holds in the frames it quantizes ahead (64 MiB;
+Pillow's working copies come on top): frames larger than a :data:`QUANTIZE_AHEAD`-th of it are quantized in
+turn, so that a streamed 6000 x 6000 morph still holds one frame at a time."""
 
 
 def write_animation(
@@ -345,7 +345,7 @@ def _write_gif(fp: BinaryIO, frames: Iterator[np.ndarray], fps: float, loop: int
         fp.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))  # no global colour table
         extra = {"include_color_table": True}
     fp.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", loop) + b"\x00")
-    ahead = min(QUANTIZE_AHEAD, QUANTIZE_BYTES // first.nbytes)
+    ahead = QUANTIZE_AHEAD if QUANTIZE_AHEAD * 3 * h * w <= QUANTIZE_BYTES else 0
     stream = itertools.chain([first], frames)
     del first  # held by the stream until it is quantized, not while the frames after it are made
     for quantized in _quantized(stream, cube, ahead):
@@ -381,9 +381,9 @@ def _quantized(frames: Iterator[np.ndarray], cube: Image.Image | None, ahead: in
                     yield pending.popleft().result()
             while pending:
                 yield pending.popleft().result()
-        finally:  # a frame that failed to be made, or a writer that stopped: the rest is not quantized
+        finally:  # a frame that failed to be made, or a writer that stopped: the pool waits for those running
             for future in pending:
-                future.cancel()
+                future.cancel()  # a frame not yet started (none while the pool has a worker per frame ahead)
 
 
 def _transparent(rgb: np.ndarray, alpha: np.ndarray, palette: Image.Image) -> Image.Image:

@@ -28,6 +28,9 @@ class Morph(Protocol):
     let_go: Tensor  # (M,) bool: the marks let go so as not to fold
 
     @property
+    def met_error(self) -> Tensor: ...  # (K,) error of the marks not let go
+
+    @property
     def sizes(self) -> tuple[tuple[int, int], tuple[int, int]]: ...  # image A's and image B's (H, W)
 
     @property
@@ -125,12 +128,14 @@ def morph_report(
         ``located``, ``of`` and ``per_point``. ``"landmark_error_px"`` is ``result.error`` (pixels of the last
         frame): its ``mean`` and ``max`` over the ``met`` marks (``result.met_error``; ``None`` when every mark
         was let go), ``let_go`` the indices of the marks let go so as not to fold (``result.let_go``), and
-        ``per_point`` every mark's. The middle frame is ``N // 2``; "end" is measured in the last frame, "ghost"
-        in the middle one. ``"image_ghost"`` is the ghosting seen in the middle frame's
-        pixels, with no points (:func:`~torchfluidwarp.metrics.image_ghosting`): how far apart A's and B's
-        structures stand there, from A warped forward and B pulled back, over the pixels both maps read inside
-        their picture (``"covered"``, a fraction of the frame) and where both show structure (``"textured"``);
-        ``median``, ``p90`` and ``mean`` are in the frame's pixels (``None`` when nothing is textured).
+        ``per_point`` every mark's; indices into ``result.error``, the marks the morph kept (those a
+        ``Blending.size`` crop leaves out, or repeats, are not among them). The middle frame is ``N // 2``;
+        "end" is measured in the last frame, "ghost" in the middle one. ``"image_ghost"`` is the ghosting seen in
+        the middle frame's pixels, with no points (:func:`~torchfluidwarp.metrics.image_ghosting`): how far apart
+        A's and B's structures stand there, from A warped forward and B pulled back, over the pixels both maps
+        read inside their picture (``"covered"``, a fraction of the frame) and where both show structure
+        (``"textured"``); ``median``, ``p90`` and ``mean`` are in the frame's pixels (``None`` when nothing is
+        textured).
     """
     frames = report_frames(result, image_a, image_b, points_a, points_b, held_out, path=path, chunk=chunk)
     while True:
@@ -230,7 +235,7 @@ def _report_pass(
         }
     err = result.error.detach().reshape(-1).double().cpu()  # the last frame's pixels (MorphResult.error)
     gone = result.let_go.detach().reshape(-1).cpu()
-    met = err[~gone]
+    met = result.met_error.detach().reshape(-1).double().cpu()
     seam_a, seam_b = seam_figure(kept[mid][0]), seam_figure(kept[mid][1])
     folded = sum(folds_a) + sum(folds_b)
     return {

@@ -38,6 +38,7 @@ from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignm
 from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, inside_picture, rescale_points, scale_factor
 from torchfluidwarp.correspond import FoundPoints, MatchMode, MatchNotice, find_points, halfway_alignment
+from torchfluidwarp.correspond.auto import MATCH_MODES
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
@@ -57,9 +58,6 @@ from torchfluidwarp.morph.settings import (
 from torchfluidwarp.morph.timing import schedule
 
 __all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
-
-MATCH_MODES: tuple[MatchMode, ...] = ("auto", "faces", "features", "pixels")
-"""The modes ``morph(match=...)`` takes as a string (:class:`~torchfluidwarp.morph.settings.Matching`'s)."""
 
 
 def _as_image(name: str, image: Tensor) -> Tensor:
@@ -145,15 +143,16 @@ def placement(size: tuple[int, int], canvas: tuple[int, int], points: Tensor | N
     picture. Pixel centres at integers, so a picture of the canvas's size is placed by the identity:
     ``y = s (x + 0.5) + o - 0.5``, with the offset ``o`` between ``W_c - s W`` and ``0``.
 
-    A canvas of the picture's aspect ratio up to rounding, which the cover would crop by less than a pixel (the
-    picture's size shrunk and rounded, as the command line's ``--max-size`` does), is filled exactly instead:
-    each axis by its own factor, ``W_c / W`` and ``H_c / H``, which differ by under a pixel over the picture, so
-    that no sliver of its border, and no point on it, is cut off. The scale returned is the larger.
+    A canvas of the picture's aspect ratio up to rounding (one side the other's scaled size within half a pixel:
+    the picture's size shrunk and rounded, as the command line's ``--max-size`` makes it) is filled exactly
+    instead: each axis by its own factor, ``W_c / W`` and ``H_c / H``, which differ by at most half a pixel over
+    the picture, so that no sliver of its border, and no point on it, is cut off (the cover would cut up to half
+    a pixel times the aspect ratio). The scale returned is the larger.
     """
     (H, W), (Hc, Wc) = size, canvas
     s = max(Hc / H, Wc / W)
     out = torch.eye(3, dtype=torch.float64)
-    if max(s * W - Wc, s * H - Hc) < 1:  # the same shape up to rounding: filled exactly, nothing cropped
+    if min(abs(Wc - W * Hc / H), abs(Hc - H * Wc / W)) <= 0.5:  # the same shape up to rounding: filled exactly
         out[0, 0], out[1, 1] = Wc / W, Hc / H
         out[0, 2], out[1, 2] = 0.5 * Wc / W - 0.5, 0.5 * Hc / H - 0.5
         return out, s

@@ -235,10 +235,22 @@ class MorphResult:
             yield from part.frames.unbind(0)
 
     def save(self, path: str | os.PathLike[str], *, fps: float = 15.0, overwrite: bool = False, loop: int = 0) -> Path:
-        """Write the morph's ``N`` frames to ``path``, rendering them as they are written (:meth:`iter_frames`):
-        a GIF, an MP4, an animated WebP or, for a path ending in ``/``, a folder of PNG frames, as
-        :func:`~torchfluidwarp.io.write_animation` writes them (its ``fps``, ``overwrite`` and ``loop``; 15 frames
-        a second by default, as the command line's). Returns the path written.
+        """Write the morph's ``N`` frames to ``path``, rendering them as they are written (:meth:`iter_frames`), as
+        :func:`~torchfluidwarp.io.write_animation` writes them.
+
+        Args:
+            path: ``*.gif``, ``*.mp4`` (the ``video`` extra), ``*.webp``, or a folder of PNG frames (a path ending
+                in ``/``); missing parent folders are made.
+            fps: frames per second, 0.01 to 1000 (15 by default, as the command line's).
+            overwrite: replace an existing output.
+            loop: a GIF's repeat count, 0 (forever) to 65535.
+
+        Returns:
+            The path written.
+
+        Raises:
+            FileExistsError: the output exists and ``overwrite`` is false.
+            InputError: an unknown suffix, or a bad ``fps`` or ``loop`` (before any frame is rendered).
 
         Example:
             >>> import tempfile, torch

@@ -135,8 +135,8 @@ class MorphSequence:
         return torch.stack(list(self.iter_frames()))
 
     def save(self, path: str | os.PathLike[str], *, fps: float = 15.0, overwrite: bool = False, loop: int = 0) -> Path:
-        """Write the sequence's frames to ``path``, rendering them as they are written, as
-        :meth:`MorphResult.save <torchfluidwarp.morph.result.MorphResult.save>` does. Returns the path written."""
+        """Write the sequence's frames to ``path``, rendering them as they are written: the arguments, the result
+        and the errors of :meth:`MorphResult.save <torchfluidwarp.morph.result.MorphResult.save>`."""
         return write_animation(path, self.iter_frames(), fps=fps, overwrite=overwrite, loop=loop)
 
 

@@ -39,6 +39,7 @@ from torchfluidwarp._checks import (
 from torchfluidwarp.control.alignment import AlignKind
 from torchfluidwarp.core.grid import FluidGrid, SquareCells
 from torchfluidwarp.correspond import HalfwaySettings, MatchMode
+from torchfluidwarp.correspond.auto import MATCH_MODES
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.morph.regions import Background
 from torchfluidwarp.morph.timing import Schedule, schedule
@@ -324,7 +325,9 @@ class Matching:
 
     Attributes:
         mode: ``"auto"`` (faces when both images show one and the faces extra is installed, else matched
-            features), ``"faces"``, ``"features"`` or ``"pixels"``.
+            features, or the pixels where too few match:
+            :data:`~torchfluidwarp.correspond.auto.TRUSTED_MATCHES`), ``"faces"``, ``"features"`` or
+            ``"pixels"``. ``morph(match="pixels")`` is ``morph(match=Matching("pixels"))``.
         face_index: which face in A and in B (0 = the largest; ``None``: the largest, with a warning if several).
     """
 
@@ -332,7 +335,7 @@ class Matching:
     face_index: tuple[int | None, int | None] = field(default=(None, None))
 
     def __post_init__(self) -> None:
-        _choice("Matching.mode", self.mode, ("auto", "faces", "features", "pixels"))
+        _choice("Matching.mode", self.mode, MATCH_MODES)
         pair = self.face_index
         if not isinstance(pair, Sequence) or len(pair) != 2:
             raise InputTypeError(f"Matching.face_index must be a pair (index in A, index in B), got {describe(pair)}")
