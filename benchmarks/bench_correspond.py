@@ -43,8 +43,9 @@ def _tensor(image: np.ndarray) -> torch.Tensor:
 
 def chance_pairs() -> dict[str, list[tuple[str, torch.Tensor, torch.Tensor]]]:
     """Pairs of one scene (a stereo pair, crops, a zoom, a rotation, an affine map, a photograph at half size) and
-    pairs of unrelated pictures (a person against a cat, different people, unrelated objects): scikit-image's
-    sample pictures and the photographs of ``morph_quality_data.py``."""
+    pairs of pictures of different scenes (a person against a cat, different people, unrelated objects, and one
+    man in two photographs taken apart): scikit-image's sample pictures and the photographs of
+    ``morph_quality_data.py``."""
     import skimage.data as sd
     import skimage.transform as st
 
