@@ -10,6 +10,8 @@ import warnings
 import httpx  # noqa: F401  (starlette's TestClient needs it; both are in the [test] extra)
 import numpy as np
 import pytest
+import torch
+import torch.nn.functional as F
 from PIL import Image
 
 with warnings.catch_warnings():  # newer Starlette suggests httpx2 for its TestClient; httpx still works
@@ -20,6 +22,7 @@ from torchfluidwarp.apps.studio import StudioConfig, create_app, loopback_hosts
 from torchfluidwarp.apps.studio.jobs import LatestOnly, Superseded
 from torchfluidwarp.apps.studio.server import add_arguments, main
 from torchfluidwarp.io import read_points
+from torchfluidwarp.morph import morph
 
 TOKEN = "test-token"
 AUTH = {"X-Studio-Token": TOKEN}
@@ -224,6 +227,34 @@ def test_morph_preview_frames_and_warm_start(client):
     assert abs(swapped["mean_error"] - sum(kept) / len(kept)) < 1e-9 and swapped["mean_error"] < 1
     # the older generation's frames are gone
     assert client.get(f"/api/morph/frame?gen={meta['generation']}&k=0", headers=AUTH).status_code == 410
+
+
+def test_a_preview_places_b_of_another_shape_as_the_morph_does_never_stretched(tmp_path):
+    # A 64 x 64, B 96 x 48 (twice as tall as wide): the preview's last frame is B on A's canvas by one factor (the
+    # library's morph, frame 1), not B squashed to A's shape, as the preview showed it before
+    client = make_client(tmp_path, preview_size=32)  # previews at half size: B shrunk by the same factor
+    coarse = torch.rand(1, 3, 6, 3, generator=torch.Generator().manual_seed(3))  # smooth: resampling agrees
+    smooth = F.interpolate(coarse, size=(96, 48), mode="bicubic", align_corners=False).clamp(0, 1)[0]
+    b_pixels = (smooth.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(b_pixels).save(buf, "PNG")
+    assert client.put("/api/image/a?name=a.png", content=png_bytes(0), headers=AUTH).status_code == 200
+    assert client.put("/api/image/b?name=b.png", content=buf.getvalue(), headers=AUTH).status_code == 200
+    pb = [[x * 0.75, 16.0 + y * 0.75] for x, y in PA]  # inside B, the same layout
+    meta = client.post("/api/morph/preview", json={"points_a": PA, "points_b": pb, "settings": FAST}, headers=AUTH)
+    assert meta.status_code == 200, meta.text
+    meta = meta.json()
+    assert meta["size"] == [32, 32]
+    last = client.get(f"/api/morph/frame?gen={meta['generation']}&k={meta['frames'] - 1}&kind=blend", headers=AUTH)
+    shown = np.asarray(Image.open(io.BytesIO(last.content)).convert("RGB"), dtype=np.float64) / 255
+    a = torch.from_numpy(np.asarray(Image.open(io.BytesIO(png_bytes(0))), dtype=np.float32) / 255).permute(2, 0, 1)
+    b = torch.from_numpy(b_pixels.astype(np.float32) / 255).permute(2, 0, 1)
+    small = F.interpolate(a[None], size=(32, 32), mode="area")[0]
+    placed = morph(small, b, torch.tensor(PA) / 2, torch.tensor(pb), frames=2, progress=False).frames[-1]
+    expected = placed.permute(1, 2, 0).double().numpy()
+    assert np.abs(shown - expected).mean() < 0.03  # B placed, up to the preview's shrunk copy and 8 bits
+    squashed = F.interpolate(b[None], size=(32, 32), mode="area")[0].permute(1, 2, 0).double().numpy()
+    assert np.abs(shown - squashed).mean() > 0.1  # and not B squashed to A's shape
 
 
 def test_animate_preview_and_config(client):

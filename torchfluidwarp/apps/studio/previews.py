@@ -37,7 +37,7 @@ from torchfluidwarp.apps.studio.session import Session
 from torchfluidwarp.control.alignment import estimate_alignment
 from torchfluidwarp.core.grid import rescale_points, scale_factor
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import encode_animation, resize_image, shrink_image
+from torchfluidwarp.io import encode_animation, shrink_image
 from torchfluidwarp.morph import MorphResult, MorphSettings, Timing, morph
 
 __all__ = [
@@ -108,17 +108,19 @@ async def morph_preview(session: Session, request: Request) -> Response:
 
     def job() -> MorphResult:
         # the fit costs the same at any resolution; the inverse maps and the frames cost per pixel, so the
-        # preview is rendered at about the pane's size
+        # preview is rendered at about the pane's size: A shrunk to it, and B by the same factor, so that the
+        # morph places B on the preview's canvas as the export places it on A's (one factor, never stretched)
         small_a = shrink_image(a, config.preview_size)
         size = (small_a.shape[-2], small_a.shape[-1])
-        small_b = resize_image(b, size).clamp(0, 1)
+        factor = max(size) / max(a.shape[-2], a.shape[-1])
+        small_b = shrink_image(b, max(2, round(max(b.shape[-2], b.shape[-1]) * factor)))
         start = session.warm(key)
         iterations = config.preview_iter if start is not None else 5 * config.preview_iter
         return morph(
             small_a[0],
             small_b[0],
             _to_size(pa, a, size).float(),
-            _to_size(pb, b, size).float(),
+            _to_size(pb, b, (small_b.shape[-2], small_b.shape[-1])).float(),
             settings=dataclasses.replace(settings, max_iter=iterations, tolerance=config.preview_tolerance),
             frames=config.preview_frames,
             timing=timing,
