@@ -145,6 +145,19 @@ def test_pixels_place_a_lattice_where_no_feature_is_needed():
     assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 0.5
 
 
+def test_the_pixels_place_a_large_pairs_lattice_on_shrunk_copies_in_each_pictures_own_pixels(monkeypatch):
+    # the flow is fitted to copies shrunk to PIXELS_SIDE (here 32 of a 64-px pair): the points come back in each
+    # picture's own pixels, spread over A and following the known map within about a pixel of the full size
+    a = F.interpolate(load_sample("cat"), size=(64, 64), mode="bilinear", antialias=True)
+    b = warped(a)
+    full_a, full_b = auto_points(a, b, match="pixels", pixels=4, border=None)
+    monkeypatch.setattr(auto, "PIXELS_SIDE", 32)
+    pa, pb = auto_points(a, b, match="pixels", pixels=4, border=None)
+    assert len(pa) >= 12 and float(pa.max()) > 40  # A's pixels, not the 32-px copy's
+    assert float((shifted_and_scaled(pb) - pa).norm(dim=-1).median()) < 1.0
+    assert float((shifted_and_scaled(full_b) - full_a).norm(dim=-1).median()) < 0.5  # at full size, closer
+
+
 def test_the_pixels_matcher_says_in_its_own_terms_that_its_flow_folds(recwarn):
     # two unrelated smooth pictures: the flow that places the lattice crushes part of A onto itself (min det < 0).
     # That flow only places points, so fit_images' advice (raise its regularization, which a matcher's caller

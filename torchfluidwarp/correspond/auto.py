@@ -20,7 +20,7 @@ from torch import Tensor
 from torchfluidwarp._checks import check_int, check_size, warn
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.control.images import FoldWarning
-from torchfluidwarp.core.grid import inside_picture
+from torchfluidwarp.core.grid import inside_picture, rescale_points, scale_factor
 from torchfluidwarp.correspond._image import single_image
 from torchfluidwarp.correspond.faces import (
     FACE_MESH_INDICES,
@@ -35,6 +35,7 @@ from torchfluidwarp.correspond.faces import (
 from torchfluidwarp.correspond.features import MIN_SIDE, match_features
 from torchfluidwarp.correspond.refine import refine_points
 from torchfluidwarp.errors import Hint, InputError
+from torchfluidwarp.io import shrink_image
 
 __all__ = [
     "FoundPoints",
@@ -321,14 +322,26 @@ pairs; on 7 pairs of one scene (a stereo pair, crops, zooms, rotations, a photog
 size) it kept 27-64 (``benchmarks/bench_correspond.py``)."""
 
 
+def _size(image: Tensor) -> tuple[int, int]:
+    return image.shape[-2], image.shape[-1]
+
+
+PIXELS_SIDE = 1024
+"""Pixels: the pictures :func:`_pixel_lattice` fits its flow to are shrunk to this longer side first. The flow
+has 32 x 32 cells, so a 3-megapixel photograph's own pixels add only time: obama3 (1434 x 2333) against a cat
+took 17.5 s at full size, most of it the gradient of the image loss (scratch, 2 CPU cores)."""
+
+
 def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor], str, bool]:
     """``n x n`` lattice points of ``a`` ``(1, C, H, W)`` and where a flow fitted to the pixels carries them in
-    ``b`` (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors), what was done, in words, and
-    whether that flow folds (the note is then notable)."""
+    ``b`` (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors, on copies shrunk to
+    :data:`PIXELS_SIDE`; the points in each picture's own pixels), what was done, in words, and whether that flow
+    folds (the note is then notable)."""
+    small_a, small_b = shrink_image(a, PIXELS_SIDE), shrink_image(b, PIXELS_SIDE)
     none = a.new_zeros(0, 2)
     with warnings.catch_warnings(record=True) as caught:  # the flow's own fold warning is said below, as ours
         warnings.simplefilter("always")
-        refined = refine_points(a, b, none, none, extra=n)
+        refined = refine_points(small_a, small_b, none, none, extra=n)
     folds = bool((refined[2].min_det <= 0).any())
     for w in caught:
         if not (folds and issubclass(w.category, FoldWarning)):  # the flow only places points
@@ -339,7 +352,11 @@ def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor],
             "; that flow folds in places (it crushes part of image_a onto itself, as between pictures whose "
             "content does not correspond), so points it placed there may cross, and the morph lets those go"
         )
-    return (refined[0], refined[1]), message, folds
+    back = [
+        rescale_points(p, scale_factor(_size(x), _size(y), device=p.device, dtype=p.dtype))
+        for p, x, y in ((refined[0], small_a, a), (refined[1], small_b, b))
+    ]
+    return (back[0], back[1]), message, folds
 
 
 def _features_or_pixels(
