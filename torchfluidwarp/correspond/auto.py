@@ -323,6 +323,7 @@ size) it kept 27-64 (``benchmarks/bench_correspond.py``)."""
 
 
 def _size(image: Tensor) -> tuple[int, int]:
+    """``(H, W)`` of an image ``(..., H, W)``."""
     return image.shape[-2], image.shape[-1]
 
 
@@ -479,7 +480,7 @@ def find_points(
     if reason is None:  # every branch above says why (or raised)
         raise RuntimeError("find_points chose no matcher")
     points_a, points_b = (p.to(device=a.device, dtype=a.dtype) for p in found)
-    size_a, size_b = (a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])
+    size_a, size_b = _size(a), _size(b)
     return FoundPoints(*bordered_pairs(points_a, points_b, size_a, size_b, border), matcher, reason)
 
 
