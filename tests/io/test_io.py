@@ -111,6 +111,34 @@ def test_gray_alpha_png_reads_as_rgba(tmp_path):
     torch.testing.assert_close(image[0, :, 0, 0], torch.tensor([128, 128, 128, 64]) / 255.0)
 
 
+@pytest.mark.parametrize("name", ["anim.gif", "anim.webp", "anim.png", "pages.tif"])
+def test_a_file_of_several_frames_gives_its_first_and_says_how_many(tmp_path, gen, name):
+    """An animated GIF, WebP or PNG and a multi-page TIFF: the first frame's pixels (a multi-page TIFF was refused
+    as an "unsupported pixel layout" of all its pages stacked), and a warning that names the file and the count."""
+    frames = [(random_image(gen, (12, 10, 3)) * 255).to(torch.uint8).numpy() for _ in range(3)]
+    pictures = [Image.fromarray(f) for f in frames]
+    extra = {"lossless": True} if name.endswith(".webp") else {}
+    pictures[0].save(tmp_path / name, save_all=True, append_images=pictures[1:], **extra)
+    with pytest.warns(UserWarning, match=rf"{name}' holds 3 frames .*only its first was read"):
+        image = read_image(tmp_path / name)
+    assert image.shape == (1, 3, 12, 10)
+    if not name.endswith(".gif"):  # a GIF's palette changes the colours; the others keep them exactly
+        want = torch.from_numpy(frames[0]).permute(2, 0, 1)[None].float() / 255
+        torch.testing.assert_close(image, want, atol=0, rtol=0)
+    else:  # the first frame, not another: nearer it than any other frame
+        errors = [float((image[0].permute(1, 2, 0) - torch.from_numpy(f) / 255).abs().mean()) for f in frames]
+        assert errors[0] < 0.05 < min(errors[1:])
+    with pytest.warns(UserWarning, match="image bytes .* holds 3 frames"):
+        read_image_bytes((tmp_path / name).read_bytes())
+
+
+@pytest.mark.parametrize("name", ["one.gif", "one.png", "one.tif", "one.webp", "one.jpg"])
+def test_a_file_of_one_frame_reads_without_a_warning(tmp_path, gen, name, recwarn):
+    Image.fromarray((random_image(gen, (6, 5, 3)) * 255).to(torch.uint8).numpy()).save(tmp_path / name)
+    assert read_image(tmp_path / name).shape == (1, 3, 6, 5)
+    assert not [w for w in recwarn if "frames" in str(w.message)]
+
+
 def test_read_image_errors_name_the_path(tmp_path):
     missing = tmp_path / "missing.png"
     with pytest.raises(ValueError, match="missing.png.*no such file"):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
@@ -15,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from imageio.config import known_extensions
 from imageio.plugins.pillow import PillowPlugin
+from imageio.plugins.tifffile_v3 import TifffilePlugin
 from PIL import Image
 from torch import Tensor
 
@@ -27,6 +29,7 @@ from torchfluidwarp._checks import (
     check_tensor,
     compute_dtype,
     describe,
+    warn,
 )
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.io._files import (
@@ -75,7 +78,8 @@ def read_image(
     """Read an image file into a ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
 
     8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
-    A multi-frame file (GIF, TIFF) gives its first frame. CMYK images are converted to RGB, and palette
+    A multi-frame file (an animated GIF, WebP or PNG, a multi-page TIFF) gives its first frame, with a warning.
+    CMYK images are converted to RGB, and palette
     images with a transparent colour to RGBA. A photograph whose EXIF orientation says it is stored turned (a
     phone's portrait) is turned upright, as viewers show it: ``H`` and ``W`` are those of the upright picture.
 
@@ -275,13 +279,14 @@ def _check_image_options(channels: int | None, dtype: torch.dtype, max_pixels: i
 
 
 def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
-    """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first."""
+    """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first, and a file of
+    more frames (an animated GIF, WebP or PNG, a multi-page TIFF) warns that the others were left out."""
     argument = "data" if isinstance(uri, bytes) else "path"
     try:
         with iio.imopen(uri, "r") as file:
             shape = file.properties(index=0).shape
             too_large = len(shape) >= 2 and shape[0] * shape[1] > max_pixels
-            array = None if too_large else file.read(index=0, **_pillow_options(file))
+            array, frames = (None, 0) if too_large else _first_frame(file)
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
         match = _BOMB_PIXELS.search(str(exc))
         claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
@@ -298,7 +303,24 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
             f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
             argument=argument,
         )
+    if frames > 1:  # an animation or a multi-page file: say what was left out
+        warn(
+            f"{source} holds {frames} frames (an animation or a multi-page file): only its first was read; to use "
+            f"another, save that frame as a picture of its own"
+        )
     return array
+
+
+def _first_frame(file: Any) -> tuple[np.ndarray, int]:
+    """The first frame (or page) of an open imageio file, and how many the file holds. A multi-page TIFF's first
+    series is all its pages stacked: its first page alone is read. (imageio's annotations say ``index: int``; its
+    plugins document ``...`` as "all of them", which is what is asked for here.)"""
+    reader: Any = file  # not narrowed by the checks below, for the reason above
+    if isinstance(file, TifffilePlugin):
+        return reader.read(index=0, page=0), reader.properties(index=..., page=...).n_images or 1
+    if isinstance(file, PillowPlugin):
+        return reader.read(index=0, **_pillow_options(file)), reader.properties(index=...).n_images or 1
+    return reader.read(index=0), 1
 
 
 def _pillow_options(file: object) -> dict[str, str | bool]:
