@@ -139,6 +139,50 @@ def test_a_file_of_one_frame_reads_without_a_warning(tmp_path, gen, name, recwar
     assert not [w for w in recwarn if "frames" in str(w.message)]
 
 
+def _tiff(path: Path, kind: str, rgb: np.ndarray) -> np.ndarray:
+    """Write ``rgb`` ``(H, W, 3)`` uint8 as a TIFF of ``kind``; return the ``(H, W, C)`` pixels it shows (0..1)."""
+    tifffile = pytest.importorskip("tifffile")
+    grey = rgb[..., 0]
+    if kind == "palette":
+        Image.fromarray(rgb).convert("P").save(path)
+        return np.asarray(Image.open(path).convert("RGB")) / 255.0
+    if kind == "min-is-white":  # stored inverted: 0 is white
+        tifffile.imwrite(path, grey, photometric="miniswhite")
+        return (255 - grey[..., None]) / 255.0
+    if kind == "cmyk":
+        Image.fromarray(rgb).convert("CMYK").save(path)
+        return np.asarray(Image.open(path).convert("RGB")) / 255.0
+    if kind == "lzw":  # tifffile decodes LZW only with the optional imagecodecs; it refused these
+        Image.fromarray(rgb).save(path, compression="tiff_lzw")
+        return rgb / 255.0
+    if kind == "planes":  # R, G, B one plane after another
+        tifffile.imwrite(path, np.moveaxis(rgb, -1, 0), photometric="rgb", planarconfig="separate")
+        return rgb / 255.0
+    wide = rgb.astype(np.uint16) * 257 + np.arange(rgb.size, dtype=np.uint16).reshape(rgb.shape) % 251
+    tifffile.imwrite(path, wide, photometric="rgb")  # "16-bit": the low bits are not 8-bit's
+    return wide / 65535.0
+
+
+@pytest.mark.parametrize("kind", ["palette", "min-is-white", "cmyk", "planes", "lzw", "16-bit"])
+def test_a_tiff_reads_as_the_picture_it_shows(tmp_path, gen, kind):
+    """tifffile gives a TIFF's stored samples: a palette's indices, grey inverted, CMYK as four channels (read as
+    RGBA), colour planes as a (3, H, W) "unsupported layout", and it refused LZW without imagecodecs. Each is now
+    the picture; 16-bit colour keeps its 16 bits."""
+    rgb = (random_image(gen, (9, 7, 3)) * 255).to(torch.uint8).numpy()
+    want = _tiff(tmp_path / "x.tif", kind, rgb)
+    image = read_image(tmp_path / "x.tif", dtype=torch.float64)
+    assert image.shape == (1, want.shape[-1], 9, 7)
+    torch.testing.assert_close(image[0].permute(1, 2, 0), torch.from_numpy(want), atol=1e-7, rtol=0)
+
+
+def test_a_tiff_of_colour_planes_is_measured_by_its_tags_before_decoding(tmp_path, gen):
+    """Its page's shape is (3, H, W): the pixel count checked against max_pixels is H * W, not 3 * H."""
+    _tiff(tmp_path / "x.tif", "planes", (random_image(gen, (20, 30, 3)) * 255).to(torch.uint8).numpy())
+    with pytest.raises(ValueError, match=r"30 x 20 = 600 pixels, more than max_pixels=599"):
+        read_image(tmp_path / "x.tif", max_pixels=599)
+    assert read_image(tmp_path / "x.tif", max_pixels=600).shape == (1, 3, 20, 30)
+
+
 def test_read_image_errors_name_the_path(tmp_path):
     missing = tmp_path / "missing.png"
     with pytest.raises(ValueError, match="missing.png.*no such file"):

@@ -16,7 +16,6 @@ import torch
 import torch.nn.functional as F
 from imageio.config import known_extensions
 from imageio.plugins.pillow import PillowPlugin
-from imageio.plugins.tifffile_v3 import TifffilePlugin
 from PIL import Image
 from torch import Tensor
 
@@ -79,7 +78,8 @@ def read_image(
 
     8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
     A multi-frame file (an animated GIF, WebP or PNG, a multi-page TIFF) gives its first frame, with a warning.
-    CMYK images are converted to RGB, and palette
+    A TIFF keeps its 16-bit or float grey and colour; one stored as a palette, inverted grey, CMYK or separate
+    colour planes is converted to the picture it shows (8 bits a channel). CMYK images are converted to RGB, and palette
     images with a transparent colour to RGBA. A photograph whose EXIF orientation says it is stored turned (a
     phone's portrait) is turned upright, as viewers show it: ``H`` and ``W`` are those of the upright picture.
 
@@ -284,9 +284,9 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     argument = "data" if isinstance(uri, bytes) else "path"
     try:
         with iio.imopen(uri, "r") as file:
-            shape = file.properties(index=0).shape
-            too_large = len(shape) >= 2 and shape[0] * shape[1] > max_pixels
-            array, frames = (None, 0) if too_large else _first_frame(file)
+            shape = _header_size(file)
+            too_large = shape[0] * shape[1] > max_pixels
+            array, frames = (None, 0) if too_large else _first_frame(file, uri)
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
         match = _BOMB_PIXELS.search(str(exc))
         claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
@@ -311,16 +311,63 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     return array
 
 
-def _first_frame(file: Any) -> tuple[np.ndarray, int]:
-    """The first frame (or page) of an open imageio file, and how many the file holds. A multi-page TIFF's first
-    series is all its pages stacked: its first page alone is read. (imageio's annotations say ``index: int``; its
-    plugins document ``...`` as "all of them", which is what is asked for here.)"""
+def _by_tifffile(file: object) -> bool:
+    """Whether imageio opened the file with its tifffile plugin (tifffile is optional: without it, imageio reads
+    TIFFs with Pillow, and importing the plugin would fail)."""
+    return type(file).__module__ == "imageio.plugins.tifffile_v3"
+
+
+def _by_pillow(uri: Path | bytes) -> np.ndarray:
+    """The first frame of an image file, read by imageio's Pillow plugin as :func:`_pillow_options` says."""
+    with iio.imopen(uri, "r", plugin="pillow") as pillow:
+        return pillow.read(index=0, **_pillow_options(pillow))
+
+
+def _header_size(file: Any) -> tuple[int, int]:
+    """``(H, W)`` of an open imageio file's first frame, from its header (no pixels decoded). A TIFF says it in its
+    tags: its page's shape puts the colour planes first where they are stored one after another."""
+    if _by_tifffile(file):
+        meta = file.metadata(index=0, page=0)
+        if "ImageLength" in meta and "ImageWidth" in meta:
+            return int(meta["ImageLength"]), int(meta["ImageWidth"])
+    shape = file.properties(index=0).shape
+    return (shape[0], shape[1]) if len(shape) >= 2 else (1, 1)
+
+
+def _first_frame(file: Any, uri: Path | bytes) -> tuple[np.ndarray, int]:
+    """The first frame (or page) of an open imageio ``file`` (opened from ``uri``), and how many the file holds.
+
+    A TIFF is read by tifffile (16-bit and float colour kept), its first page alone (its first series is all its
+    pages stacked). tifffile gives the stored samples as they are, so a TIFF whose samples are not plain grey or
+    RGB pixels (a palette's indices, grey stored inverted, CMYK, colour planes stored one after another) is read by
+    Pillow instead, which turns them into the picture they show (8 bits a channel); so is one whose compression
+    tifffile cannot decode without the optional imagecodecs package (LZW, JPEG: common in scanners' and
+    Photoshop's TIFFs). (imageio's annotations say
+    ``index: int``; its plugins document ``...`` as "all of them", which is what is asked for here.)
+    """
     reader: Any = file  # not narrowed by the checks below, for the reason above
-    if isinstance(file, TifffilePlugin):
-        return reader.read(index=0, page=0), reader.properties(index=..., page=...).n_images or 1
+    if _by_tifffile(file):
+        pages = reader.properties(index=..., page=...).n_images or 1
+        meta = reader.metadata(index=0, page=0)
+        plain = int(meta.get("PhotometricInterpretation", 1)) in _PLAIN_TIFF and (
+            int(meta.get("SamplesPerPixel", 1)) == 1 or int(meta.get("PlanarConfiguration", 1)) == 1
+        )
+        if plain:
+            try:
+                return reader.read(index=0, page=0), pages
+            except DECODE_ERRORS as exc:  # LZW, JPEG ... need the optional imagecodecs: Pillow decodes those
+                try:
+                    return _by_pillow(uri), pages
+                except DECODE_ERRORS:
+                    raise exc from None
+        return _by_pillow(uri), pages
     if isinstance(file, PillowPlugin):
         return reader.read(index=0, **_pillow_options(file)), reader.properties(index=...).n_images or 1
     return reader.read(index=0), 1
+
+
+_PLAIN_TIFF = (1, 2)
+"""TIFF photometric interpretations whose samples tifffile gives as the picture: grey (black is zero) and RGB."""
 
 
 def _pillow_options(file: object) -> dict[str, str | bool]:
