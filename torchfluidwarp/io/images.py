@@ -6,6 +6,7 @@ Images are float tensors ``(B, C, H, W)`` with values in ``[0, 1]`` and ``C`` = 
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 from typing import Any
@@ -79,7 +80,9 @@ def read_image(
     8- and 16-bit images are scaled by their integer range; float images are clipped to ``[0, 1]``.
     A multi-frame file (an animated GIF, WebP or PNG, a multi-page TIFF) gives its first frame, with a warning.
     A TIFF keeps its 16-bit or float grey and colour; one stored as a palette, inverted grey, CMYK or separate
-    colour planes is converted to the picture it shows (8 bits a channel). CMYK images are converted to RGB, and palette
+    colour planes is converted to the picture it shows (8 bits a channel). An 8-bit colour picture with an
+    embedded colour profile other than sRGB (a phone's Display P3, a camera's Adobe RGB) is converted to sRGB, as
+    colour-managed viewers show it, so that it mixes with other pictures in one colour space. CMYK images are converted to RGB, and palette
     images with a transparent colour to RGBA. A photograph whose EXIF orientation says it is stored turned (a
     phone's portrait) is turned upright, as viewers show it: ``H`` and ``W`` are those of the upright picture.
 
@@ -286,7 +289,7 @@ def _decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
         with iio.imopen(uri, "r") as file:
             shape = _header_size(file)
             too_large = shape[0] * shape[1] > max_pixels
-            array, frames = (None, 0) if too_large else _first_frame(file, uri)
+            array, frames = (None, 0) if too_large else _first_frame(file, uri, source)
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
         match = _BOMB_PIXELS.search(str(exc))
         claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
@@ -317,10 +320,49 @@ def _by_tifffile(file: object) -> bool:
     return type(file).__module__ == "imageio.plugins.tifffile_v3"
 
 
-def _by_pillow(uri: Path | bytes) -> np.ndarray:
-    """The first frame of an image file, read by imageio's Pillow plugin as :func:`_pillow_options` says."""
+def _by_pillow(uri: Path | bytes, source: str) -> np.ndarray:
+    """The first frame of an image file, read by imageio's Pillow plugin (:func:`_pillow_frame`)."""
     with iio.imopen(uri, "r", plugin="pillow") as pillow:
-        return pillow.read(index=0, **_pillow_options(pillow))
+        return _pillow_frame(pillow, source)
+
+
+def _pillow_frame(file: Any, source: str) -> np.ndarray:
+    """The first frame of a file open in imageio's Pillow plugin, as :func:`_pillow_options` says, its colours in
+    sRGB (:func:`_in_srgb`)."""
+    array = file.read(index=0, **_pillow_options(file))
+    icc = file.metadata(index=0).get("icc_profile")
+    return _in_srgb(array, icc, source) if icc else array
+
+
+def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
+    """8-bit RGB or RGBA pixels ``(H, W, 3 or 4)`` whose colours the embedded ICC profile ``icc`` describes, in
+    sRGB, as every colour-managed viewer shows them: a phone's photograph in Display P3 or a camera's in Adobe RGB
+    read as sRGB looks dull, and mixes with an sRGB picture in another colour space. Relative colorimetric
+    intent; the alpha is kept. sRGB pixels, other layouts (grey, 16-bit) and profiles of other colour spaces are
+    returned as they are; a profile that cannot be read or applied leaves the pixels as they are, with a
+    warning."""
+    if array.dtype != np.uint8 or array.ndim != 3 or array.shape[-1] not in (3, 4):
+        return array
+    try:
+        from PIL import ImageCms  # in every Pillow wheel; a Pillow built without LittleCMS lacks it
+
+        profile = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+        if profile.profile.xcolor_space.strip() != "RGB" or "srgb" in _description(profile).lower():
+            return array
+        rgb = Image.fromarray(np.ascontiguousarray(array[..., :3]), "RGB")
+        srgb = ImageCms.profileToProfile(
+            rgb, profile, ImageCms.createProfile("sRGB"), ImageCms.Intent.RELATIVE_COLORIMETRIC, "RGB"
+        )
+    except (ImportError, OSError, ValueError, TypeError) as exc:  # PyCMSError is an OSError
+        warn(f"the colour profile of {source} could not be applied ({first_line(exc)}): its colours are read as sRGB")
+        return array
+    out = np.asarray(srgb)
+    return out if array.shape[-1] == 3 else np.concatenate([out, array[..., 3:]], axis=-1)
+
+
+def _description(profile: Any) -> str:
+    """An ICC profile's description (empty where it has none)."""
+    return str(getattr(profile.profile, "profile_description", "") or "")
 
 
 def _header_size(file: Any) -> tuple[int, int]:
@@ -334,7 +376,7 @@ def _header_size(file: Any) -> tuple[int, int]:
     return (shape[0], shape[1]) if len(shape) >= 2 else (1, 1)
 
 
-def _first_frame(file: Any, uri: Path | bytes) -> tuple[np.ndarray, int]:
+def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray, int]:
     """The first frame (or page) of an open imageio ``file`` (opened from ``uri``), and how many the file holds.
 
     A TIFF is read by tifffile (16-bit and float colour kept), its first page alone (its first series is all its
@@ -354,15 +396,17 @@ def _first_frame(file: Any, uri: Path | bytes) -> tuple[np.ndarray, int]:
         )
         if plain:
             try:
-                return reader.read(index=0, page=0), pages
+                array = reader.read(index=0, page=0)
+                icc = meta.get("InterColorProfile")
+                return (_in_srgb(array, icc, source) if isinstance(icc, bytes) else array), pages
             except DECODE_ERRORS as exc:  # LZW, JPEG ... need the optional imagecodecs: Pillow decodes those
                 try:
-                    return _by_pillow(uri), pages
+                    return _by_pillow(uri, source), pages
                 except DECODE_ERRORS:
                     raise exc from None
-        return _by_pillow(uri), pages
+        return _by_pillow(uri, source), pages
     if isinstance(file, PillowPlugin):
-        return reader.read(index=0, **_pillow_options(file)), reader.properties(index=...).n_images or 1
+        return _pillow_frame(file, source), reader.properties(index=...).n_images or 1
     return reader.read(index=0), 1
 
 
