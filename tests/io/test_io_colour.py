@@ -103,3 +103,18 @@ def test_a_profile_that_cannot_be_read_leaves_the_pixels_and_says_so(tmp_path, g
     with pytest.warns(UserWarning, match=r"colour profile of image '.*odd\.png' could not be applied .* as sRGB"):
         image = read_image(tmp_path / "odd.png", dtype=torch.float64)
     np.testing.assert_array_equal(image[0].permute(1, 2, 0).numpy(), stored / 255.0)
+
+
+def test_a_wide_gamut_heic_is_read_in_srgb(tmp_path):
+    """An iPhone's photograph: HEIC in Display P3 (HEVC is lossy: a smooth picture, compared on average)."""
+    pillow_heif = pytest.importorskip("pillow_heif")
+    y, x = np.meshgrid(np.linspace(0, 1, 24), np.linspace(0, 1, 40), indexing="ij")
+    stored = np.stack([0.2 + 0.7 * x, 0.8 - 0.6 * y, 0.3 + 0.3 * x * y], -1)
+    stored = (stored * 255).round().astype(np.uint8)
+    picture = Image.fromarray(stored)
+    picture.info["icc_profile"] = wide_profile()
+    pillow_heif.from_pillow(picture).save(tmp_path / "wide.heic", quality=95, chroma=444)
+    image = read_image(tmp_path / "wide.heic", dtype=torch.float64)[0].permute(1, 2, 0).numpy()
+    want = p3_to_srgb(stored.astype(np.float64))
+    assert np.abs(image - want).mean() < 2 / 255
+    assert np.abs(image - stored / 255.0).mean() > 5 / 255

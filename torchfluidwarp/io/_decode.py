@@ -1,0 +1,220 @@
+"""Decoding image files into arrays: the first frame, upright, as it shows (colour profiles, TIFF kinds, HEIF).
+
+:func:`decode` is :func:`~torchfluidwarp.io.images.read_image`'s reader: imageio chooses the plugin by the file,
+tifffile's samples are taken where they are the picture and Pillow's conversions elsewhere, and a HEIF photograph
+(an iPhone's default) is read by the optional pillow-heif.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import re
+from pathlib import Path
+from typing import Any
+
+import imageio.v3 as iio
+import numpy as np
+from imageio.plugins.pillow import PillowPlugin
+from PIL import Image
+
+from torchfluidwarp._checks import warn
+from torchfluidwarp.errors import InputError
+from torchfluidwarp.io._files import DECODE_ERRORS, first_line
+
+_BOMB_PIXELS = re.compile(r"\((\d+) pixels\)")
+
+
+def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
+    """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first, and a file of
+    more frames (an animated GIF, WebP or PNG, a multi-page TIFF) warns that the others were left out."""
+    argument = "data" if isinstance(uri, bytes) else "path"
+    heif = _is_heif(uri)
+    if heif and importlib.util.find_spec("pillow_heif") is None:
+        raise InputError(
+            f"cannot read {source}: a HEIC/HEIF photograph (an iPhone's default format) needs the pillow-heif "
+            f"package: pip install 'torchfluidwarp[heic]' (or pillow-heif), or export it as JPEG",
+            argument=argument,
+        )
+    try:
+        if heif:
+            array, frames, shape = _heif_frame(uri, source, max_pixels)
+        else:
+            with iio.imopen(uri, "r") as file:
+                shape = _header_size(file)
+                too_large = shape[0] * shape[1] > max_pixels
+                array, frames = (None, 0) if too_large else _first_frame(file, uri, source)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:  # the warning, when made an error
+        match = _BOMB_PIXELS.search(str(exc))
+        claimed = f"{int(match.group(1)):,} pixels" if match else "more pixels than Pillow accepts"
+        raise InputError(
+            f"cannot read {source}: its header claims {claimed}, more than Pillow decodes "
+            f"(a possible decompression bomb; the limit here is max_pixels={max_pixels:,})",
+            argument=argument,
+        ) from None
+    except DECODE_ERRORS as exc:
+        raise InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument) from exc
+    if array is None:
+        raise InputError(
+            f"cannot read {source}: its header claims {shape[1]} x {shape[0]} = {shape[0] * shape[1]:,} pixels, "
+            f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
+            argument=argument,
+        )
+    if frames > 1:  # an animation or a multi-page file: say what was left out
+        warn(
+            f"{source} holds {frames} frames (an animation or a multi-page file): only its first was read; to use "
+            f"another, save that frame as a picture of its own"
+        )
+    return array
+
+
+def _by_tifffile(file: object) -> bool:
+    """Whether imageio opened the file with its tifffile plugin (tifffile is optional: without it, imageio reads
+    TIFFs with Pillow, and importing the plugin would fail)."""
+    return type(file).__module__ == "imageio.plugins.tifffile_v3"
+
+
+def _by_pillow(uri: Path | bytes, source: str) -> np.ndarray:
+    """The first frame of an image file, read by imageio's Pillow plugin (:func:`_pillow_frame`)."""
+    with iio.imopen(uri, "r", plugin="pillow") as pillow:
+        return _pillow_frame(pillow, source)
+
+
+def _pillow_frame(file: Any, source: str) -> np.ndarray:
+    """The first frame of a file open in imageio's Pillow plugin, as :func:`_pillow_options` says, its colours in
+    sRGB (:func:`_in_srgb`)."""
+    array = file.read(index=0, **_pillow_options(file))
+    icc = file.metadata(index=0).get("icc_profile")
+    return _in_srgb(array, icc, source) if icc else array
+
+
+def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
+    """8-bit RGB or RGBA pixels ``(H, W, 3 or 4)`` whose colours the embedded ICC profile ``icc`` describes, in
+    sRGB, as every colour-managed viewer shows them: a phone's photograph in Display P3 or a camera's in Adobe RGB
+    read as sRGB looks dull, and mixes with an sRGB picture in another colour space. Relative colorimetric
+    intent; the alpha is kept. sRGB pixels, other layouts (grey, 16-bit) and profiles of other colour spaces are
+    returned as they are; a profile that cannot be read or applied leaves the pixels as they are, with a
+    warning."""
+    if array.dtype != np.uint8 or array.ndim != 3 or array.shape[-1] not in (3, 4):
+        return array
+    try:
+        from PIL import ImageCms  # in every Pillow wheel; a Pillow built without LittleCMS lacks it
+
+        profile = ImageCms.ImageCmsProfile(io.BytesIO(icc))
+        if profile.profile.xcolor_space.strip() != "RGB" or "srgb" in _description(profile).lower():
+            return array
+        rgb = Image.fromarray(np.ascontiguousarray(array[..., :3]), "RGB")
+        srgb = ImageCms.profileToProfile(
+            rgb, profile, ImageCms.createProfile("sRGB"), ImageCms.Intent.RELATIVE_COLORIMETRIC, "RGB"
+        )
+    except (ImportError, OSError, ValueError, TypeError) as exc:  # PyCMSError is an OSError
+        warn(f"the colour profile of {source} could not be applied ({first_line(exc)}): its colours are read as sRGB")
+        return array
+    out = np.asarray(srgb)
+    return out if array.shape[-1] == 3 else np.concatenate([out, array[..., 3:]], axis=-1)
+
+
+def _description(profile: Any) -> str:
+    """An ICC profile's description (empty where it has none)."""
+    return str(getattr(profile.profile, "profile_description", "") or "")
+
+
+def _header_size(file: Any) -> tuple[int, int]:
+    """``(H, W)`` of an open imageio file's first frame, from its header (no pixels decoded). A TIFF says it in its
+    tags: its page's shape puts the colour planes first where they are stored one after another."""
+    if _by_tifffile(file):
+        meta = file.metadata(index=0, page=0)
+        if "ImageLength" in meta and "ImageWidth" in meta:
+            return int(meta["ImageLength"]), int(meta["ImageWidth"])
+    shape = file.properties(index=0).shape
+    return (shape[0], shape[1]) if len(shape) >= 2 else (1, 1)
+
+
+def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray, int]:
+    """The first frame (or page) of an open imageio ``file`` (opened from ``uri``), and how many the file holds.
+
+    A TIFF is read by tifffile (16-bit and float colour kept), its first page alone (its first series is all its
+    pages stacked). tifffile gives the stored samples as they are, so a TIFF whose samples are not plain grey or
+    RGB pixels (a palette's indices, grey stored inverted, CMYK, colour planes stored one after another) is read by
+    Pillow instead, which turns them into the picture they show (8 bits a channel); so is one whose compression
+    tifffile cannot decode without the optional imagecodecs package (LZW, JPEG: common in scanners' and
+    Photoshop's TIFFs). (imageio's annotations say
+    ``index: int``; its plugins document ``...`` as "all of them", which is what is asked for here.)
+    """
+    reader: Any = file  # not narrowed by the checks below, for the reason above
+    if _by_tifffile(file):
+        pages = reader.properties(index=..., page=...).n_images or 1
+        meta = reader.metadata(index=0, page=0)
+        plain = int(meta.get("PhotometricInterpretation", 1)) in _PLAIN_TIFF and (
+            int(meta.get("SamplesPerPixel", 1)) == 1 or int(meta.get("PlanarConfiguration", 1)) == 1
+        )
+        if plain:
+            try:
+                array = reader.read(index=0, page=0)
+                icc = meta.get("InterColorProfile")
+                return (_in_srgb(array, icc, source) if isinstance(icc, bytes) else array), pages
+            except DECODE_ERRORS as exc:  # LZW, JPEG ... need the optional imagecodecs: Pillow decodes those
+                try:
+                    return _by_pillow(uri, source), pages
+                except DECODE_ERRORS:
+                    raise exc from None
+        return _by_pillow(uri, source), pages
+    if isinstance(file, PillowPlugin):
+        return _pillow_frame(file, source), reader.properties(index=...).n_images or 1
+    return reader.read(index=0), 1
+
+
+_PLAIN_TIFF = (1, 2)
+"""TIFF photometric interpretations whose samples tifffile gives as the picture: grey (black is zero) and RGB."""
+
+
+def _pillow_options(file: object) -> dict[str, str | bool]:
+    """How Pillow reads the file as a person sees it: upright, as its EXIF orientation says (a phone's portrait is
+    stored sideways with a tag that every viewer follows), and in modes whose raw values would be misread: CMYK
+    (4 channels, not RGBA) as RGB, and a palette image with a transparent colour as RGBA (imageio would drop its
+    alpha)."""
+    if not isinstance(file, PillowPlugin):
+        return {}
+    meta = file.metadata(index=0)
+    mode = meta.get("mode")
+    if mode == "CMYK":
+        return {"rotate": True, "mode": "RGB"}
+    if mode == "PA" or (mode == "P" and "transparency" in meta):
+        return {"rotate": True, "mode": "RGBA"}
+    return {"rotate": True}
+
+
+HEIF_BRANDS = frozenset({b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b"msf1"})
+"""The ``ftyp`` brands of HEIF files that Pillow does not read (HEVC-coded: an iPhone's photographs; AVIF, which
+Pillow reads, is left to it)."""
+
+HEIF_SUFFIXES = (".heic", ".heif", ".hif")
+
+
+def _is_heif(uri: Path | bytes) -> bool:
+    """Whether ``uri`` (a path or encoded bytes) is a HEIF file: by its suffix, or by its ``ftyp`` brand."""
+    if isinstance(uri, Path):
+        return uri.suffix.lower() in HEIF_SUFFIXES
+    return uri[4:8] == b"ftyp" and uri[8:12] in HEIF_BRANDS
+
+
+def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.ndarray | None, int, tuple[int, int]]:
+    """A HEIF file's primary picture read by pillow-heif (upright: libheif applies the file's rotation and mirror),
+    its colours in sRGB (:func:`_in_srgb`), 10- and 12-bit pictures at 8 bits; how many pictures it holds; and its
+    ``(H, W)``. ``None`` instead of the pixels where ``(H, W)`` passes ``max_pixels`` (nothing decoded)."""
+    import pillow_heif  # the optional extra "heic": checked by the caller
+
+    heif = pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
+    width, height = heif.size
+    if width * height > max_pixels:
+        return None, len(heif), (height, width)
+    picture = heif.to_pillow()
+    array = np.asarray(
+        picture.convert("RGBA" if "A" in picture.mode else "RGB") if picture.mode not in _HEIF_MODES else picture
+    )
+    icc = picture.info.get("icc_profile")
+    return (_in_srgb(array, icc, source) if icc else array), len(heif), (height, width)
+
+
+_HEIF_MODES = ("L", "RGB", "RGBA", "I;16", "I;16L")
+"""pillow-heif's picture modes that convert to arrays as they are; others (BGR, LA) are converted to RGB(A)."""
