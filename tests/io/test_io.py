@@ -16,6 +16,7 @@ from torchfluidwarp.io import (
     animation,
     check_point_counts,
     encode_animation,
+    image_shape,
     images,
     read_image,
     read_image_bytes,
@@ -181,6 +182,37 @@ def test_a_tiff_of_colour_planes_is_measured_by_its_tags_before_decoding(tmp_pat
     with pytest.raises(ValueError, match=r"30 x 20 = 600 pixels, more than max_pixels=599"):
         read_image(tmp_path / "x.tif", max_pixels=599)
     assert read_image(tmp_path / "x.tif", max_pixels=600).shape == (1, 3, 20, 30)
+
+
+def _kinds(folder: Path, gen: torch.Generator) -> list[Path]:
+    """One file of each kind whose header and decoded shape could disagree."""
+    rgb = (random_image(gen, (9, 7, 3)) * 255).to(torch.uint8).numpy()
+    Image.fromarray(rgb).save(folder / "plain.jpg")
+    turned = Image.fromarray(rgb)
+    exif = turned.getexif()
+    exif[0x0112] = 6  # stored turned a quarter
+    turned.save(folder / "turned.jpg", exif=exif)
+    Image.fromarray(rgb[..., 0]).save(folder / "grey.png")
+    Image.fromarray(rgb[..., :2], "LA").save(folder / "grey-alpha.png")
+    Image.fromarray(rgb).convert("P").save(folder / "palette.png")
+    Image.fromarray(rgb).convert("P").save(folder / "palette-transparent.png", transparency=0)
+    Image.fromarray(rgb).convert("CMYK").save(folder / "cmyk.jpg")
+    Image.fromarray(np.dstack([rgb, rgb[..., :1]]), "RGBA").save(folder / "rgba.png")
+    Image.fromarray(rgb).save(folder / "frames.gif", save_all=True, append_images=[Image.fromarray(rgb[::-1])])
+    for kind in ("palette", "min-is-white", "cmyk", "planes", "lzw", "16-bit"):
+        _tiff(folder / f"{kind}.tif", kind, rgb)
+    return sorted(folder.iterdir())
+
+
+def test_image_shape_reads_from_the_header_the_shape_read_image_gives(tmp_path, gen, recwarn):
+    for path in _kinds(tmp_path, gen):
+        assert image_shape(path) == tuple(read_image(path).shape[1:]), path.name
+    assert image_shape(tmp_path / "turned.jpg") == (3, 7, 9)  # upright: the stored 9 x 7 turned a quarter
+    with pytest.raises(ValueError, match=r"missing\.png.*no such file"):
+        image_shape(tmp_path / "missing.png")
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    with pytest.raises(ValueError, match=r"junk\.png.*not a readable image"):
+        image_shape(tmp_path / "junk.png")
 
 
 def test_read_image_errors_name_the_path(tmp_path):

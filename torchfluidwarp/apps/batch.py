@@ -40,7 +40,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import imageio.v3 as iio
 import torch
 from torch import Tensor
 from tqdm import tqdm
@@ -48,7 +47,15 @@ from tqdm import tqdm
 from torchfluidwarp._checks import check_instance, check_int, check_size
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import FFMPEG_HINT, check_point_counts, read_image, read_points, shrunk_size, write_animation
+from torchfluidwarp.io import (
+    FFMPEG_HINT,
+    check_point_counts,
+    image_shape,
+    read_image,
+    read_points,
+    shrunk_size,
+    write_animation,
+)
 from torchfluidwarp.morph import Blending, MorphSequence, MorphSettings, NaturalSettings, Timing, morph
 from torchfluidwarp.morph.result import MorphResult
 
@@ -321,15 +328,12 @@ def _plan(
 
 
 def _frame_shape(path: Path) -> tuple[int, int, int] | None:
-    """``(C, H, W)`` of the image file at ``path`` from its header, or ``None`` when it cannot be read."""
+    """``(C, H, W)`` of the image file at ``path`` from its header, or ``None`` when it cannot be read (its pair
+    fails when its turn comes, with the reason)."""
     try:
-        with iio.imopen(path, "r") as file:
-            shape = tuple(int(n) for n in file.properties(index=0).shape)
-    except Exception:  # noqa: BLE001  (its pair fails when its turn comes, with the reason)
+        return image_shape(path)
+    except InputError:
         return None
-    if len(shape) not in (2, 3):
-        return None
-    return (shape[2] if len(shape) == 3 else 1, shape[0], shape[1])
 
 
 @dataclass(frozen=True)

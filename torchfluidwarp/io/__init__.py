@@ -21,6 +21,7 @@ from torchfluidwarp.io.animation import MAX_FPS, MAX_LOOP, MIN_FPS, check_fps, e
 from torchfluidwarp.io.animation import AnimationFormat as AnimationFormat
 from torchfluidwarp.io.images import (
     MAX_IMAGE_PIXELS,
+    image_shape,
     read_image,
     read_image_bytes,
     resize_image,
@@ -34,6 +35,7 @@ from torchfluidwarp.io.points import POINT_SUFFIXES as POINT_SUFFIXES
 __all__ = [
     "read_image",
     "read_image_bytes",
+    "image_shape",
     "write_image",
     "resize_image",
     "shrink_image",

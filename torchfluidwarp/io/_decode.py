@@ -31,11 +31,7 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     argument = "data" if isinstance(uri, bytes) else "path"
     heif = _is_heif(uri)
     if heif and importlib.util.find_spec("pillow_heif") is None:
-        raise InputError(
-            f"cannot read {source}: a HEIC/HEIF photograph (an iPhone's default format) needs the pillow-heif "
-            f"package: pip install 'torchfluidwarp[heic]' (or pillow-heif), or export it as JPEG",
-            argument=argument,
-        )
+        raise InputError(f"cannot read {source}: {HEIF_NEEDED}", argument=argument)
     try:
         if heif:
             array, frames, shape = _heif_frame(uri, source, max_pixels)
@@ -190,6 +186,12 @@ Pillow reads, is left to it)."""
 
 HEIF_SUFFIXES = (".heic", ".heif", ".hif")
 
+HEIF_NEEDED = (
+    "a HEIC/HEIF photograph (an iPhone's default format) needs the pillow-heif package: pip install "
+    "'torchfluidwarp[heic]' (or pillow-heif), or export it as JPEG"
+)
+"""What a HEIC file without pillow-heif is refused with."""
+
 
 def _is_heif(uri: Path | bytes) -> bool:
     """Whether ``uri`` (a path or encoded bytes) is a HEIF file: by its suffix, or by its ``ftyp`` brand."""
@@ -218,3 +220,37 @@ def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.nda
 
 _HEIF_MODES = ("L", "RGB", "RGBA", "I;16", "I;16L")
 """pillow-heif's picture modes that convert to arrays as they are; others (BGR, LA) are converted to RGB(A)."""
+
+
+def header_shape(uri: Path | bytes) -> tuple[int, int, int]:
+    """``(C, H, W)`` of the picture :func:`decode` gives (before any ``channels`` conversion), from the file's
+    header alone: no pixels decoded. Upright (EXIF orientation), palette, CMYK and grey + alpha counted as
+    :func:`decode` converts them.
+
+    Raises:
+        what the decoders raise for a file they cannot open (:data:`~torchfluidwarp.io._files.DECODE_ERRORS`),
+        ``ImportError`` for a HEIC file without pillow-heif.
+    """
+    if _is_heif(uri):
+        import pillow_heif
+
+        heif = pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
+        (width, height), mode = heif.size, heif.mode
+        return (4 if "A" in mode else 1 if mode in ("L", "I;16", "I;16L") else 3), height, width
+    with iio.imopen(uri, "r") as file:
+        height, width = _header_size(file)
+        reader: Any = file
+        if _by_tifffile(file):  # min-is-white: grey; a palette, CMYK: RGB (Pillow converts them); else samples
+            meta = reader.metadata(index=0, page=0)
+            photometric = int(meta.get("PhotometricInterpretation", 1))
+            channels = {0: 1, 3: 3, 5: 3}.get(photometric, int(meta.get("SamplesPerPixel", 1)))
+        else:
+            shape = reader.properties(index=0).shape
+            channels = shape[2] if len(shape) == 3 else 1
+            mode = _pillow_options(file).get("mode") if isinstance(file, PillowPlugin) else None
+            channels = {"RGB": 3, "RGBA": 4}.get(str(mode), channels)
+            if isinstance(file, PillowPlugin) and reader.metadata(index=0, exclude_applied=False).get(
+                "Orientation"
+            ) in (5, 6, 7, 8):  # stored turned a quarter: read upright
+                height, width = width, height
+    return (4 if channels == 2 else channels), height, width

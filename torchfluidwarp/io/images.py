@@ -27,7 +27,7 @@ from torchfluidwarp._checks import (
     describe,
 )
 from torchfluidwarp.errors import InputError, InputTypeError
-from torchfluidwarp.io._decode import decode
+from torchfluidwarp.io._decode import HEIF_NEEDED, decode, header_shape
 from torchfluidwarp.io._files import (
     DECODE_ERRORS,
     PathLike,
@@ -250,6 +250,37 @@ def shrink_image(image: Tensor, longest: int) -> Tensor:
     size = (image.shape[-2], image.shape[-1])
     smaller = shrunk_size(size, longest)
     return image if smaller == size else resize_image(image, smaller).clamp(0, 1)
+
+
+def image_shape(path: PathLike) -> tuple[int, int, int]:
+    """``(C, H, W)`` of the tensor :func:`read_image` returns for ``path`` (with ``channels=None``), from the
+    file's header: no pixels are decoded, so a large photograph costs milliseconds. Upright as :func:`read_image`
+    turns it (EXIF orientation); palette, CMYK and grey + alpha counted as it converts them.
+
+    Raises:
+        InputError: the file does not exist, is a folder, or its header cannot be read (the error says why; a
+            HEIC file without pillow-heif names the package).
+        InputTypeError: ``path`` is not a path.
+
+    Example:
+        >>> import tempfile, torch
+        >>> path = tempfile.mkdtemp() + "/grey.png"
+        >>> _ = write_image(path, torch.full((1, 4, 6), 0.5))
+        >>> image_shape(path)
+        (1, 4, 6)
+    """
+    path = check_path("path", path)
+    if not path.is_file():
+        why = "it is a folder, not a file" if path.is_dir() else "no such file"
+        raise InputError(f"cannot read image {str(path)!r}: {why}", argument="path")
+    try:
+        return header_shape(path)
+    except ImportError:
+        raise InputError(f"cannot read image {str(path)!r}: {HEIF_NEEDED}", argument="path") from None
+    except DECODE_ERRORS as exc:
+        raise InputError(
+            f"cannot read image {str(path)!r}: not a readable image ({first_line(exc)})", argument="path"
+        ) from exc
 
 
 def shrunk_size(size: tuple[int, int], longest: int) -> tuple[int, int]:
