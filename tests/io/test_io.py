@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ import torch
 from PIL import GifImagePlugin, Image
 
 from torchfluidwarp.io import (
+    _decode,
     animation,
     check_point_counts,
     encode_animation,
@@ -505,3 +507,104 @@ def test_frames_convert_in_chunks_identically(monkeypatch, tmp_path):
     write_animation(tmp_path / "out/", frames, fps=5)
     last = iio.imread(sorted((tmp_path / "out").iterdir())[6])
     np.testing.assert_array_equal(last, expected[6])
+
+
+def test_a_cameras_jpeg_with_a_preview_is_one_picture(tmp_path, gen, recwarn):
+    """Pillow opens a JPEG that carries a smaller preview or gain map (an MPF block) as an MPO of 2 frames: it is
+    one photograph, read without a frames warning; two pictures of one size (a stereo MPO) still warn."""
+    rgb = (random_image(gen, (16, 12, 3)) * 255).to(torch.uint8).numpy()
+    photo = Image.fromarray(rgb)
+    photo.save(tmp_path / "camera.jpg", format="MPO", save_all=True, append_images=[Image.fromarray(rgb[::4, ::4])])
+    assert Image.open(tmp_path / "camera.jpg").n_frames == 2  # what made it warn
+    assert read_image(tmp_path / "camera.jpg").shape == (1, 3, 16, 12)
+    assert not [w for w in recwarn if "frames" in str(w.message)]
+    photo.save(tmp_path / "stereo.jpg", format="MPO", save_all=True, append_images=[Image.fromarray(rgb[::-1])])
+    with pytest.warns(UserWarning, match="stereo.jpg' holds 2 frames"):
+        read_image(tmp_path / "stereo.jpg")
+
+
+def test_a_tiff_with_a_thumbnail_page_is_one_picture(tmp_path, gen, recwarn):
+    tifffile = pytest.importorskip("tifffile")
+    rgb = (random_image(gen, (16, 12, 3)) * 255).to(torch.uint8).numpy()
+    with tifffile.TiffWriter(tmp_path / "scan.tif") as tiff:
+        tiff.write(rgb, photometric="rgb")
+        tiff.write(rgb[::4, ::4], photometric="rgb", subfiletype=1)  # a reduced-resolution page
+    image = read_image(tmp_path / "scan.tif")
+    torch.testing.assert_close(image[0].permute(1, 2, 0), torch.from_numpy(rgb) / 255.0, atol=0, rtol=0)
+    assert not [w for w in recwarn if "frames" in str(w.message)]
+
+
+@pytest.mark.parametrize("compression", [None, "tiff_lzw"])
+def test_a_turned_tiff_reads_upright_whatever_its_compression(tmp_path, gen, compression):
+    """tifffile ignores the Orientation tag, Pillow (which reads LZW without imagecodecs) follows it: the same
+    picture came back stored as it is or turned, by its compression. Now upright both ways, and image_shape
+    agrees."""
+    rgb = (random_image(gen, (9, 7, 3)) * 255).to(torch.uint8).numpy()
+    picture = Image.fromarray(rgb)
+    exif = picture.getexif()
+    exif[0x0112] = 6  # stored turned a quarter anticlockwise: shown turned clockwise
+    picture.save(tmp_path / "turned.tif", exif=exif, **({"compression": compression} if compression else {}))
+    image = read_image(tmp_path / "turned.tif")
+    upright = np.rot90(rgb, k=-1)  # orientation 6: turn 90 degrees clockwise to show it
+    torch.testing.assert_close(image[0].permute(1, 2, 0), torch.from_numpy(upright.copy()) / 255.0, atol=0, rtol=0)
+    assert image_shape(tmp_path / "turned.tif") == (3, 7, 9)
+
+
+def test_a_sixteen_bit_min_is_white_tiff_is_not_inverted(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    stored = np.arange(20 * 3, dtype=np.uint16).reshape(3, 20) * 1000
+    tifffile.imwrite(tmp_path / "x.tif", stored, photometric="miniswhite")
+    image = read_image(tmp_path / "x.tif", dtype=torch.float64)
+    np.testing.assert_allclose(image[0, 0].numpy(), (65535 - stored) / 65535.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("writer", ["tifffile", "pillow"])
+def test_a_tiff_whose_width_is_zero_is_the_files_fault(tmp_path, gen, writer):
+    """Its ImageWidth tag set to 0: tifffile raises ZeroDivisionError on the one written by tifffile, and read the
+    one Pillow wrote as an empty (4, 0) picture. Both are an InputError naming the file, from read_image and
+    image_shape alike (``morph --pairs`` plans with the latter)."""
+    tifffile = pytest.importorskip("tifffile")
+    rgb = (random_image(gen, (4, 5, 3)) * 255).to(torch.uint8).numpy()
+    if writer == "tifffile":
+        tifffile.imwrite(tmp_path / "ok.tif", rgb, photometric="rgb")
+    else:
+        Image.fromarray(rgb).save(tmp_path / "ok.tif")
+    data = bytearray((tmp_path / "ok.tif").read_bytes())
+    assert data[:4] == b"II*\x00"  # little-endian TIFF: its first directory's entries, 12 bytes each
+    ifd = int.from_bytes(data[4:8], "little")
+    entries = [ifd + 2 + 12 * i for i in range(int.from_bytes(data[ifd : ifd + 2], "little"))]
+    width = next(e for e in entries if int.from_bytes(data[e : e + 2], "little") == 256)  # ImageWidth
+    data[width + 8 : width + 12] = bytes(4)  # its value: 0
+    (tmp_path / "bad.tif").write_bytes(bytes(data))
+    why = "not a readable image" if writer == "tifffile" else "it holds no pixels"
+    with pytest.raises(ValueError, match=rf"bad\.tif.*{why}"):
+        read_image(tmp_path / "bad.tif")
+    with pytest.raises(ValueError, match=rf"bad\.tif.*{why}"):
+        image_shape(tmp_path / "bad.tif")
+
+
+def test_without_pillow_heif_a_heic_is_refused_with_what_to_install(tmp_path, monkeypatch):
+    """Told apart by its suffix or, as bytes, by its "ftyp" brand, before any decoder sees it."""
+    heic = b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic" + bytes(64)
+    (tmp_path / "photo.heic").write_bytes(heic)
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pillow_heif" else real(name, *a))
+    for read in (read_image, image_shape):
+        with pytest.raises(ValueError, match=r"photo\.heic.*HEIC/HEIF.*pip install 'torchfluidwarp\[heic\]'"):
+            read(tmp_path / "photo.heic")
+    with pytest.raises(ValueError, match=r"image bytes.*HEIC/HEIF.*pillow-heif"):
+        read_image_bytes(heic)
+
+
+def test_an_avif_whose_major_brand_is_mif1_is_not_taken_for_heic(tmp_path, gen):
+    """AVIF files may name HEIF's "mif1" as their major brand and "avif" among the compatible ones: Pillow reads
+    them, pillow-heif (no AV1 decoder) does not, so they must not be sent to it, nor refused for want of it.
+    (Where pillow-heif is installed, imageio's Pillow plugin registers its opener with Pillow for every process,
+    and that opener claims such files: the classification is checked here, not a read.)"""
+    rgb = (random_image(gen, (8, 8, 3)) * 255).to(torch.uint8).numpy()
+    Image.fromarray(rgb).save(tmp_path / "x.avif", quality=100)
+    data = bytearray((tmp_path / "x.avif").read_bytes())
+    assert data[4:12] == b"ftypavif" and b"mif1" in data[16 : int.from_bytes(data[:4], "big")]
+    data[8:12] = b"mif1"  # the major brand; "avif" stays among the compatible ones
+    assert not _decode._is_heif(bytes(data)) and not _decode._is_heif(tmp_path / "x.avif")
+    assert _decode._is_heif(b"\x00\x00\x00\x18ftypmif1\x00\x00\x00\x00mif1heic" + bytes(8))

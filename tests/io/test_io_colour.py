@@ -27,18 +27,18 @@ def _s15(x: float) -> bytes:
     return struct.pack(">i", round(x * 65536))
 
 
-def wide_profile() -> bytes:
-    """An ICC v2 matrix/TRC RGB display profile with P3's primaries and a plain 2.2 gamma, built here (no profile
-    file ships with the test's dependencies)."""
+def wide_profile(primaries: np.ndarray = P3_D50, gamma: float = GAMMA, name: bytes = b"wide test RGB") -> bytes:
+    """An ICC v2 matrix/TRC RGB display profile, by default with P3's primaries and a plain 2.2 gamma, built here
+    (no profile file ships with the test's dependencies)."""
 
     def xyz(v) -> bytes:
         return b"XYZ " + bytes(4) + b"".join(_s15(c) for c in v)
 
-    curve = b"curv" + bytes(4) + struct.pack(">IH", 1, round(GAMMA * 256))
-    name = b"wide test RGB\0"
+    curve = b"curv" + bytes(4) + struct.pack(">IH", 1, round(gamma * 256))
+    name = name + b"\0"
     desc = b"desc" + bytes(4) + struct.pack(">I", len(name)) + name + struct.pack(">IIHB", 0, 0, 0, 0) + bytes(67)
     tags = [(b"desc", desc), (b"wtpt", xyz(D50))]
-    tags += [(sig, xyz(P3_D50[:, i])) for i, sig in enumerate((b"rXYZ", b"gXYZ", b"bXYZ"))]
+    tags += [(sig, xyz(primaries[:, i])) for i, sig in enumerate((b"rXYZ", b"gXYZ", b"bXYZ"))]
     tags += [(b"rTRC", curve), (b"gTRC", curve), (b"bTRC", curve), (b"cprt", b"text" + bytes(4) + b"none\0")]
     start = 128 + 4 + 12 * len(tags)
     table, data = struct.pack(">I", len(tags)), b""
@@ -118,3 +118,16 @@ def test_a_wide_gamut_heic_is_read_in_srgb(tmp_path):
     want = p3_to_srgb(stored.astype(np.float64))
     assert np.abs(image - want).mean() < 2 / 255
     assert np.abs(image - stored / 255.0).mean() > 5 / 255
+
+
+def test_a_profile_named_after_srgb_that_is_not_srgb_is_applied(tmp_path, gen):
+    """sRGB's primaries with a linear curve, named "sRGB linear (g10)" as such profiles are: not sRGB's values, so
+    converted (a check by name alone would have taken it for sRGB)."""
+    stored = _pixels(gen)
+    linear = wide_profile(SRGB_D50, 1.0, b"sRGB linear (g10)")
+    Image.fromarray(stored).save(tmp_path / "linear.png", icc_profile=linear)
+    image = read_image(tmp_path / "linear.png", dtype=torch.float64)[0].permute(1, 2, 0).numpy()
+    s = stored / 255.0  # linear light: sRGB's curve makes its values
+    want = np.where(s <= 0.0031308, 12.92 * s, 1.055 * s ** (1 / 2.4) - 0.055)
+    assert np.abs(image - want).max() < 1.5 / 255
+    assert np.abs(stored / 255.0 - want).max() > 20 / 255

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 import torch
@@ -55,11 +53,3 @@ def test_a_heic_larger_than_max_pixels_is_refused_from_its_header(tmp_path, gen)
     _save(tmp_path / "photo.heic", [_photo(gen)])
     with pytest.raises(ValueError, match=r"40 x 24 = 960 pixels, more than max_pixels=959"):
         read_image(tmp_path / "photo.heic", max_pixels=959)
-
-
-def test_without_pillow_heif_the_error_says_what_to_install(tmp_path, gen, monkeypatch):
-    _save(tmp_path / "photo.heic", [_photo(gen)])
-    real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pillow_heif" else real(name, *a))
-    with pytest.raises(ValueError, match=r"photo\.heic.*HEIC/HEIF.*pip install 'torchfluidwarp\[heic\]'"):
-        read_image(tmp_path / "photo.heic")

@@ -48,7 +48,9 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
             f"(a possible decompression bomb; the limit here is max_pixels={max_pixels:,})",
             argument=argument,
         ) from None
-    except DECODE_ERRORS as exc:
+    except MemoryError:
+        raise
+    except Exception as exc:  # noqa: BLE001  (decoders raise ZeroDivisionError, IndexError ... on corrupt files)
         raise InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument) from exc
     if array is None:
         raise InputError(
@@ -56,6 +58,8 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
             f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
             argument=argument,
         )
+    if array.size == 0:  # a header that says 0 pixels wide or high: nothing to morph
+        raise InputError(f"cannot read {source}: it holds no pixels (shape {array.shape})", argument=argument)
     if frames > 1:  # an animation or a multi-page file: say what was left out
         warn(
             f"{source} holds {frames} frames (an animation or a multi-page file): only its first was read; to use "
@@ -97,7 +101,7 @@ def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
         from PIL import ImageCms  # in every Pillow wheel; a Pillow built without LittleCMS lacks it
 
         profile = ImageCms.ImageCmsProfile(io.BytesIO(icc))
-        if profile.profile.xcolor_space.strip() != "RGB" or "srgb" in _description(profile).lower():
+        if profile.profile.xcolor_space.strip() != "RGB" or _description(profile).strip().lower() in SRGB_NAMES:
             return array
         rgb = Image.fromarray(np.ascontiguousarray(array[..., :3]), "RGB")
         srgb = ImageCms.profileToProfile(
@@ -108,6 +112,22 @@ def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
         return array
     out = np.asarray(srgb)
     return out if array.shape[-1] == 3 else np.concatenate([out, array[..., 3:]], axis=-1)
+
+
+SRGB_NAMES = frozenset(
+    {
+        "srgb",
+        "srgb built-in",
+        "srgb iec61966-2.1",
+        "srgb iec61966-2-1 black scaled",
+        "srgb iec61966-2-1 no black scaling",
+        "srgb2014",
+        "srgb v4 icc preference perceptual intent beta",
+        "srgb profile",
+    }
+)
+"""The descriptions of the common sRGB profiles (lower case), whose pictures are read as stored; any other RGB
+profile is applied (one named after sRGB that is not sRGB, such as "sRGB linear", is converted)."""
 
 
 def _description(profile: Any) -> str:
@@ -139,14 +159,13 @@ def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray,
     """
     reader: Any = file  # not narrowed by the checks below, for the reason above
     if _by_tifffile(file):
-        pages = reader.properties(index=..., page=...).n_images or 1
+        pages = _tiff_pages(reader)
         meta = reader.metadata(index=0, page=0)
-        plain = int(meta.get("PhotometricInterpretation", 1)) in _PLAIN_TIFF and (
-            int(meta.get("SamplesPerPixel", 1)) == 1 or int(meta.get("PlanarConfiguration", 1)) == 1
-        )
-        if plain:
+        if _plain_tiff(meta):
             try:
                 array = reader.read(index=0, page=0)
+                if int(meta.get("PhotometricInterpretation", 1)) == 0:  # stored inverted: 0 is white
+                    array = np.iinfo(array.dtype).max - array
                 icc = meta.get("InterColorProfile")
                 return (_in_srgb(array, icc, source) if isinstance(icc, bytes) else array), pages
             except DECODE_ERRORS as exc:  # LZW, JPEG ... need the optional imagecodecs: Pillow decodes those
@@ -156,8 +175,42 @@ def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray,
                     raise exc from None
         return _by_pillow(uri, source), pages
     if isinstance(file, PillowPlugin):
-        return _pillow_frame(file, source), reader.properties(index=...).n_images or 1
+        return _pillow_frame(file, source), _pillow_frames(reader)
     return reader.read(index=0), 1
+
+
+def _plain_tiff(meta: dict[str, Any]) -> bool:
+    """Whether tifffile's samples of a TIFF page (its tags ``meta``) are the picture as a viewer shows it: grey or
+    RGB (or integer grey stored inverted, which :func:`_first_frame` inverts), its samples interleaved, stored
+    upright. Any other page is read by Pillow, which converts palettes and CMYK, and turns the picture upright."""
+    photometric = int(meta.get("PhotometricInterpretation", 1))
+    samples = int(meta.get("SamplesPerPixel", 1))
+    inverted_ints = photometric == 0 and samples == 1 and int(meta.get("SampleFormat", 1)) in (1, 2)
+    return (
+        (photometric in _PLAIN_TIFF or inverted_ints)
+        and (samples == 1 or int(meta.get("PlanarConfiguration", 1)) == 1)
+        and int(meta.get("Orientation", 1)) == 1
+    )
+
+
+def _tiff_pages(reader: Any) -> int:
+    """How many full pictures a TIFF holds: its pages, less reduced-resolution ones (thumbnails, pyramid levels:
+    bit 0 of their NewSubfileType)."""
+    pages = reader.properties(index=..., page=...).n_images or 1
+    if pages == 1:
+        return 1
+    return sum(not int(reader.metadata(index=..., page=i).get("NewSubfileType", 0)) & 1 for i in range(pages))
+
+
+def _pillow_frames(reader: Any) -> int:
+    """How many frames a file open in imageio's Pillow plugin holds. A camera's JPEG often carries a preview or an
+    HDR gain map as a second, smaller picture (Pillow opens it as an MPO): only pictures of the first one's size
+    count."""
+    frames = reader.properties(index=...).n_images or 1
+    if frames == 1 or "mp" not in reader.metadata(index=0):
+        return frames
+    size = reader.properties(index=0).shape[:2]
+    return sum(reader.properties(index=i).shape[:2] == size for i in range(frames))
 
 
 _PLAIN_TIFF = (1, 2)
@@ -197,7 +250,11 @@ def _is_heif(uri: Path | bytes) -> bool:
     """Whether ``uri`` (a path or encoded bytes) is a HEIF file: by its suffix, or by its ``ftyp`` brand."""
     if isinstance(uri, Path):
         return uri.suffix.lower() in HEIF_SUFFIXES
-    return uri[4:8] == b"ftyp" and uri[8:12] in HEIF_BRANDS
+    if uri[4:8] != b"ftyp":
+        return False
+    end = min(int.from_bytes(uri[:4], "big"), len(uri))
+    brands = {uri[i : i + 4] for i in range(16, end - 3, 4)} | {uri[8:12]}
+    return uri[8:12] in HEIF_BRANDS and not brands & {b"avif", b"avis"}  # AVIF (mif1 too) is Pillow's
 
 
 def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.ndarray | None, int, tuple[int, int]]:
@@ -222,16 +279,18 @@ _HEIF_MODES = ("L", "RGB", "RGBA", "I;16", "I;16L")
 """pillow-heif's picture modes that convert to arrays as they are; others (BGR, LA) are converted to RGB(A)."""
 
 
-def header_shape(uri: Path | bytes) -> tuple[int, int, int]:
+def header_shape(uri: Path | bytes, source: str) -> tuple[int, int, int]:
     """``(C, H, W)`` of the picture :func:`decode` gives (before any ``channels`` conversion), from the file's
     header alone: no pixels decoded. Upright (EXIF orientation), palette, CMYK and grey + alpha counted as
     :func:`decode` converts them.
 
     Raises:
-        what the decoders raise for a file they cannot open (:data:`~torchfluidwarp.io._files.DECODE_ERRORS`),
-        ``ImportError`` for a HEIC file without pillow-heif.
+        InputError: a HEIC file without pillow-heif (``source`` names the file in the message).
+        whatever the decoders raise for a file they cannot open.
     """
     if _is_heif(uri):
+        if importlib.util.find_spec("pillow_heif") is None:
+            raise InputError(f"cannot read {source}: {HEIF_NEEDED}", argument="path")
         import pillow_heif
 
         heif = pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
@@ -244,13 +303,15 @@ def header_shape(uri: Path | bytes) -> tuple[int, int, int]:
             meta = reader.metadata(index=0, page=0)
             photometric = int(meta.get("PhotometricInterpretation", 1))
             channels = {0: 1, 3: 3, 5: 3}.get(photometric, int(meta.get("SamplesPerPixel", 1)))
+            turned = int(meta.get("Orientation", 1)) in (5, 6, 7, 8)  # Pillow reads it upright (_plain_tiff)
         else:
             shape = reader.properties(index=0).shape
             channels = shape[2] if len(shape) == 3 else 1
             mode = _pillow_options(file).get("mode") if isinstance(file, PillowPlugin) else None
             channels = {"RGB": 3, "RGBA": 4}.get(str(mode), channels)
-            if isinstance(file, PillowPlugin) and reader.metadata(index=0, exclude_applied=False).get(
+            turned = isinstance(file, PillowPlugin) and reader.metadata(index=0, exclude_applied=False).get(
                 "Orientation"
-            ) in (5, 6, 7, 8):  # stored turned a quarter: read upright
-                height, width = width, height
+            ) in (5, 6, 7, 8)
+    if turned:  # stored turned a quarter: read upright
+        height, width = width, height
     return (4 if channels == 2 else channels), height, width

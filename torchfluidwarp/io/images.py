@@ -27,7 +27,7 @@ from torchfluidwarp._checks import (
     describe,
 )
 from torchfluidwarp.errors import InputError, InputTypeError
-from torchfluidwarp.io._decode import HEIF_NEEDED, decode, header_shape
+from torchfluidwarp.io._decode import decode, header_shape
 from torchfluidwarp.io._files import (
     DECODE_ERRORS,
     PathLike,
@@ -274,13 +274,16 @@ def image_shape(path: PathLike) -> tuple[int, int, int]:
         why = "it is a folder, not a file" if path.is_dir() else "no such file"
         raise InputError(f"cannot read image {str(path)!r}: {why}", argument="path")
     try:
-        return header_shape(path)
-    except ImportError:
-        raise InputError(f"cannot read image {str(path)!r}: {HEIF_NEEDED}", argument="path") from None
-    except DECODE_ERRORS as exc:
+        shape = header_shape(path, f"image {str(path)!r}")
+    except (InputError, MemoryError):
+        raise
+    except Exception as exc:  # noqa: BLE001  (decoders raise ZeroDivisionError, IndexError ... on corrupt files)
         raise InputError(
             f"cannot read image {str(path)!r}: not a readable image ({first_line(exc)})", argument="path"
         ) from exc
+    if 0 in shape:
+        raise InputError(f"cannot read image {str(path)!r}: it holds no pixels (shape {shape})", argument="path")
+    return shape
 
 
 def shrunk_size(size: tuple[int, int], longest: int) -> tuple[int, int]:
