@@ -606,5 +606,5 @@ def test_an_avif_whose_major_brand_is_mif1_is_not_taken_for_heic(tmp_path, gen):
     data = bytearray((tmp_path / "x.avif").read_bytes())
     assert data[4:12] == b"ftypavif" and b"mif1" in data[16 : int.from_bytes(data[:4], "big")]
     data[8:12] = b"mif1"  # the major brand; "avif" stays among the compatible ones
-    assert not _decode._is_heif(bytes(data)) and not _decode._is_heif(tmp_path / "x.avif")
-    assert _decode._is_heif(b"\x00\x00\x00\x18ftypmif1\x00\x00\x00\x00mif1heic" + bytes(8))
+    assert not _decode._heif_brand(bytes(data)) and not _decode._heif_brand(tmp_path / "x.avif")
+    assert _decode._heif_brand(b"\x00\x00\x00\x18ftypmif1\x00\x00\x00\x00mif1heic" + bytes(8))

@@ -358,8 +358,9 @@ def _morph_pair(
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
     blending, size_a = options.blending, (a.shape[-2], a.shape[-1])
-    if blending.size is None and shrunk_size(size_a, options.max_size) != size_a:  # its longer side at max_size
-        blending = dataclasses.replace(blending, size=shrunk_size(size_a, options.max_size))
+    shrunk = shrunk_size(size_a, options.max_size)
+    if blending.size is None and shrunk != size_a:  # its longer side at max_size
+        blending = dataclasses.replace(blending, size=shrunk)
     height, width = size_a if blending.size is None else check_size("blending.size", blending.size)
     check_disk_space(target, options.frames, height, width, a.shape[1])
     with warnings.catch_warnings(record=True) as caught:

@@ -29,9 +29,7 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     """The first frame of an encoded image, ``(H, W)`` or ``(H, W, C)``; its header is checked first, and a file of
     more frames (an animated GIF, WebP or PNG, a multi-page TIFF) warns that the others were left out."""
     argument = "data" if isinstance(uri, bytes) else "path"
-    heif = _is_heif(uri)
-    if heif and importlib.util.find_spec("pillow_heif") is None:
-        raise InputError(f"cannot read {source}: {HEIF_NEEDED}", argument=argument)
+    heif = _is_heif(uri, source)
     try:
         if heif:
             array, frames, shape = _heif_frame(uri, source, max_pixels)
@@ -51,21 +49,31 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     except MemoryError:
         raise
     except Exception as exc:  # noqa: BLE001  (decoders raise ZeroDivisionError, IndexError ... on corrupt files)
-        raise InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument) from exc
+        raise _unreadable(source, argument, exc) from exc
     if array is None:
         raise InputError(
             f"cannot read {source}: its header claims {shape[1]} x {shape[0]} = {shape[0] * shape[1]:,} pixels, "
             f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
             argument=argument,
         )
-    if array.size == 0:  # a header that says 0 pixels wide or high: nothing to morph
-        raise InputError(f"cannot read {source}: it holds no pixels (shape {array.shape})", argument=argument)
+    _check_pixels(array.shape, source, argument)
     if frames > 1:  # an animation or a multi-page file: say what was left out
         warn(
             f"{source} holds {frames} frames (an animation or a multi-page file): only its first was read; to use "
             f"another, save that frame as a picture of its own"
         )
     return array
+
+
+def _unreadable(source: str, argument: str, exc: BaseException) -> InputError:
+    """The error for a file that a decoder failed on, naming the file and the decoder's reason."""
+    return InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument)
+
+
+def _check_pixels(shape: tuple[int, ...], source: str, argument: str) -> None:
+    """Refuse a picture of ``shape`` with no pixels (a header that says 0 pixels wide or high)."""
+    if 0 in shape:
+        raise InputError(f"cannot read {source}: it holds no pixels (shape {tuple(shape)})", argument=argument)
 
 
 def _by_tifffile(file: object) -> bool:
@@ -77,14 +85,14 @@ def _by_tifffile(file: object) -> bool:
 def _by_pillow(uri: Path | bytes, source: str) -> np.ndarray:
     """The first frame of an image file, read by imageio's Pillow plugin (:func:`_pillow_frame`)."""
     with iio.imopen(uri, "r", plugin="pillow") as pillow:
-        return _pillow_frame(pillow, source)
+        return _pillow_frame(pillow, pillow.metadata(index=0), source)
 
 
-def _pillow_frame(file: Any, source: str) -> np.ndarray:
-    """The first frame of a file open in imageio's Pillow plugin, as :func:`_pillow_options` says, its colours in
-    sRGB (:func:`_in_srgb`)."""
-    array = file.read(index=0, **_pillow_options(file))
-    icc = file.metadata(index=0).get("icc_profile")
+def _pillow_frame(file: Any, meta: dict[str, Any], source: str) -> np.ndarray:
+    """The first frame of a file open in imageio's Pillow plugin (its first frame's metadata ``meta``), as
+    :func:`_pillow_options` says, its colours in sRGB (:func:`_in_srgb`)."""
+    array = file.read(index=0, **_pillow_options(meta))
+    icc = meta.get("icc_profile")
     return _in_srgb(array, icc, source) if icc else array
 
 
@@ -175,7 +183,8 @@ def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray,
                     raise exc from None
         return _by_pillow(uri, source), pages
     if isinstance(file, PillowPlugin):
-        return _pillow_frame(file, source), _pillow_frames(reader)
+        meta = reader.metadata(index=0)
+        return _pillow_frame(file, meta, source), _pillow_frames(reader, meta)
     return reader.read(index=0), 1
 
 
@@ -202,12 +211,12 @@ def _tiff_pages(reader: Any) -> int:
     return sum(not int(reader.metadata(index=..., page=i).get("NewSubfileType", 0)) & 1 for i in range(pages))
 
 
-def _pillow_frames(reader: Any) -> int:
-    """How many frames a file open in imageio's Pillow plugin holds. A camera's JPEG often carries a preview or an
-    HDR gain map as a second, smaller picture (Pillow opens it as an MPO): only pictures of the first one's size
-    count."""
+def _pillow_frames(reader: Any, meta: dict[str, Any]) -> int:
+    """How many frames a file open in imageio's Pillow plugin holds (its first frame's metadata ``meta``). A
+    camera's JPEG often carries a preview or an HDR gain map as a second, smaller picture (Pillow opens it as an
+    MPO): only pictures of the first one's size count."""
     frames = reader.properties(index=...).n_images or 1
-    if frames == 1 or "mp" not in reader.metadata(index=0):
+    if frames == 1 or "mp" not in meta:
         return frames
     size = reader.properties(index=0).shape[:2]
     return sum(reader.properties(index=i).shape[:2] == size for i in range(frames))
@@ -217,14 +226,11 @@ _PLAIN_TIFF = (1, 2)
 """TIFF photometric interpretations whose samples tifffile gives as the picture: grey (black is zero) and RGB."""
 
 
-def _pillow_options(file: object) -> dict[str, str | bool]:
-    """How Pillow reads the file as a person sees it: upright, as its EXIF orientation says (a phone's portrait is
-    stored sideways with a tag that every viewer follows), and in modes whose raw values would be misread: CMYK
-    (4 channels, not RGBA) as RGB, and a palette image with a transparent colour as RGBA (imageio would drop its
-    alpha)."""
-    if not isinstance(file, PillowPlugin):
-        return {}
-    meta = file.metadata(index=0)
+def _pillow_options(meta: dict[str, Any]) -> dict[str, str | bool]:
+    """How Pillow reads a file (its first frame's metadata ``meta`` in imageio's Pillow plugin) as a person sees
+    it: upright, as its EXIF orientation says (a phone's portrait is stored sideways with a tag that every viewer
+    follows), and in modes whose raw values would be misread: CMYK (4 channels, not RGBA) as RGB, and a palette
+    image with a transparent colour as RGBA (imageio would drop its alpha)."""
     mode = meta.get("mode")
     if mode == "CMYK":
         return {"rotate": True, "mode": "RGB"}
@@ -246,7 +252,16 @@ HEIF_NEEDED = (
 """What a HEIC file without pillow-heif is refused with."""
 
 
-def _is_heif(uri: Path | bytes) -> bool:
+def _is_heif(uri: Path | bytes, source: str) -> bool:
+    """Whether ``uri`` (a path or encoded bytes) is a HEIF file (:func:`_heif_brand`); one is refused, naming
+    ``source``, where pillow-heif is not installed."""
+    heif = _heif_brand(uri)
+    if heif and importlib.util.find_spec("pillow_heif") is None:
+        raise InputError(f"cannot read {source}: {HEIF_NEEDED}", argument="data" if isinstance(uri, bytes) else "path")
+    return heif
+
+
+def _heif_brand(uri: Path | bytes) -> bool:
     """Whether ``uri`` (a path or encoded bytes) is a HEIF file: by its suffix, or by its ``ftyp`` brand."""
     if isinstance(uri, Path):
         return uri.suffix.lower() in HEIF_SUFFIXES
@@ -261,9 +276,7 @@ def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.nda
     """A HEIF file's primary picture read by pillow-heif (upright: libheif applies the file's rotation and mirror),
     its colours in sRGB (:func:`_in_srgb`), 10- and 12-bit pictures at 8 bits; how many pictures it holds; and its
     ``(H, W)``. ``None`` instead of the pixels where ``(H, W)`` passes ``max_pixels`` (nothing decoded)."""
-    import pillow_heif  # the optional extra "heic": checked by the caller
-
-    heif = pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
+    heif = _open_heif(uri)
     width, height = heif.size
     if width * height > max_pixels:
         return None, len(heif), (height, width)
@@ -273,6 +286,13 @@ def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.nda
     )
     icc = picture.info.get("icc_profile")
     return (_in_srgb(array, icc, source) if icc else array), len(heif), (height, width)
+
+
+def _open_heif(uri: Path | bytes) -> Any:
+    """``uri`` opened by pillow-heif (the optional extra "heic", checked by :func:`_is_heif`); nothing decoded."""
+    import pillow_heif
+
+    return pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
 
 
 _HEIF_MODES = ("L", "RGB", "RGBA", "I;16", "I;16L")
@@ -285,17 +305,30 @@ def header_shape(uri: Path | bytes, source: str) -> tuple[int, int, int]:
     :func:`decode` converts them.
 
     Raises:
-        InputError: a HEIC file without pillow-heif (``source`` names the file in the message).
-        whatever the decoders raise for a file they cannot open.
+        InputError: a file that cannot be read, holds no pixels, or is a HEIC without pillow-heif (``source`` names
+            it in the message).
     """
-    if _is_heif(uri):
-        if importlib.util.find_spec("pillow_heif") is None:
-            raise InputError(f"cannot read {source}: {HEIF_NEEDED}", argument="path")
-        import pillow_heif
+    argument = "data" if isinstance(uri, bytes) else "path"
+    heif = _is_heif(uri, source)
+    try:
+        channels, height, width = _heif_shape(uri) if heif else _imageio_shape(uri)
+    except MemoryError:
+        raise
+    except Exception as exc:  # noqa: BLE001  (decoders raise ZeroDivisionError, IndexError ... on corrupt files)
+        raise _unreadable(source, argument, exc) from exc
+    _check_pixels((channels, height, width), source, argument)
+    return channels, height, width
 
-        heif = pillow_heif.open_heif(uri if isinstance(uri, Path) else io.BytesIO(uri))
-        (width, height), mode = heif.size, heif.mode
-        return (4 if "A" in mode else 1 if mode in ("L", "I;16", "I;16L") else 3), height, width
+
+def _heif_shape(uri: Path | bytes) -> tuple[int, int, int]:
+    """:func:`header_shape` of a HEIF file."""
+    heif = _open_heif(uri)
+    (width, height), mode = heif.size, heif.mode
+    return (4 if "A" in mode else 1 if mode in ("L", "I;16", "I;16L") else 3), height, width
+
+
+def _imageio_shape(uri: Path | bytes) -> tuple[int, int, int]:
+    """:func:`header_shape` of a file that imageio opens."""
     with iio.imopen(uri, "r") as file:
         height, width = _header_size(file)
         reader: Any = file
@@ -307,11 +340,11 @@ def header_shape(uri: Path | bytes, source: str) -> tuple[int, int, int]:
         else:
             shape = reader.properties(index=0).shape
             channels = shape[2] if len(shape) == 3 else 1
-            mode = _pillow_options(file).get("mode") if isinstance(file, PillowPlugin) else None
-            channels = {"RGB": 3, "RGBA": 4}.get(str(mode), channels)
-            turned = isinstance(file, PillowPlugin) and reader.metadata(index=0, exclude_applied=False).get(
-                "Orientation"
-            ) in (5, 6, 7, 8)
+            turned = False
+            if isinstance(file, PillowPlugin):
+                meta = reader.metadata(index=0, exclude_applied=False)
+                channels = {"RGB": 3, "RGBA": 4}.get(str(_pillow_options(meta).get("mode")), channels)
+                turned = meta.get("Orientation") in (5, 6, 7, 8)
     if turned:  # stored turned a quarter: read upright
         height, width = width, height
     return (4 if channels == 2 else channels), height, width

@@ -106,13 +106,8 @@ def read_image(
         >>> read_image(path, channels=3).shape
         torch.Size([1, 3, 4, 6])
     """
-    path = check_path("path", path)
+    path, source = _image_file(path)
     _check_image_options(channels, dtype, max_pixels)
-    if path.is_dir():
-        raise InputError(f"cannot read image {str(path)!r}: it is a folder, not a file", argument="path")
-    if not path.is_file():
-        raise InputError(f"cannot read image {str(path)!r}: no such file", argument="path")
-    source = f"image {str(path)!r}"
     return _tensor_from_array(decode(path, source, max_pixels), source, channels, dtype)
 
 
@@ -269,21 +264,18 @@ def image_shape(path: PathLike) -> tuple[int, int, int]:
         >>> image_shape(path)
         (1, 4, 6)
     """
+    path, source = _image_file(path)
+    return header_shape(path, source)
+
+
+def _image_file(path: PathLike) -> tuple[Path, str]:
+    """``path`` checked to be an existing file, and how errors name it (``"image 'a.png'"``)."""
     path = check_path("path", path)
+    if path.is_dir():
+        raise InputError(f"cannot read image {str(path)!r}: it is a folder, not a file", argument="path")
     if not path.is_file():
-        why = "it is a folder, not a file" if path.is_dir() else "no such file"
-        raise InputError(f"cannot read image {str(path)!r}: {why}", argument="path")
-    try:
-        shape = header_shape(path, f"image {str(path)!r}")
-    except (InputError, MemoryError):
-        raise
-    except Exception as exc:  # noqa: BLE001  (decoders raise ZeroDivisionError, IndexError ... on corrupt files)
-        raise InputError(
-            f"cannot read image {str(path)!r}: not a readable image ({first_line(exc)})", argument="path"
-        ) from exc
-    if 0 in shape:
-        raise InputError(f"cannot read image {str(path)!r}: it holds no pixels (shape {shape})", argument="path")
-    return shape
+        raise InputError(f"cannot read image {str(path)!r}: no such file", argument="path")
+    return path, f"image {str(path)!r}"
 
 
 def shrunk_size(size: tuple[int, int], longest: int) -> tuple[int, int]:
