@@ -112,8 +112,11 @@ def test_max_size_shrinks_each_pairs_animation_as_a_single_morph_is_shrunk(tmp_p
     # option; PNG frames keep A's size; the batch's projection counts the shrunk frames
     pairs = make_pairs(tmp_path, gen, n=1, bad=False)
     morph_pairs(pairs, tmp_path / "out", progress=False, max_size=18, **OPTIONS)
-    assert planned_work(pairs, tmp_path / "new", max_size=18)[0][1] == (3, 16, 18)
-    assert planned_work(pairs, tmp_path / "new", fmt="png", max_size=18)[0][1] == (3, 32, 36)
+    assert planned_work(pairs, tmp_path / "new", max_size=18)[0][1:] == ((3, 16, 18), True)
+    assert planned_work(pairs, tmp_path / "new", fmt="png", max_size=18)[0][1:] == ((3, 32, 36), False)
+    # blending.size (--size) sets every pair's frames, whatever max_size says
+    assert planned_work(pairs, tmp_path / "new", max_size=18, size=(20, 24))[0][1:] == ((3, 20, 24), False)
+    assert planned_work(pairs, tmp_path / "new", size=40)[0].shape == (3, 40, 40)
     data = tmp_path / "data"
     single = tmp_path / "single.gif"
     argv = ["morph", str(data / "a0.png"), str(data / "b0.png"), "--points-a", str(data / "a0.pts")]
@@ -143,6 +146,8 @@ def test_max_size_shrinks_each_pairs_animation_as_a_single_morph_is_shrunk(tmp_p
         morph_pairs(pairs, tmp_path / "out", progress=False, max_size=-1, **OPTIONS)
     with pytest.raises(ValueError, match="max_size"):
         planned_work(pairs, tmp_path / "out", max_size=-1)
+    with pytest.raises(ValueError, match="size"):
+        planned_work(pairs, tmp_path / "out", size=(0, 4))
 
 
 def test_the_command_line_says_how_many_pairs_max_size_shrinks(tmp_path, gen, capsys):
@@ -176,8 +181,7 @@ def test_a_batch_projected_past_max_minutes_is_refused_before_any_pair_and_a_rer
     capsys.readouterr()
     # a rerun counts only the pairs it will morph: one left is within the limit, both again (--overwrite) are not
     (out / "pair1.gif").unlink()
-    assert [target for target, _ in planned_work(pairs, out)] == [f"{out / 'pair1'}.gif"]
-    assert planned_work(pairs, out)[0][1] == (3, 32, 36)  # A's (C, H, W), from its file's header
+    assert planned_work(pairs, out) == [(f"{out / 'pair1'}.gif", (3, 32, 36), False)]  # A's (C, H, W), its header
     assert main([*argv, *limit]) == EXIT_OK
     assert "1 morphed, 1 skipped" in capsys.readouterr().err
     assert main([*argv, *limit, "--overwrite"]) == EXIT_BAD_INPUT

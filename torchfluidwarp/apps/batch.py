@@ -38,7 +38,7 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import torch
 from torch import Tensor
@@ -65,6 +65,7 @@ __all__ = [
     "read_pairs",
     "morph_pairs",
     "planned_work",
+    "PlannedOutput",
     "stream_frames",
     "returning_memory",
     "STREAM_BYTES",
@@ -228,7 +229,7 @@ def morph_pairs(
             "blending.region must be 'points' or None for a batch: one pair of masks cannot serve every pair"
         )
     check_int("max_size", max_size, minimum=0)
-    options = _MorphOptions(settings, frames, timing, blending, max_memory, 0 if fmt == "png" else max_size)
+    options = _MorphOptions(settings, frames, timing, blending, max_memory, _animation_limit(fmt, max_size))
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise InputError(FFMPEG_HINT)
     rank, world_size = _ranks(rank, world_size)
@@ -273,6 +274,20 @@ def morph_pairs(
     return report
 
 
+class PlannedOutput(NamedTuple):
+    """One output :func:`morph_pairs` would write (:func:`planned_work`).
+
+    Attributes:
+        output: its path (a GIF or MP4 file, or a folder of PNG frames ending in ``/``).
+        shape: its frames' ``(C, H, W)``: image A's channels, at ``size`` or A's size shrunk to ``max_size``.
+        shrunk: whether ``max_size`` shrank A's size (``shape`` is then smaller than A).
+    """
+
+    output: str
+    shape: tuple[int, int, int]
+    shrunk: bool
+
+
 def planned_work(
     pairs: str | os.PathLike[str],
     out: str | os.PathLike[str],
@@ -282,10 +297,11 @@ def planned_work(
     rank: int | None = None,
     world_size: int | None = None,
     max_size: int = 0,
-) -> list[tuple[str, tuple[int, int, int]]]:
-    """What :func:`morph_pairs` with the same arguments would write: ``(output, (C, H, W))`` for each pair it would
-    morph, the frames' shape being image A's (the canvas), read from its file's header (no pixels are decoded),
-    shrunk to ``max_size`` as :func:`morph_pairs` shrinks it.
+    size: tuple[int, int] | None = None,
+) -> list[PlannedOutput]:
+    """What :func:`morph_pairs` with the same arguments would write: a :class:`PlannedOutput` for each pair it
+    would morph, its frames' shape read from image A's file header (no pixels are decoded), at ``size``
+    (``blending.size``) or shrunk to ``max_size`` as :func:`morph_pairs` does.
 
     This process's share of the CSV's good rows, less those a rerun skips (their output exists and not
     ``overwrite``), less those whose image A cannot be read (they fail when their turn comes, with the reason).
@@ -293,17 +309,31 @@ def planned_work(
 
     Raises:
         OSError: the CSV cannot be read.
-        ValueError: a bad ``rank`` or ``world_size``.
+        ValueError: a bad ``rank``, ``world_size``, ``max_size`` or ``size``.
     """
     check_int("max_size", max_size, minimum=0)
+    if size is not None:
+        size = check_size("size", size)
     rank, world_size = _ranks(rank, world_size)
     rows, _ = read_pairs(pairs)
     work = []
     for pair, target, done in _plan(rows, Path(out), fmt, overwrite, rank, world_size):
         shape = None if done else _frame_shape(pair.image_a)
         if shape is not None:
-            work.append((target, (shape[0], *shrunk_size(shape[1:], 0 if fmt == "png" else max_size))))
+            frames = _frames_size(shape[1:], size, _animation_limit(fmt, max_size))
+            work.append(PlannedOutput(target, (shape[0], *frames), size is None and frames != shape[1:]))
     return work
+
+
+def _animation_limit(fmt: str, max_size: int) -> int:
+    """The ``max_size`` that applies to a batch's outputs: GIFs and MP4s are shrunk, PNG frames keep A's size."""
+    return 0 if fmt == "png" else max_size
+
+
+def _frames_size(size_a: tuple[int, int], size: tuple[int, int] | None, max_size: int) -> tuple[int, int]:
+    """A pair's frames' ``(H, W)``: ``size`` (``blending.size``) when given, else A's ``size_a`` shrunk so that its
+    longer side is at most ``max_size`` (0: kept)."""
+    return shrunk_size(size_a, max_size) if size is None else size
 
 
 def _ranks(rank: int | None, world_size: int | None) -> tuple[int, int]:
@@ -357,11 +387,11 @@ def _morph_pair(
     b = read_image(pair.image_b).to(device)
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
-    blending, size_a = options.blending, (a.shape[-2], a.shape[-1])
-    shrunk = shrunk_size(size_a, options.max_size)
-    if blending.size is None and shrunk != size_a:  # its longer side at max_size
-        blending = dataclasses.replace(blending, size=shrunk)
-    height, width = size_a if blending.size is None else check_size("blending.size", blending.size)
+    blending = options.blending
+    size = None if blending.size is None else check_size("blending.size", blending.size)
+    height, width = _frames_size((a.shape[-2], a.shape[-1]), size, options.max_size)
+    if blending.size is None and (height, width) != tuple(a.shape[-2:]):  # its longer side at max_size
+        blending = dataclasses.replace(blending, size=(height, width))
     check_disk_space(target, options.frames, height, width, a.shape[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -309,20 +309,18 @@ def _run_pairs(args: argparse.Namespace) -> int:
     if not args.output:
         raise InputError("--pairs needs --out DIR/, the folder for the outputs")
     # the whole batch's work, before any pair is morphed: the pairs a rerun skips add none
-    work = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite, max_size=args.max_size)
-    size = output_size(args)
-    if size is not None:  # every pair's frames at --size
-        work = [(target, (shape[0], *size)) for target, shape in work]
-    check_batch_work(args, work, args.frames, args.output)
-    if size is None and args.max_size and not args.quiet:  # the pairs whose frames --max-size shrinks, said once
-        whole = planned_work(args.pairs, args.output, fmt=args.format, overwrite=args.overwrite)
-        shrunk = sum(shape != kept for (_, shape), (_, kept) in zip(work, whole))
-        if shrunk:
-            print(
-                f"{PROG} morph: {shrunk} of the {len(work)} pairs' animations are written with their longer side at "
-                f"--max-size {args.max_size} (their figures are in those pixels); --max-size 0 keeps their sizes",
-                file=sys.stderr,
-            )
+    size = output_size(args)  # every pair's frames at --size, or A's shrunk to --max-size
+    work = planned_work(
+        args.pairs, args.output, fmt=args.format, overwrite=args.overwrite, max_size=args.max_size, size=size
+    )
+    check_batch_work(args, [(planned.output, planned.shape) for planned in work], args.frames, args.output)
+    shrunk = sum(planned.shrunk for planned in work)
+    if shrunk and not args.quiet:  # the pairs whose frames --max-size shrinks, said once
+        print(
+            f"{PROG} morph: {shrunk} of the {len(work)} pairs' animations are written with their longer side at "
+            f"--max-size {args.max_size} (their figures are in those pixels); --max-size 0 keeps their sizes",
+            file=sys.stderr,
+        )
     timing, blending = result_options(args)
     report = morph_pairs(
         args.pairs,
