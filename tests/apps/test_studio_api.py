@@ -104,10 +104,26 @@ def test_non_image_then_valid_upload(client):
     r = client.put("/api/image/b?name=notes.txt", content=b"not an image at all", headers=AUTH)
     assert r.status_code == 400
     message = r.json()["error"]
-    assert "notes.txt" in message and "\n" not in message
+    assert "notes.txt" in message and "not a readable image" in message and "\n" not in message
     r = client.put("/api/image/b?name=b.png", content=png_bytes(3), headers=AUTH)
     assert r.status_code == 200
     assert r.json()["images"]["b"]["width"] == 64
+
+
+def test_an_upload_the_reader_warns_of_says_so(client):
+    # an animated GIF: its first frame is the image, and the response carries the reader's warning, naming the
+    # upload, for the page to show; a plain picture carries none
+    rng = np.random.default_rng(5)
+    frames = [Image.fromarray((rng.random((40, 48, 3)) * 255).astype(np.uint8)) for _ in range(3)]
+    buf = io.BytesIO()
+    frames[0].save(buf, "GIF", save_all=True, append_images=frames[1:])
+    r = client.put("/api/image/b?name=clip.gif", content=buf.getvalue(), headers=AUTH)
+    assert r.status_code == 200
+    assert r.json()["images"]["b"]["width"] == 48 and r.json()["images"]["b"]["height"] == 40
+    (said,) = r.json()["warnings"]
+    assert "'clip.gif' holds 3 frames" in said and "only its first was read" in said
+    r = client.put("/api/image/b?name=b.png", content=png_bytes(3), headers=AUTH)
+    assert r.json()["warnings"] == []
 
 
 @pytest.mark.parametrize(

@@ -182,6 +182,14 @@ def test_points_preview_export_and_errors(browser, studio, tmp_path, dpr):
         page.wait_for_selector("#error:not([hidden])")
         assert "notes.png" in page.inner_text("#error")
         assert content_box(page, "#canvas-a") == box_before
+        # an animated GIF: its first frame is loaded, and the page shows what the reader warned of
+        frames = [Image.open(pattern_png(tmp_path / f"f{i}.png", 4 + i)).convert("RGB") for i in range(3)]
+        frames[0].save(tmp_path / "clip.gif", save_all=True, append_images=frames[1:])
+        version = server_state(base)["images"]["b"]["version"]
+        page.set_input_files("#file-b", str(tmp_path / "clip.gif"))
+        page.wait_for_function(f"() => window.studio.images.b && window.studio.images.b.version > {version}")
+        page.wait_for_selector("#error:not([hidden])")
+        assert "'clip.gif' holds 3 frames" in page.inner_text("#error")
         version = server_state(base)["images"]["b"]["version"]
         page.set_input_files("#file-b", str(pattern_png(tmp_path / "b2.png", 3)))
         page.wait_for_function(f"() => window.studio.images.b && window.studio.images.b.version > {version}")

@@ -133,6 +133,8 @@ def test_a_file_of_several_frames_gives_its_first_and_says_how_many(tmp_path, ge
         assert errors[0] < 0.05 < min(errors[1:])
     with pytest.warns(UserWarning, match="image bytes .* holds 3 frames"):
         read_image_bytes((tmp_path / name).read_bytes())
+    with pytest.warns(UserWarning, match="image 'upload' holds 3 frames"):  # an upload's name, as the studio's
+        read_image_bytes((tmp_path / name).read_bytes(), name="upload")
 
 
 @pytest.mark.parametrize("name", ["one.gif", "one.png", "one.tif", "one.webp", "one.jpg"])
@@ -228,6 +230,10 @@ def test_read_image_errors_name_the_path(tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="image bytes"):
         read_image_bytes(b"garbage")
+    with pytest.raises(ValueError, match="image 'notes.txt'.*not a readable image"):
+        read_image_bytes(b"garbage", name="notes.txt")
+    with pytest.raises(TypeError, match="name must be a str"):
+        read_image_bytes(b"garbage", name=3)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="channels"):
         read_image(junk, channels=2)
 

@@ -117,6 +117,7 @@ def read_image_bytes(
     channels: int | None = None,
     dtype: torch.dtype = torch.float32,
     max_pixels: int = MAX_IMAGE_PIXELS,
+    name: str | None = None,
 ) -> Tensor:
     """Decode an encoded image (the bytes of a PNG, JPEG, ... file, e.g. an upload).
 
@@ -125,6 +126,8 @@ def read_image_bytes(
         channels: as in :func:`read_image`.
         dtype: as in :func:`read_image`.
         max_pixels: as in :func:`read_image`.
+        name: what errors and warnings call the data (an upload's file name, as ``image 'name'``); by default
+            ``image bytes (N bytes)``.
 
     Returns:
         ``(1, C, H, W)`` tensor with values in ``[0, 1]``.
@@ -137,7 +140,9 @@ def read_image_bytes(
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise InputTypeError(f"data must be bytes, got {describe(data)}", argument="data")
     _check_image_options(channels, dtype, max_pixels)
-    source = f"image bytes ({len(data)} bytes)"
+    if name is not None and not isinstance(name, str):
+        raise InputTypeError(f"name must be a str or None, got {describe(name)}", argument="name")
+    source = f"image bytes ({len(data)} bytes)" if name is None else f"image {name!r}"
     return _tensor_from_array(decode(bytes(data), source, max_pixels), source, channels, dtype, "data")
 
 

@@ -8,6 +8,7 @@ keeps serving. The morph and animate handlers live in :mod:`~torchfluidwarp.apps
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Awaitable, Callable
 from importlib import resources
 from pathlib import Path
@@ -15,6 +16,7 @@ from pathlib import Path
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
+from torch import Tensor
 
 from torchfluidwarp.apps.studio import previews
 from torchfluidwarp.apps.studio.guard import error_response
@@ -68,13 +70,22 @@ async def put_image(session: Session, request: Request) -> Response:
     if not data:
         raise BadInput("the upload is empty")
     try:
-        img = await in_thread(lambda: read_image_bytes(data, channels=3))
-    except InputError:
-        raise BadInput(f"{name!r} is not an image that can be read (PNG, JPEG, ...)") from None
+        img, said = await in_thread(lambda: _read_upload(data, name))
+    except InputError as exc:  # the reader's reason: not an image, a HEIC without pillow-heif, too many pixels
+        raise BadInput(str(exc)) from None
     if min(img.shape[-2:]) < 8:
         raise BadInput(f"{name!r} is too small ({img.shape[-1]}x{img.shape[-2]} pixels; at least 8x8)")
     session.set_image(slot, img, name)
-    return JSONResponse(session.describe())
+    return JSONResponse({**session.describe(), "warnings": said})
+
+
+def _read_upload(data: bytes, name: str) -> tuple[Tensor, list[str]]:
+    """An upload as ``(1, 3, H, W)``, with what the reader warned of (only the first frame of an animation was
+    read, a colour profile that could not be applied) for the page to show."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        img = read_image_bytes(data, channels=3, name=name)
+    return img, [str(w.message) for w in caught if issubclass(w.category, UserWarning)]
 
 
 async def get_image(session: Session, request: Request) -> Response:

@@ -526,7 +526,7 @@
     showError('');
     status(`loading ${file.name} …`);
     try {
-      await api(`api/image/${side}`, { method: 'PUT', body: file, params: { name: file.name } });
+      const loaded = await api(`api/image/${side}`, { method: 'PUT', body: file, params: { name: file.name } });
       await refreshImages();
       // points belong to the image they were placed on
       morphHistory.push();
@@ -535,6 +535,8 @@
       paneM.render();
       pointsChanged();
       status(`loaded ${file.name}`);
+      // what the reader warned of (an animation's first frame only, a colour profile not applied) stays shown
+      if (loaded.warnings && loaded.warnings.length) showError(loaded.warnings.join(' '));
     } catch (err) { status(''); report(err); }
   }
 
