@@ -92,19 +92,35 @@ def test_channel_conversions(tmp_path, gen):
         (7, lambda a: a[::-1, ::-1].transpose(1, 0, 2)),  # mirrored about the other diagonal
     ],
 )
-def test_a_photograph_reads_upright_as_its_exif_orientation_says(tmp_path, gen, orientation, upright):
+@pytest.mark.parametrize("kind", ["rgb", "grey", "palette", "palette with a transparent colour"])
+def test_a_photograph_reads_upright_as_its_exif_orientation_says(tmp_path, gen, orientation, upright, kind):
     # every viewer shows a picture as its EXIF orientation tag says; read as stored, a phone's portrait would come
-    # out sideways (its faces unfound, its marks on the wrong pixels)
-    stored = (torch.rand(6, 10, 3, generator=gen) * 255).round().to(torch.uint8).numpy()
+    # out sideways (its faces unfound, its marks on the wrong pixels). A palette picture is turned as its colours
+    # (imageio's own turn mirrored its colour channels instead of its columns: orientations 2, 4, 5 and 7)
     exif = Image.Exif()
     exif[0x0112] = orientation
     path = tmp_path / "photo.png"
-    Image.fromarray(stored).save(path, exif=exif)
+    if kind.startswith("palette"):
+        colours = (torch.rand(8, 3, generator=gen) * 255).round().to(torch.uint8).numpy()
+        index = torch.randint(0, 8, (6, 10), generator=gen).to(torch.uint8).numpy()
+        picture = Image.fromarray(index, mode="P")
+        picture.putpalette(colours.tobytes())
+        stored = colours[index]
+        options = {"transparency": 3} if kind.endswith("colour") else {}
+        if options:
+            stored = np.concatenate([stored, np.where(index == 3, 0, 255).astype(np.uint8)[..., None]], -1)
+        picture.save(path, exif=exif, **options)
+    else:
+        shape = (6, 10, 3) if kind == "rgb" else (6, 10)
+        stored = (torch.rand(shape, generator=gen) * 255).round().to(torch.uint8).numpy()
+        Image.fromarray(stored).save(path, exif=exif)
     image = read_image(path)
-    want = torch.from_numpy(np.ascontiguousarray(upright(stored))).permute(2, 0, 1)[None].float() / 255
+    turned = np.ascontiguousarray(upright(stored if stored.ndim == 3 else stored[..., None]))
+    want = torch.from_numpy(turned).permute(2, 0, 1)[None].float() / 255
     assert image.shape == want.shape
     torch.testing.assert_close(image, want, atol=0, rtol=0)
     torch.testing.assert_close(read_image_bytes(path.read_bytes()), want, atol=0, rtol=0)
+    assert image_shape(path) == tuple(want.shape[1:])
 
 
 def test_gray_alpha_png_reads_as_rgba(tmp_path):

@@ -89,11 +89,34 @@ def _by_pillow(uri: Path | bytes, source: str) -> np.ndarray:
 
 
 def _pillow_frame(file: Any, meta: dict[str, Any], source: str) -> np.ndarray:
-    """The first frame of a file open in imageio's Pillow plugin (its first frame's metadata ``meta``), as
-    :func:`_pillow_options` says, its colours in sRGB (:func:`_in_srgb`)."""
-    array = file.read(index=0, **_pillow_options(meta))
+    """The first frame of a file open in imageio's Pillow plugin (its first frame's metadata ``meta``), in the mode
+    :func:`_pillow_options` says, upright as its EXIF orientation says (:func:`_upright`), its colours in sRGB
+    (:func:`_in_srgb`). The orientation is read once the pixels are: Pillow turns a TIFF upright as it decodes it,
+    and then drops the tag."""
+    array = file.read(index=0, rotate=False, **_pillow_options(meta))
+    array = _upright(array, file.metadata(index=0, exclude_applied=False).get("Orientation", 1))
     icc = meta.get("icc_profile")
     return _in_srgb(array, icc, source) if icc else array
+
+
+_UPRIGHT = {  # EXIF orientation -> the turn that shows the stored pixels ``(H, W, ...)`` upright
+    2: lambda a: np.flip(a, 1),
+    3: lambda a: np.rot90(a, 2),
+    4: lambda a: np.flip(a, 0),
+    5: lambda a: np.flip(np.rot90(a, 3), 1),
+    6: lambda a: np.rot90(a, 3),
+    7: lambda a: np.flip(np.rot90(a, 1), 1),
+    8: lambda a: np.rot90(a, 1),
+}
+
+
+def _upright(array: np.ndarray, orientation: object) -> np.ndarray:
+    """Pixels ``(H, W)`` or ``(H, W, C)`` stored with the EXIF ``orientation`` (1-8; anything else: as stored) as a
+    viewer shows them: a phone's portrait is stored sideways with a tag that every viewer follows. (imageio's own
+    ``rotate=True`` mirrors a palette picture's colour channels instead of its columns: it picks the axes by the
+    stored mode's one band, after converting the pixels to RGB.)"""
+    turn = _UPRIGHT.get(orientation) if isinstance(orientation, int) else None
+    return array if turn is None else np.ascontiguousarray(turn(array))
 
 
 def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
@@ -226,17 +249,16 @@ _PLAIN_TIFF = (1, 2)
 """TIFF photometric interpretations whose samples tifffile gives as the picture: grey (black is zero) and RGB."""
 
 
-def _pillow_options(meta: dict[str, Any]) -> dict[str, str | bool]:
-    """How Pillow reads a file (its first frame's metadata ``meta`` in imageio's Pillow plugin) as a person sees
-    it: upright, as its EXIF orientation says (a phone's portrait is stored sideways with a tag that every viewer
-    follows), and in modes whose raw values would be misread: CMYK (4 channels, not RGBA) as RGB, and a palette
-    image with a transparent colour as RGBA (imageio would drop its alpha)."""
+def _pillow_options(meta: dict[str, Any]) -> dict[str, str]:
+    """The mode in which Pillow reads a file (its first frame's metadata ``meta`` in imageio's Pillow plugin) where
+    its raw values would be misread: CMYK (4 channels, not RGBA) as RGB, and a palette image with a transparent
+    colour as RGBA (imageio would drop its alpha)."""
     mode = meta.get("mode")
     if mode == "CMYK":
-        return {"rotate": True, "mode": "RGB"}
+        return {"mode": "RGB"}
     if mode == "PA" or (mode == "P" and "transparency" in meta):
-        return {"rotate": True, "mode": "RGBA"}
-    return {"rotate": True}
+        return {"mode": "RGBA"}
+    return {}
 
 
 HEIF_BRANDS = frozenset({b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b"msf1"})
