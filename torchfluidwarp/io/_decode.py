@@ -20,6 +20,7 @@ from PIL import Image
 
 from torchfluidwarp._checks import warn
 from torchfluidwarp.errors import InputError
+from torchfluidwarp.io._colour import in_srgb, nclx_in_srgb
 from torchfluidwarp.io._files import DECODE_ERRORS, first_line
 
 _BOMB_PIXELS = re.compile(r"\((\d+) pixels\)")
@@ -91,12 +92,13 @@ def _by_pillow(uri: Path | bytes, source: str) -> np.ndarray:
 def _pillow_frame(file: Any, meta: dict[str, Any], source: str) -> np.ndarray:
     """The first frame of a file open in imageio's Pillow plugin (its first frame's metadata ``meta``), in the mode
     :func:`_pillow_options` says, upright as its EXIF orientation says (:func:`_upright`), its colours in sRGB
-    (:func:`_in_srgb`). The orientation is read once the pixels are: Pillow turns a TIFF upright as it decodes it,
-    and then drops the tag."""
-    array = file.read(index=0, rotate=False, **_pillow_options(meta))
-    array = _upright(array, file.metadata(index=0, exclude_applied=False).get("Orientation", 1))
+    (:func:`~torchfluidwarp.io._colour.in_srgb`; CMYK inks through their profile where they have one). The
+    orientation is read once the pixels are: Pillow turns a TIFF upright as it decodes it, and drops the tag."""
     icc = meta.get("icc_profile")
-    return _in_srgb(array, icc, source) if icc else array
+    inks = meta.get("mode") == "CMYK" and bool(icc)  # converted through its profile, not Pillow's plain formula
+    array = file.read(index=0, rotate=False, **({} if inks else _pillow_options(meta)))
+    array = _upright(array, file.metadata(index=0, exclude_applied=False).get("Orientation", 1))
+    return in_srgb(array, icc, source, "CMYK" if inks else "RGB") if icc else array
 
 
 _UPRIGHT = {  # EXIF orientation -> the turn that shows the stored pixels ``(H, W, ...)`` upright
@@ -117,53 +119,6 @@ def _upright(array: np.ndarray, orientation: object) -> np.ndarray:
     stored mode's one band, after converting the pixels to RGB.)"""
     turn = _UPRIGHT.get(orientation) if isinstance(orientation, int) else None
     return array if turn is None else np.ascontiguousarray(turn(array))
-
-
-def _in_srgb(array: np.ndarray, icc: bytes, source: str) -> np.ndarray:
-    """8-bit RGB or RGBA pixels ``(H, W, 3 or 4)`` whose colours the embedded ICC profile ``icc`` describes, in
-    sRGB, as every colour-managed viewer shows them: a phone's photograph in Display P3 or a camera's in Adobe RGB
-    read as sRGB looks dull, and mixes with an sRGB picture in another colour space. Relative colorimetric
-    intent; the alpha is kept. sRGB pixels, other layouts (grey, 16-bit) and profiles of other colour spaces are
-    returned as they are; a profile that cannot be read or applied leaves the pixels as they are, with a
-    warning."""
-    if array.dtype != np.uint8 or array.ndim != 3 or array.shape[-1] not in (3, 4):
-        return array
-    try:
-        from PIL import ImageCms  # in every Pillow wheel; a Pillow built without LittleCMS lacks it
-
-        profile = ImageCms.ImageCmsProfile(io.BytesIO(icc))
-        if profile.profile.xcolor_space.strip() != "RGB" or _description(profile).strip().lower() in SRGB_NAMES:
-            return array
-        rgb = Image.fromarray(np.ascontiguousarray(array[..., :3]), "RGB")
-        srgb = ImageCms.profileToProfile(
-            rgb, profile, ImageCms.createProfile("sRGB"), ImageCms.Intent.RELATIVE_COLORIMETRIC, "RGB"
-        )
-    except (ImportError, OSError, ValueError, TypeError) as exc:  # PyCMSError is an OSError
-        warn(f"the colour profile of {source} could not be applied ({first_line(exc)}): its colours are read as sRGB")
-        return array
-    out = np.asarray(srgb)
-    return out if array.shape[-1] == 3 else np.concatenate([out, array[..., 3:]], axis=-1)
-
-
-SRGB_NAMES = frozenset(
-    {
-        "srgb",
-        "srgb built-in",
-        "srgb iec61966-2.1",
-        "srgb iec61966-2-1 black scaled",
-        "srgb iec61966-2-1 no black scaling",
-        "srgb2014",
-        "srgb v4 icc preference perceptual intent beta",
-        "srgb profile",
-    }
-)
-"""The descriptions of the common sRGB profiles (lower case), whose pictures are read as stored; any other RGB
-profile is applied (one named after sRGB that is not sRGB, such as "sRGB linear", is converted)."""
-
-
-def _description(profile: Any) -> str:
-    """An ICC profile's description (empty where it has none)."""
-    return str(getattr(profile.profile, "profile_description", "") or "")
 
 
 def _header_size(file: Any) -> tuple[int, int]:
@@ -198,7 +153,7 @@ def _first_frame(file: Any, uri: Path | bytes, source: str) -> tuple[np.ndarray,
                 if int(meta.get("PhotometricInterpretation", 1)) == 0:  # stored inverted: 0 is white
                     array = np.iinfo(array.dtype).max - array
                 icc = meta.get("InterColorProfile")
-                return (_in_srgb(array, icc, source) if isinstance(icc, bytes) else array), pages
+                return (in_srgb(array, icc, source) if isinstance(icc, bytes) else array), pages
             except DECODE_ERRORS as exc:  # LZW, JPEG ... need the optional imagecodecs: Pillow decodes those
                 try:
                     return _by_pillow(uri, source), pages
@@ -296,8 +251,9 @@ def _heif_brand(uri: Path | bytes) -> bool:
 
 def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.ndarray | None, int, tuple[int, int]]:
     """A HEIF file's primary picture read by pillow-heif (upright: libheif applies the file's rotation and mirror),
-    its colours in sRGB (:func:`_in_srgb`), 10- and 12-bit pictures at 8 bits; how many pictures it holds; and its
-    ``(H, W)``. ``None`` instead of the pixels where ``(H, W)`` passes ``max_pixels`` (nothing decoded)."""
+    its colours in sRGB (by its ICC profile or its ``nclx`` box: :mod:`~torchfluidwarp.io._colour`), 10- and
+    12-bit pictures at 8 bits; how many pictures it holds; and its ``(H, W)``. ``None`` instead of the pixels
+    where ``(H, W)`` passes ``max_pixels`` (nothing decoded)."""
     heif = _open_heif(uri)
     width, height = heif.size
     if width * height > max_pixels:
@@ -306,8 +262,12 @@ def _heif_frame(uri: Path | bytes, source: str, max_pixels: int) -> tuple[np.nda
     array = np.asarray(
         picture.convert("RGBA" if "A" in picture.mode else "RGB") if picture.mode not in _HEIF_MODES else picture
     )
-    icc = picture.info.get("icc_profile")
-    return (_in_srgb(array, icc, source) if icc else array), len(heif), (height, width)
+    icc, nclx = picture.info.get("icc_profile"), picture.info.get("nclx_profile")
+    if icc:
+        array = in_srgb(array, icc, source)
+    elif nclx:  # an Android phone's or a browser's tag instead of a profile
+        array = nclx_in_srgb(array, nclx, source)
+    return array, len(heif), (height, width)
 
 
 def _open_heif(uri: Path | bytes) -> Any:
