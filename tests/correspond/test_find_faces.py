@@ -194,6 +194,21 @@ def test_the_automatic_mode_lists_several_faces_in_the_callers_terms(two_faces, 
     assert float(chosen.points_a[:, 0].mean()) > 300  # the small face, on the right
 
 
+def test_one_face_index_for_both_pictures_picks_where_a_picture_shows_several(two_faces, astronaut):
+    # face_index=1 (the command line's --face-index 1): the second face of the group picture, and the one face of
+    # the portrait, in either order; a pair (i, j) is each picture's own and must exist there
+    picture = two_faces[0]
+    pair = find_points(picture, astronaut, face_index=(1, 0), border=None)
+    for a, b, side in ((picture, astronaut, "points_a"), (astronaut, picture, "points_b")):
+        found = find_points(a, b, face_index=1, border=None)
+        assert torch.equal(getattr(found, side), pair.points_a)
+        assert torch.equal(getattr(found, "points_b" if side == "points_a" else "points_a"), pair.points_b)
+    with pytest.raises(ValueError, match=r"face_index=1, but one.png has 1 face\(s\)"):
+        find_points(picture, astronaut, face_index=(1, 1), names=("two.png", "one.png"))
+    with pytest.raises(ValueError, match=r"face_index must be an int or a pair"):
+        find_points(picture, astronaut, face_index=(1, 0, 2))  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("size", [(150, 220), (512, 512)])
 def test_no_face_names_the_picture_and_its_size(size):
     cat = F.interpolate(load_sample("cat"), size=size, mode="bilinear", antialias=True)

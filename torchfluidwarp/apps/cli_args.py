@@ -70,6 +70,8 @@ __all__ = [
     "SECONDS_PER_MEGAPIXEL",
     "MAX_MINUTES",
     "add_limit_options",
+    "add_face_index",
+    "face_indices",
     "work_seconds",
     "check_work",
     "check_batch_work",
@@ -414,16 +416,33 @@ MAX_MINUTES = 10.0
 """The longest projected render a command starts without ``--max-minutes`` or ``--no-limit``, in minutes."""
 
 
-def add_face_index(p: argparse.ArgumentParser, when: str = "") -> None:
+def add_face_index(p: argparse.ArgumentParser, when: str = "", pair: bool = False) -> None:
     """``--face-index I``: which face of a photograph that shows several the points are found on (``when`` says
-    when it applies, as a prefix of its help)."""
+    when it applies, as a prefix of its help). With ``pair``, ``--face-index I J`` chooses in A and in B
+    separately (:func:`face_indices`)."""
     p.add_argument(
         "--face-index",
         type=count(0),
         default=None,
+        nargs="+" if pair else None,
         metavar="I",
-        help=f"{when}which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next",
+        help=f"{when}which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next"
+        + ("; I J: face I of A and face J of B" if pair else ""),
     )
+
+
+def face_indices(args: argparse.Namespace) -> int | tuple[int, int] | None:
+    """``--face-index I`` (the face of each photo that shows several) or ``I J`` (A's and B's) as
+    :func:`~torchfluidwarp.correspond.auto.find_points` takes them; ``None`` without it."""
+    value = args.face_index
+    if value is None or len(value) == 1:
+        return None if value is None else value[0]
+    if len(value) > 2:
+        raise InputError(
+            f"--face-index takes 1 or 2 integers (I for each photo that shows several faces, or I J for A and B), "
+            f"got {len(value)}: {' '.join(map(str, value))}"
+        )
+    return value[0], value[1]
 
 
 def add_limit_options(p: argparse.ArgumentParser) -> None:

@@ -39,6 +39,7 @@ from torchfluidwarp.apps.cli_args import (
     check_work,
     clock_of,
     count,
+    face_indices,
     fail,
 )
 from torchfluidwarp.apps.cli_morph_output import (
@@ -195,7 +196,7 @@ def add_morph(commands: argparse._SubParsersAction) -> None:
         f"images show one and features otherwise, the pixels where fewer than {TRUSTED_MATCHES} features match "
         "(default)",
     )
-    add_face_index(p)
+    add_face_index(p, pair=True)
     p.add_argument(
         "--save-points",
         nargs=2,
@@ -378,14 +379,14 @@ def _cmd_morph(args: argparse.Namespace) -> int:
                 pa, pb = read_points(files[0]), read_points(files[1])
             check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
         else:
-            face = args.face_index
+            faces = face_indices(args)
             with clock.part("points"):  # the face model's log lines are kept off stderr by the library
                 with warnings.catch_warnings():  # the reason is printed below, in the command line's words
                     warnings.simplefilter("ignore", MatchNotice)
-                    found = find_points(a, b, match=args.match, face_index=(face, face), names=tuple(args.images))
+                    found = find_points(a, b, match=args.match, face_index=faces, names=tuple(args.images))
             pa, pb = found.points_a, found.points_b
             if found.reason.notable and not args.quiet:  # a fall-back, or one face chosen among several
-                words = {"match": "--match", "face_index": "--face-index I"}
+                words = {"match": "--match", "face_index": "--face-index I (or I J, for A and B)"}
                 print(f"{PROG} morph: {found.reason.explain(words)}", file=sys.stderr)
             if args.save_points:
                 for path, points in zip(args.save_points, (pa, pb)):

@@ -410,7 +410,7 @@ def find_points(
     image_b: Tensor,
     *,
     match: MatchMode = "auto",
-    face_index: tuple[int | None, int | None] = (None, None),
+    face_index: int | tuple[int | None, int | None] | None = None,
     names: tuple[str, str] = ("image_a", "image_b"),
     border: int | None = 3,
     max_points: int = 64,
@@ -438,7 +438,11 @@ def find_points(
     a, b = single_image("image_a", image_a), single_image("image_b", image_b)
     if match not in MATCH_MODES:
         raise InputError(f"match must be 'auto', 'faces', 'features' or 'pixels', got {match!r}", argument="match")
-    fa, fb = (None if i is None else check_int("face_index", i, minimum=0) for i in face_index)
+    each = not isinstance(face_index, (tuple, list))  # one index: the face of each picture that shows several
+    pair = tuple(face_index) if isinstance(face_index, (tuple, list)) else (face_index, face_index)
+    if len(pair) != 2:
+        raise InputError(f"face_index must be an int or a pair (i, j), got {face_index!r}", argument="face_index")
+    fa, fb = (None if i is None else check_int("face_index", i, minimum=0) for i in pair)
     face_index = (fa, fb)
     pixels = check_int("pixels", pixels)  # checked whatever the matcher: the automatic mode may fall back to it
     found: tuple[Tensor, Tensor] | None = None
@@ -455,8 +459,9 @@ def find_points(
         else:
             try:
                 chosen_a, chosen_b = (
-                    choose_face(find_faces(x), i, name, (x.shape[-2], x.shape[-1]))
+                    choose_face(faces, None if each and len(faces) == 1 else i, name, (x.shape[-2], x.shape[-1]))
                     for x, i, name in zip((a, b), face_index, names)
+                    for faces in [find_faces(x)]
                 )
                 chosen = (chosen_a, chosen_b)
             except NoFaceFound as exc:
@@ -489,7 +494,7 @@ def auto_points(
     image_b: Tensor,
     *,
     match: MatchMode = "auto",
-    face_index: tuple[int | None, int | None] = (None, None),
+    face_index: int | tuple[int | None, int | None] | None = None,
     names: tuple[str, str] = ("image_a", "image_b"),
     border: int | None = 3,
     max_points: int = 64,
@@ -509,8 +514,9 @@ def auto_points(
             :class:`MatchNotice` that says so; ``"pixels"``: a lattice of ``pixels x pixels`` points placed by a
             flow fitted to the images (:func:`~torchfluidwarp.correspond.refine.refine_points` with no anchors;
             slower: a coarse-to-fine image fit).
-        face_index: which face in A and in B (0 = largest; ``None``: the largest, with a :class:`MatchNotice`
-            that lists them when there are several).
+        face_index: which face in A and in B, ``(i, j)`` (0 = largest; ``None``: the largest, with a
+            :class:`MatchNotice` that lists them when there are several); one ``int``: that face in each picture
+            that shows several (a picture of one face keeps it), as :func:`find_each_face` takes it.
         names: the images' names in messages (their file names, say).
         border: points per image edge for :func:`border_points` (3: corners and edge midpoints), appended to
             both lists, paired as :func:`border_pairs` says (B's own border where the frames correspond, else
