@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -188,10 +189,16 @@ def test_config_file_and_command_line_override(tmp_path, image):
     assert field[0, 0, :, 0].min() > 5.0 and field[0, 0, 6, 8] < 0.2  # stiff left band, soft centre
 
 
-def test_max_size_downscales_and_keeps_brushes_in_place(tmp_path, image):
+def test_max_size_downscales_and_keeps_brushes_in_place(tmp_path, image, capsys):
     out = tmp_path / "small"
-    assert main(["animate", str(image), "-o", str(out), "--brush", BRUSH, *FAST, "--max-size", "24"]) == 0
+    loud = [option for option in FAST if option != "--quiet"]
+    assert main(["animate", str(image), "-o", str(out), "--brush", BRUSH, *loud, "--max-size", "24"]) == 0
     assert iio.imread(out / "frame_0000.png").shape == (24, 24, 3)
+    err = capsys.readouterr().err  # the shrinking is said, as morph says it, and the run's size and time
+    assert "frames written at 24 x 24 px: the photo's 48 x 48 shrunk to --max-size 24" in err
+    assert re.search(r"animate: \d+ frames of 24 x 24 px, [\d.]+ s \(", err)
+    assert main(["animate", str(image), "-o", str(tmp_path / "whole"), "--brush", BRUSH, *loud]) == 0
+    assert "shrunk" not in capsys.readouterr().err  # 48 px is within the default 800
     spec = parse_config({"brushes": [{"position": [23.5, 47.5], "direction": [1, 0], "radius": 8, "amplitude": 2}]})
     b = spec.rescaled(0.5, 0.5).brushes[0]
     assert b.position == (11.5, 23.5) and b.radius == 4 and b.amplitude == 1
@@ -219,8 +226,9 @@ def test_help_exits_0(capsys):
 
 
 def test_console_entry_point():
+    # `python -m torchfluidwarp`, as a user tries first, runs the same command line as the script
     done = subprocess.run(
-        [sys.executable, "-m", "torchfluidwarp.apps.cli", "--help"], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "torchfluidwarp", "--help"], capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0, done.stderr
     assert "animate" in done.stdout and "morph" in done.stdout

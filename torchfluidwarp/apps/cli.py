@@ -121,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     from torchfluidwarp.apps.cli_morph import add_demo, add_morph  # these import the library (and torch)
     from torchfluidwarp.apps.cli_sequence import add_average
 
-    parser = _Parser(prog=PROG, description="Warp and morph images with a simulated 2-D incompressible fluid.")
+    parser = _Parser(prog=PROG, description="Warp and morph images with a simulated 2-D fluid.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     _add_animate(commands)
@@ -414,11 +414,22 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         check_output(args.output, args.overwrite)
         image = read_image(args.image)
     frames = animate.animate_frames(config, image, max_size=args.max_size)
-    first = next(frames)  # the (resized) photo: its size is known before the fluid runs
-    check_disk_space(args.output, config.steps + 1, first.shape[-2], first.shape[-1], first.shape[0])
+    with clock.part("fluid, render and write"):
+        first = next(frames)  # the (resized) photo: its size is known before the fluid runs
+    (H, W), (h, w) = image.shape[-2:], first.shape[-2:]
+    check_disk_space(args.output, config.steps + 1, h, w, first.shape[0])
     check_work(args, args.output, config.steps + 1, first.shape)
+    if (h, w) != (H, W) and not args.quiet:  # said before the frames, as morph says it
+        print(
+            f"{PROG} animate: frames written at {w} x {h} px: the photo's {W} x {H} shrunk to --max-size "
+            f"{args.max_size} (the brushes' positions stay in the photo's pixels); --max-size 0 keeps its size",
+            file=sys.stderr,
+        )
     stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
-    path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
+    with clock.part("fluid, render and write"):
+        path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
+    if not args.quiet:
+        print(f"{PROG} animate: {config.steps + 1} frames of {w} x {h} px, {clock.summary()}", file=sys.stderr)
     print(path)  # even with --quiet: it is the command's result, for scripts
     return EXIT_OK
 
