@@ -7,6 +7,10 @@
   too many sub-steps; the message says what to change. The command line prints it and exits 3.
 * Anything else is a bug in the library: the command line prints the traceback and exits 1.
 
+The library's warnings about a result (a morph that folds, marks let go, marks met loosely) are
+:class:`AdvisedWarning` s (``RuntimeWarning``): their advice is a :class:`Hint` too, which the command line
+words as its flags.
+
 An error may carry a :class:`Hint`: what to change, naming the setting that changes it. The hint is kept apart
 from the message so that a caller with its own names for the settings (the command line's flags) can say it in
 its own terms with :meth:`InputError.explain`, instead of rewriting the message's text.
@@ -29,7 +33,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-__all__ = ["Hint", "InputError", "InputTypeError", "FlowBlewUp"]
+__all__ = ["Hint", "InputError", "InputTypeError", "FlowBlewUp", "AdvisedWarning"]
 
 
 @dataclass(frozen=True)
@@ -118,4 +122,17 @@ class FlowBlewUp(_Explained, ArithmeticError):
 
     The fits catch this one alone: a trial step that makes the flow blow up is a step too long, not a bug
     (:func:`~torchfluidwarp.control.optim.minimize`'s ``undefined``).
+    """
+
+
+class AdvisedWarning(_Explained, RuntimeWarning):
+    """A warning about a result, with a :class:`Hint` (what to change, or where to look) that a caller says in its
+    own terms (:meth:`~InputError.explain`): the command line prints ``--straightness X`` where Python code
+    reads ``NaturalSettings.straightness``.
+
+    Example:
+        >>> w = AdvisedWarning("the maps fold", hint=Hint("raise {setting}", "straightness",
+        ...                    spelling="NaturalSettings.straightness"))
+        >>> str(w), w.explain({"straightness": "--straightness X"})
+        ('the maps fold; raise NaturalSettings.straightness', 'the maps fold; raise --straightness X')
     """

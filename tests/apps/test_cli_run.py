@@ -19,7 +19,7 @@ import torch
 from torchfluidwarp.apps import cli_args
 from torchfluidwarp.apps.cli import _check_early, main
 from torchfluidwarp.apps.cli_args import EXIT_BAD_INPUT, EXIT_TERMINATED, check_work, command_run
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import AdvisedWarning, Hint, InputError
 from torchfluidwarp.io import write_image, write_points
 
 # run main() in a fresh interpreter and say whether torch was imported by the time it returned
@@ -194,6 +194,29 @@ def test_warnings_during_a_run_are_one_line_without_a_source_line(capsys):
     err = capsys.readouterr().err
     assert err == "torchfluidwarp morph: warning: the marks cross at 3 points\n", err
     assert warnings.showwarning.__module__ == "warnings"  # restored
+
+
+def test_a_warnings_advice_names_the_commands_flags(tmp_path, capsys):
+    # the library's advice names Python settings (result.let_go, NaturalSettings.straightness); the command line
+    # names its own flags instead
+    with command_run("morph", {"straightness": argparse.Action(["--straightness"], "straightness", metavar="S")}):
+        warnings.warn(
+            AdvisedWarning("the maps fold", hint=Hint("raise {setting}", "straightness", spelling="NaturalSettings")),
+            stacklevel=1,
+        )
+    assert capsys.readouterr().err == "torchfluidwarp morph: warning: the maps fold; raise --straightness S\n"
+    # a real morph whose marks cross: the warnings name --report and --straightness, no Python name
+    picture = torch.rand(3, 40, 40, generator=torch.Generator().manual_seed(0))
+    write_image(tmp_path / "a.png", picture)
+    pa = torch.tensor([[8.0, 8.0], [30.0, 8.0], [20.0, 30.0], [10.0, 25.0]])
+    write_points(tmp_path / "a.pts", pa)
+    write_points(tmp_path / "b.pts", pa[[1, 0, 2, 3]])  # the first two swap sides
+    argv = ["morph", str(tmp_path / "a.png"), str(tmp_path / "a.png"), "--points-a", str(tmp_path / "a.pts")]
+    argv += ["--points-b", str(tmp_path / "b.pts"), "-o", str(tmp_path / "m.gif"), "--frames", "3", "--grid", "12"]
+    assert main([*argv, "--steps", "3", "--max-iter", "5"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the marks cross: points 0 and 1" in err and "--report JSON names the points let go" in err
+    assert "result." not in err and "Settings" not in err
 
 
 def test_library_warnings_point_at_the_callers_line():

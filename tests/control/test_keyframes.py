@@ -129,7 +129,7 @@ def test_a_trial_step_that_blows_the_flow_up_is_stepped_back_from():
     "kwargs,match",
     [
         ({"source": torch.zeros(3, 2), "target": torch.zeros(4, 2)}, "source has 3 points but target"),
-        ({"source": torch.tensor([[40.0, 3.0]]), "target": torch.zeros(1, 2)}, "source has a point outside the 32x32"),
+        ({"source": torch.tensor([[40.0, 3.0]]), "target": torch.zeros(1, 2)}, "point outside the 32 x 32"),
         ({"source": torch.tensor([[float("nan"), 3.0]]), "target": torch.zeros(1, 2)}, "source contains non-finite"),
         ({"source": torch.zeros(0, 2), "target": torch.zeros(0, 2)}, "M >= 1"),
         ({"source": torch.zeros(1, 2), "target": torch.zeros(1, 2), "steps": 0}, "steps must be >= 1"),

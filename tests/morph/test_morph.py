@@ -93,8 +93,9 @@ def test_bad_inputs(pair):
         morph(a, b, POINTS_A, POINTS_B, frames=1, **KW)
     with pytest.raises(ValueError, match="inverse must be"):
         morph(a, b, POINTS_A, POINTS_B, **_with(inverse="magic"))
-    with pytest.raises(ValueError, match="points_b has a point outside"):
+    with pytest.raises(ValueError, match=r"points_b has a point outside the 64 x 64 image") as info:
         morph(a, b, POINTS_A, POINTS_B + 100, **KW)
+    assert info.value.argument == "points_b"  # the command line names its flag, --points-b
 
 
 def test_a_map_that_reads_beyond_its_image_hands_the_frame_to_the_other_image(gen, monkeypatch):

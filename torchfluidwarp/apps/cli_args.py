@@ -37,7 +37,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, TypeVar
 
-from torchfluidwarp.errors import FlowBlewUp, InputError, InputTypeError
+from torchfluidwarp.errors import AdvisedWarning, FlowBlewUp, InputError, InputTypeError
 
 __all__ = [
     "PROG",
@@ -130,6 +130,12 @@ def _usage(action: argparse.Action) -> str:
     return f"{_flag(action)} {action.metavar}" if isinstance(action.metavar, str) else _flag(action)
 
 
+def _names(options: Mapping[str, argparse.Action]) -> dict[str, str]:
+    """The command line's name of each library setting its ``options`` set (``{"max_memory": "--max-memory
+    GIB"}``), for a :class:`~torchfluidwarp.errors.Hint`."""
+    return {name: _usage(action) for name, action in options.items()}
+
+
 def fail(command: str, message: object, options: Mapping[str, argparse.Action] | None = None) -> int:
     """Print ``torchfluidwarp COMMAND: error: <first line of message>`` on stderr and return the exit status.
 
@@ -146,7 +152,7 @@ def fail(command: str, message: object, options: Mapping[str, argparse.Action] |
     """
     options = options or {}
     if isinstance(message, (InputError, InputTypeError, FlowBlewUp)):
-        text = first_line(message.explain({name: _usage(action) for name, action in options.items()}))
+        text = first_line(message.explain(_names(options)))
         if message.argument is not None and message.argument in options:
             text = f"argument {_flag(options[message.argument])}: {text}"
     else:
@@ -565,8 +571,10 @@ def _terminate(signum: int, frame: FrameType | None) -> None:
     raise Terminated
 
 
-def _show_warning(command: str) -> Callable[..., None]:
-    """A ``warnings.showwarning`` that prints the warning as the command's one line, without a source line."""
+def _show_warning(command: str, options: Mapping[str, argparse.Action]) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints the warning as the command's one line, without a source line, an
+    :class:`~torchfluidwarp.errors.AdvisedWarning`'s advice naming the command's flags (``options``, as
+    :func:`flags` gives them)."""
 
     def show(
         message: Warning | str,
@@ -576,22 +584,24 @@ def _show_warning(command: str) -> Callable[..., None]:
         file: Any = None,
         line: str | None = None,
     ) -> None:
-        print(f"{PROG} {command}: warning: {first_line(message)}", file=sys.stderr if file is None else file)
+        text = message.explain(_names(options)) if isinstance(message, AdvisedWarning) else message
+        print(f"{PROG} {command}: warning: {first_line(text)}", file=sys.stderr if file is None else file)
 
     return show
 
 
 @contextlib.contextmanager
-def command_run(command: str) -> Iterator[None]:
+def command_run(command: str, options: Mapping[str, argparse.Action] | None = None) -> Iterator[None]:
     """The setting of one command's run: SIGTERM raises :class:`Terminated` (as SIGINT raises
     ``KeyboardInterrupt``), and warnings print as one line, ``torchfluidwarp COMMAND: warning: ...``, without
-    the library's source line. Both are restored when the run ends; SIGTERM is left alone outside the main thread
-    (where no handler can be set)."""
+    the library's source line, their advice in the command's flags (``options``, as :func:`flags` gives them).
+    Both are restored when the run ends; SIGTERM is left alone outside the main thread (where no handler can be
+    set)."""
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminate) if main else None
     try:
         with warnings.catch_warnings():
-            warnings.showwarning = _show_warning(command)
+            warnings.showwarning = _show_warning(command, options or {})
             yield
     finally:
         if main:

@@ -20,6 +20,7 @@ import torch
 from torch import Tensor, nn
 
 from torchfluidwarp._checks import (
+    argument_of,
     check_float_dtype,
     check_fraction,
     check_instance,
@@ -126,8 +127,9 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
     if bool(outside.any()):
         i = int(outside.flatten().nonzero()[0])
         raise InputError(
-            f"{name} has a point outside the {H}x{W} image: {p.reshape(-1, 2)[i].tolist()} "
-            f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])"
+            f"{name} has a point outside the {W} x {H} image: {p.reshape(-1, 2)[i].tolist()} "
+            f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])",
+            argument=argument_of(name),
         )
     return p
 

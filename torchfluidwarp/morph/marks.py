@@ -14,7 +14,7 @@ from torch import Tensor
 from torchfluidwarp._checks import warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment
 from torchfluidwarp.core.grid import mean_pixels_per_cell
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import AdvisedWarning, Hint, InputError
 
 MIN_POSE_FIT = 0.25
 """The least share of B's marks' spread that the pre-alignment must explain (:func:`pose`). The 68 marks of two
@@ -88,6 +88,15 @@ LET_GO = 1.0
 """Pixels: a point the library placed that ends farther than this from its target in the last frame was let go
 (the morph meets the rest of its points within a fraction of it). #31 asks marks to be met within 1 px."""
 
+LET_GO_HINT = Hint(
+    "{setting} names the points let go and how far each ended",
+    "report",
+    spelling="result.let_go (and result.error)",
+    otherwise="the last line counts the points let go",
+)
+"""Where a caller sees the marks a morph let go: the result's ``let_go`` and ``error`` (the command line's
+``--report``)."""
+
 
 def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
     """Refuse marks that cannot be morphed, and warn about the user's marks whose order crosses. Points the library
@@ -105,10 +114,11 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
     bad = _crossings(pa, pb) if placed_by is None else []
     if bad:
         warn(
-            f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
-            "morph can do without folding; check their order (result.let_go names the points let go and "
-            "result.error how far each ended; the command line's last line counts them)",
-            RuntimeWarning,
+            AdvisedWarning(
+                f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
+                "morph can do without folding; check their order",
+                hint=LET_GO_HINT,
+            )
         )
 
 
@@ -120,11 +130,12 @@ def warn_let_go(pa: Tensor, pb: Tensor, let_go: Tensor, placed_by: str) -> None:
     missed = [(a, b) for a, b in _crossings(pa, pb) if bool(let_go[a]) or bool(let_go[b])]
     if missed:
         warn(
-            f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear apart "
-            "between A and B (as where a head turns and hides part of one side); the morph let them go so as not "
-            "to fold (result.let_go names them and result.error how far each ended; the command line's last line "
-            "counts them)",
-            RuntimeWarning,
+            AdvisedWarning(
+                f"the points the {placed_by} matcher placed cross: points {_listed(missed)} swap sides or tear "
+                "apart between A and B (as where a head turns and hides part of one side); the morph let them go "
+                "so as not to fold",
+                hint=LET_GO_HINT,
+            )
         )
 
 
@@ -165,10 +176,15 @@ def warn_coarse_grid(
     if spacing >= MIN_SPACING:
         return
     warn(
-        f"the marks end {mean:.1f} px from their targets on average, up to {worst:.1f} px: they lie {spacing:.2f} "
-        "fluid cells apart in A (median), where the fit converges slowly; a finer grid or more iterations meet "
-        "them closer, at more time (NaturalSettings(grid=..., max_iter=...); the command line's --grid, --max-iter)",
-        RuntimeWarning,
+        AdvisedWarning(
+            f"the marks end {mean:.1f} px from their targets on average, up to {worst:.1f} px: they lie "
+            f"{spacing:.2f} fluid cells apart in A (median), where the fit converges slowly",
+            hint=Hint(
+                "a finer grid meets them closer, at more time: {setting}",
+                "grid",
+                spelling="NaturalSettings(grid=...), or more max_iter",
+            ),
+        )
     )
 
 

@@ -21,7 +21,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_int, check_memory, check_real, warn
 from torchfluidwarp.control.keyframes import KeyframeFit
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import AdvisedWarning, Hint, InputError
 from torchfluidwarp.io import write_animation
 from torchfluidwarp.morph.render import MorphFrames, Scene, raster_bytes, raster_maps, render
 
@@ -295,11 +295,16 @@ class MorphResult:
         self._folded = count / n_pixels
         if count:
             warn(
-                f"the morph's maps fold on {count} of {n_pixels} pixels over all frames of "
-                "both images: the flow crushes part of a picture onto itself; check the marks for points that cross "
-                "(result.error names the points not reached), or raise NaturalSettings.straightness or "
-                "PaperSettings.smoothness",
-                RuntimeWarning,
+                AdvisedWarning(
+                    f"the morph's maps fold on {count:,} of {n_pixels:,} pixels ({_share(count / n_pixels)}) over "
+                    "all frames of both images: the flow crushes part of a picture onto itself; check the marks for "
+                    "points that cross",
+                    hint=Hint(
+                        "or raise {setting}",
+                        "straightness",
+                        spelling="NaturalSettings.straightness (PaperSettings.smoothness)",
+                    ),
+                )
             )
 
     def bytes_per_frame(self) -> int:
@@ -357,3 +362,8 @@ class MorphResult:
             self.materialize()
         assert self._folded is not None
         return self._folded
+
+
+def _share(fraction: float) -> str:
+    """``0.0123`` as ``'1.2%'``; a share under 0.01% as ``'under 0.01%'``."""
+    return "under 0.01%" if fraction < 1e-4 else f"{100 * fraction:.2g}%"
