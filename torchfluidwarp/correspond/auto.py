@@ -349,10 +349,7 @@ def _pixel_lattice(a: Tensor, b: Tensor, n: int) -> tuple[tuple[Tensor, Tensor],
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     message = f"placed {len(refined[0])} points of a lattice of {n} x {n} through a flow fitted to the pixels"
     if folds:  # pictures whose content does not correspond: the points there are guesses
-        message += (
-            "; that flow folds in places (it crushes part of image_a onto itself, as between pictures whose "
-            "content does not correspond), so points it placed there may cross, and the morph lets those go"
-        )
+        message += "; that flow folds in places, so points there may cross, and the morph lets those go"
     back = [
         rescale_points(p, scale_factor(_size(x), _size(y), device=p.device, dtype=p.dtype))
         for p, x, y in ((refined[0], small_a, a), (refined[1], small_b, b))
@@ -372,10 +369,7 @@ def _features_or_pixels(
     if auto and count < TRUSTED_MATCHES:  # no more than unrelated pictures match by chance
         lattice, message, _ = _pixel_lattice(a, b, pixels)
         back = ValueHint(f"use {{setting}} to morph on those {count}", "match", value="features")
-        said = (
-            f"{why_not_faces}; only {count} image features match between {between}, as few as unrelated pictures "
-            f"match by chance, so the pixels placed the points: {message}"
-        )
+        said = f"{why_not_faces}; only {count} image features match between {between} (chance level): {message}"
         return lattice, "pixels", Note(said, back if count >= 3 else None, notable=True)
     if count < 3:
         small = [
