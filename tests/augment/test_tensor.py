@@ -1,5 +1,6 @@
 import importlib
 import math
+import warnings
 
 import kornia.augmentation as K
 import pytest
@@ -242,3 +243,16 @@ def test_a_name_moved_out_of_tensor_has_one_home(name, home):
 def test_the_old_aliases_of_the_augmentations_are_gone(name):
     with pytest.raises(AttributeError, match=name):
         getattr(augment, name)
+
+
+def test_brushes_narrower_than_a_fluid_cell_warn_that_the_warp_is_faint():
+    # a phone photograph with the default 32 x 32 cells: a cell is about 36 px, above the 16-48 px default radius's
+    # low end but not its high end; radius (4, 8) is under it: the fluid smooths such pushes away, said once
+    image = torch.rand(1, 3, 300, 1150, generator=torch.Generator().manual_seed(0))
+    faint = FluidWarpAugment(radius=(4.0, 8.0), strength=0.1, generator=torch.Generator().manual_seed(1))
+    with pytest.warns(RuntimeWarning, match=r"radius, at most 8 px, is under a fluid cell \(36 px on a 1150 x 300"):
+        faint(image)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the defaults at this size, and any radius on a small image, say nothing
+        FluidWarpAugment(generator=torch.Generator().manual_seed(1))(image)
+        FluidWarpAugment(radius=(4.0, 8.0), strength=0.1)(image[..., :64, :64])

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_memory, check_size
+from torchfluidwarp._checks import check_int, check_memory, check_size, warn
 from torchfluidwarp.augment.settings import FluidWarpSettings
 from torchfluidwarp.core.grid import FluidGrid, cell_centres, cell_scale, rescale_points, scale_factor
 from torchfluidwarp.core.simulator import FluidSimulator
@@ -223,6 +223,14 @@ def draw_fluid_warp(
     what = f"a fluid warp of {B} images of size {(H, W)} with up to count={K} brushes"
     what += f" on a grid of {h} x {w} cells for {T} steps"
     check_memory(what, nbytes, settings.max_memory, "max_memory (FluidWarpSettings)")
+    cell = max(H / h, W / w)
+    if settings.radius[1] < cell:  # the fluid cannot hold a push narrower than its cells: the warp is faint
+        warn(
+            f"the brushes' radius, at most {settings.radius[1]:g} px, is under a fluid cell ({cell:.0f} px on a "
+            f"{W} x {H} image over {w} x {h} cells): the fluid smooths them away and the warp is faint; raise "
+            "radius (and strength, both in pixels) with the image's size, or use a finer grid",
+            RuntimeWarning,
+        )
     device = torch.device("cpu") if device is None else torch.device(device)
     g = generator
     draw_device = g.device if g is not None else torch.device("cpu")
