@@ -246,13 +246,13 @@ def test_the_old_aliases_of_the_augmentations_are_gone(name):
 
 
 def test_brushes_narrower_than_a_fluid_cell_warn_that_the_warp_is_faint():
-    # a phone photograph with the default 32 x 32 cells: a cell is about 36 px, above the 16-48 px default radius's
-    # low end but not its high end; radius (4, 8) is under it: the fluid smooths such pushes away, said once
-    image = torch.rand(1, 3, 300, 1150, generator=torch.Generator().manual_seed(0))
-    faint = FluidWarpAugment(radius=(4.0, 8.0), strength=0.1, generator=torch.Generator().manual_seed(1))
-    with pytest.warns(RuntimeWarning, match=r"radius, at most 8 px, is under a fluid cell \(36 px on a 1150 x 300"):
-        faint(image)
+    # a 910 x 1137 phone photograph on the default 32 x 32 cells: a cell is 36 px, wider than the default radius
+    # (16 to 48 px, 32 on average); the fluid smooths such pushes away, and the warp is faint: it says so
+    image = torch.rand(1, 3, 1137, 910, generator=torch.Generator().manual_seed(0))
+    augment = FluidWarpAugment(count=1, steps=4, generator=torch.Generator().manual_seed(1))
+    with pytest.warns(RuntimeWarning, match=r"radius, 32 px on average, is under a fluid cell \(36 px on a 910 x 1137"):
+        augment(image)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the defaults at this size, and any radius on a small image, say nothing
-        FluidWarpAugment(generator=torch.Generator().manual_seed(1))(image)
-        FluidWarpAugment(radius=(4.0, 8.0), strength=0.1)(image[..., :64, :64])
+        warnings.simplefilter("error")  # the same at 512 px (16 px cells), or radii of a cell, say nothing
+        augment(image[..., :512, :512])
+        FluidWarpAugment(count=1, steps=4, radius=(30.0, 50.0))(image)

@@ -223,12 +223,12 @@ def draw_fluid_warp(
     what = f"a fluid warp of {B} images of size {(H, W)} with up to count={K} brushes"
     what += f" on a grid of {h} x {w} cells for {T} steps"
     check_memory(what, nbytes, settings.max_memory, "max_memory (FluidWarpSettings)")
-    cell = max(H / h, W / w)
-    if settings.radius[1] < cell:  # the fluid cannot hold a push narrower than its cells: the warp is faint
+    cell, typical = max(H / h, W / w), sum(settings.radius) / 2
+    if typical < cell:  # the fluid cannot hold a push narrower than its cells: the warp is faint
         warn(
-            f"the brushes' radius, at most {settings.radius[1]:g} px, is under a fluid cell ({cell:.0f} px on a "
-            f"{W} x {H} image over {w} x {h} cells): the fluid smooths them away and the warp is faint; raise "
-            "radius (and strength, both in pixels) with the image's size, or use a finer grid",
+            f"the brushes' radius, {typical:g} px on average, is under a fluid cell ({cell:.0f} px on a {W} x {H} "
+            f"image over {w} x {h} cells): the fluid smooths them away and the warp is faint; raise radius (and "
+            "strength, both in pixels) with the image's size, or use a finer grid",
             RuntimeWarning,
         )
     device = torch.device("cpu") if device is None else torch.device(device)
