@@ -107,7 +107,7 @@ def test_random_fluid_warp_is_the_module_in_one_call():
 # ``errors`` (the exceptions), ``_checks`` (the one validation layer, which raises them), ``io`` (files) and
 # ``data`` (samples) sit below the pipeline.
 LAYERS = {"errors": 0, "_version": 0, "_checks": 1, "io": 2, "data": 3, "core": 4, "warp": 5, "control": 6}
-LAYERS |= {"correspond": 7, "morph": 8, "augment": 8, "metrics": 8, "apps": 9}
+LAYERS |= {"correspond": 7, "morph": 8, "augment": 8, "metrics": 8, "apps": 9, "__main__": 10}  # python -m
 
 
 def _layer_of(module: str) -> str:
