@@ -244,6 +244,7 @@ def test_read_image_errors_name_the_path(tmp_path):
     with pytest.raises(ValueError, match="junk.png.*not a readable image") as info:
         read_image(junk)
     assert "\n" not in str(info.value)
+    assert str(info.value).endswith("(no image format recognises its contents)"), info.value  # not imageio's words
     with pytest.raises(ValueError, match="image bytes"):
         read_image_bytes(b"garbage")
     with pytest.raises(ValueError, match="image 'notes.txt'.*not a readable image"):

@@ -128,9 +128,9 @@ def _add_morph_options(p: argparse.ArgumentParser, *, frames: int) -> None:
         "--out",
         metavar="OUT",
         default=None,
-        help="output: OUT.gif (RGBA input: transparent where alpha < 0.5), OUT.mp4 (needs imageio-ffmpeg), "
-        "OUT.webp (animated, RGBA) or a folder of PNG frames (ending in '/', RGBA kept); with --frame an image "
-        "file; with --pairs, the output folder",
+        help="output (default morph.gif): OUT.gif (RGBA input: transparent where alpha < 0.5), OUT.mp4 (needs "
+        "imageio-ffmpeg), OUT.webp (animated, RGBA) or a folder of PNG frames (a path ending in '/' or with no "
+        "suffix; RGBA kept); with --frame an image file; with --pairs, the output folder",
     )
     p.add_argument("--frames", type=count(2), default=frames, help=f"frames (default {frames})")
     p.add_argument("--fps", type=FPS, default=15.0, help="frames per second, 0.01 to 1000 (default 15)")
@@ -319,7 +319,7 @@ def _run_pairs(args: argparse.Namespace) -> int:
     if shrunk and not args.quiet:  # the pairs whose frames --max-size shrinks, said once
         print(
             f"{PROG} morph: {shrunk} of the {len(work)} pairs' animations are written with their longer side at "
-            f"--max-size {args.max_size} (their figures are in those pixels); --max-size 0 keeps their sizes",
+            f"--max-size {args.max_size} (their point errors are in those pixels); --max-size 0 keeps their sizes",
             file=sys.stderr,
         )
     timing, blending = result_options(args)

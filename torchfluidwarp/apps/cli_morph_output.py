@@ -209,8 +209,8 @@ def shrink_to_max_size(args: argparse.Namespace, image: Tensor) -> str | None:
         return None
     args.size = [h, w]
     return (
-        f"frames written at {w} x {h} px: the first image's {W} x {H} shrunk to --max-size {limit} (its figures "
-        f"are in these pixels); --size {H} {W} (or --max-size 0) writes them at its size"
+        f"frames written at {w} x {h} px: the first image's {W} x {H} shrunk to --max-size {limit} (the point errors "
+        f"printed are in these pixels); --size {H} {W} (or --max-size 0) writes them at its size"
     )
 
 

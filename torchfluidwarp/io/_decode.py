@@ -67,8 +67,12 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
 
 
 def _unreadable(source: str, argument: str, exc: BaseException) -> InputError:
-    """The error for a file that a decoder failed on, naming the file and the decoder's reason."""
-    return InputError(f"cannot read {source}: not a readable image ({first_line(exc)})", argument=argument)
+    """The error for a file that a decoder failed on, naming the file and the decoder's reason (imageio's "no
+    plugin" in words: it quotes the file's name with unbalanced backticks)."""
+    reason = first_line(exc)
+    if reason.startswith("Could not find a backend to open"):
+        reason = "no image format recognises its contents"
+    return InputError(f"cannot read {source}: not a readable image ({reason})", argument=argument)
 
 
 def _check_pixels(shape: tuple[int, ...], source: str, argument: str) -> None:
