@@ -271,7 +271,8 @@ def test_crossing_marks_warn_and_show_in_the_fit_error(gen):
     met = f"mean point error {float(kept.mean()):.2f} px (max {float(kept.max()):.2f}) over the {9 - len(missed)} marks"
     assert said.startswith(met + " met; ")
     far = f"{float(r.error[missed].min()):.2f} px from its target" if len(missed) == 1 else "px from their targets"
-    assert f"{len(missed)} let go so as not to fold, " in said and said.endswith(far)
+    named = f"(point {missed[0]})" if len(missed) == 1 else f"(points {', '.join(map(str, missed))})"
+    assert f"{len(missed)} let go so as not to fold {named}, " in said and said.endswith(far)  # which, by index
     assert float(kept.max()) <= LET_GO  # the rest are met
 
 

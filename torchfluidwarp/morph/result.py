@@ -157,8 +157,9 @@ class MorphResult:
         return self.error[~self.let_go]
 
     def error_summary(self, digits: int = 2) -> str:
-        """:attr:`error`'s mean and maximum in words, over the marks met and over those let go (:attr:`let_go`)
-        apart: a mark let go on purpose, however far it ends, says nothing of how well the fit met the rest.
+        """:attr:`error`'s mean and maximum in words, over the marks met and over those let go (:attr:`let_go`,
+        named by their indices in the points, the first five) apart: a mark let go on purpose, however far it ends,
+        says nothing of how well the fit met the rest.
 
         Args:
             digits: decimals of the figures (pixels of the last frame).
@@ -172,10 +173,12 @@ class MorphResult:
             if kept.numel()
             else "no mark met"
         )
+        which = [int(i) for i in self.let_go.nonzero().flatten()]
+        named = ", ".join(map(str, which[:5])) + (", ..." if len(which) > 5 else "")
         if gone.numel() == 1:
-            return f"{met}; 1 let go so as not to fold, {float(gone[0]):.{digits}f} px from its target"
+            return f"{met}; 1 let go so as not to fold (point {named}), {float(gone[0]):.{digits}f} px from its target"
         return (
-            f"{met}; {gone.numel()} let go so as not to fold, {float(gone.min()):.{digits}f} to "
+            f"{met}; {gone.numel()} let go so as not to fold (points {named}), {float(gone.min()):.{digits}f} to "
             f"{float(gone.max()):.{digits}f} px from their targets"
         )
 
