@@ -303,7 +303,7 @@ class MorphResult:
                     "all frames of both images: the flow crushes part of a picture onto itself; check the marks for "
                     "points that cross",
                     hint=Hint(
-                        "or raise {setting}",
+                        "raising {setting} smooths the flow",
                         "straightness",
                         spelling="NaturalSettings.straightness (PaperSettings.smoothness)",
                     ),

@@ -1,0 +1,33 @@
+"""The README's Python examples run as written (a new user copies them first), in a temporary folder."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+BLOCKS = re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), flags=re.DOTALL)
+
+
+def test_the_readme_has_its_python_examples():
+    assert len(BLOCKS) >= 3  # the morph, the fluid core, the augmentation
+
+
+@pytest.mark.parametrize("index", range(len(BLOCKS)), ids=lambda i: BLOCKS[i].splitlines()[-1][:40])
+@pytest.mark.filterwarnings("ignore:the morph's maps fold")  # the paper's fit, as the README says
+def test_a_readme_example_runs_as_written(index, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # result.save("morph.gif") writes here, not into the checkout
+    scope: dict[str, object] = {}
+    exec(compile(BLOCKS[index], f"README.md python block {index}", "exec"), scope)  # noqa: S102
+    if "result" in scope:  # the morph: what the comments say it gives
+        result = scope["result"]
+        assert tuple(result.frames.shape) == (30, 3, 512, 512) and result.maps.shape == (30, 512, 512, 2)
+        assert float(result.error.mean()) < 1 and result.folded == 0  # the default morph meets its marks
+        assert (tmp_path / "morph.gif").stat().st_size > 0
+    if "sample" in scope:  # the augmentation: every entry of the sample moved by one flow, the label kept
+        sample = scope["sample"]
+        assert sample["image"].dtype == torch.float32 and sample["label"] == 3
+        assert sample["boxes"].shape == (1, 4) and sample["keypoints"].shape == (1, 2)
