@@ -136,7 +136,8 @@ def add_result_options(p: argparse.ArgumentParser) -> None:
         "--report",
         metavar="JSON",
         help="also write the morph's quality report (torchfluidwarp.metrics.morph_report: folds per frame, point "
-        "errors, ghosting, seam, path smoothness) to JSON",
+        "errors, ghosting, seam, path smoothness) to JSON; it measures all --frames frames (with --frame too, "
+        "rendering them all), the ghosting at frame N // 2 (its t is the report's mid_t)",
     )
 
 
