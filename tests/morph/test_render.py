@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from torchfluidwarp.morph.render import BEYOND_SHARPNESS, _dissolve
+from torchfluidwarp.morph.render import BEYOND_SHARPNESS, EDGE_MIRROR, _dissolve, read
+from torchfluidwarp.morph.settings import FEATHER
 from torchfluidwarp.warp import identity_map
 
 
@@ -33,3 +34,26 @@ def test_where_neither_picture_covers_the_nearer_takes_over_and_no_distance_over
     assert torch.isfinite(frame).all()
     assert torch.allclose(frame, torch.full_like(frame, 0.75 * 0.2 + 0.25 * 0.9), atol=1e-5)
     assert BEYOND_SHARPNESS > 1
+
+
+def test_a_strip_a_picture_leaves_uncovered_dissolves_into_it_as_it_takes_over() -> None:
+    # A covers a 64 x 160 canvas; B, 120 px wide, leaves the right 40 px uncovered (read beyond its right edge),
+    # as a picture zoomed by the pre-alignment does until the last frame. Early, A shows there (40 px is more
+    # than the strip B may fill mirrored at the start, EDGE_MIRROR * feather = 32 px); late, B fills it mirrored
+    # with nearly its weight, so the strip dissolves with the frame instead of showing A until the last frame
+    canvas = (64, 160)
+    ident = identity_map(canvas, dtype=torch.float32)
+    a, b = torch.full((1, 1, 64, 160), 0.2), torch.full((1, 1, 64, 120), 0.8)
+    fa, fb = read(a, ident, (64, 160)), read(b, ident, (64, 120))
+    outer = slice(130, 160)  # the strip, 10-40 px beyond B's edge
+
+    def b_weight(w: float) -> float:
+        frame = _dissolve((a, b), fa, fb, ident, ident, w, ((64, 160), (64, 120)), canvas, 0, feather=FEATHER)
+        return float(((frame[..., outer] - 0.2) / 0.6).mean())
+
+    assert EDGE_MIRROR * FEATHER < 40  # the set-up: the strip is wider than the one mirrored at the start
+    assert b_weight(0.1) < 0.01 and b_weight(0.5) < 0.01  # A, as before, up to the middle frame
+    weights = [b_weight(w) for w in (0.8, 0.9, 0.95, 0.97, 0.99)]
+    assert weights == sorted(weights) and weights[0] > 0.05  # B takes the strip over the last frames
+    assert weights[-2] > 0.97 - 0.07 and weights[-1] > 0.99 - 0.01, weights  # nearly the frame's own weight
+    assert abs(b_weight(1.0) - 1.0) < 1e-6

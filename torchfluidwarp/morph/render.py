@@ -66,7 +66,12 @@ def _power(x: Tensor, k: int) -> Tensor:
 
 
 def _coverage(
-    coords: Tensor, size: tuple[int, int], canvas: tuple[int, int], top: int, feather: float = FEATHER
+    coords: Tensor,
+    size: tuple[int, int],
+    canvas: tuple[int, int],
+    top: int,
+    feather: float = FEATHER,
+    share: float = 0.0,
 ) -> tuple[Tensor, Tensor]:
     """How far a frame may show the picture of ``size`` ``(h, w)`` that a map ``(1, n, W, 2)`` reads, the map
     covering rows ``top .. top + n - 1`` of a canvas of ``canvas`` ``(H, W)``.
@@ -84,8 +89,12 @@ def _coverage(
     does not show in the frame and covers fully: a picture that fills the canvas keeps the plain dissolve up to
     the canvas's border. A side whose edge lies only just inside covers nearly fully, beyond its edge too (the
     picture is read mirrored there, :func:`_dissolve`): the coverage is ``m + (1 - m) ramp`` with
-    ``m = smoothstep(1 - depth max(1, g) / (EDGE_MIRROR * feather))``, ``g`` the map's stretch across the side
-    (source pixels per output pixel). The picture's coverage is the product over its sides.
+    ``m = smoothstep(1 - depth max(1, g) (1 - share^4) / (EDGE_MIRROR * feather))``, ``g`` the map's stretch
+    across the side (source pixels per output pixel), ``share`` the picture's weight in the dissolve at this frame:
+    the strip a picture may fill mirrored widens as the picture takes over, little before its share passes 1/2 and
+    without bound as it reaches 1, so that the strip a zoomed picture leaves uncovered near the end of a morph
+    dissolves into it over the last frames instead of showing the other picture until the very last one. The
+    picture's coverage is the product over its sides.
 
     Returns:
         ``(coverage, inside)``: ``(1, 1, n, W)`` in ``[0, 1]`` and the distance inside the nearest side,
@@ -127,7 +136,7 @@ def _coverage(
             extent = extent_src / g  # the picture's width (or height) in output pixels
             band = torch.minimum(EDGE_DEPTH * depth, EDGE_SHARE * extent).clamp(max=feather, min=1e-12)
             # a strip beyond the edge that is thin on the canvas and in the picture: the picture mirrored
-            mirror = _smoothstep(1 - depth * g.clamp(min=1) / (EDGE_MIRROR * feather))
+            mirror = _smoothstep(1 - depth * g.clamp(min=1) * (1 - share**4) / (EDGE_MIRROR * feather))
             coverage[box] *= mirror + (1 - mirror) * _smoothstep(dn / band)
     if feather <= 0:  # no band: the hand-over happens at the edge itself
         return (inside >= 0).to(coords.dtype)[None, None], inside[None]
@@ -190,8 +199,8 @@ def _dissolve(
     picture read beyond its edge, that picture is read mirrored about its border (:func:`_reflect`): its content
     continues there instead of its edge pixels smeared into streaks.
     """
-    ca, ia = _coverage(map_a, sizes[0], canvas, top, feather)
-    cb, ib = _coverage(map_b, sizes[1], canvas, top, feather)
+    ca, ia = _coverage(map_a, sizes[0], canvas, top, feather, share=1 - w)
+    cb, ib = _coverage(map_b, sizes[1], canvas, top, feather, share=w)
     neither = (ca == 0) & (cb == 0)
     tiny = torch.finfo(ca.dtype).tiny
     if bool(neither.any()):  # the nearer one's share: the other's distance beyond its edge (output pixels)
