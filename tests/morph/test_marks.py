@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from torchfluidwarp.control.alignment import apply_alignment
-from torchfluidwarp.morph.marks import MIN_POSE_FIT, pose, warn_coarse_grid
+from torchfluidwarp.morph.marks import LET_GO, MIN_POSE_FIT, pose, warn_coarse_grid, warn_missed
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
 
@@ -98,3 +98,33 @@ def test_one_mark_far_off_where_the_marks_share_cells_warns_unless_it_was_let_go
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warn_coarse_grid(points, error, box, grid)
+
+
+@pytest.mark.parametrize(
+    "errors, warns",
+    [
+        ([0.2, 0.4, 0.3, 0.5], False),  # met
+        ([1.5, 1.8, 1.2, 2.0], True),  # 1.6 px on average: above LET_GO
+        ([0.2, 0.3, 0.2, 3.5], True),  # one mark far off
+        ([0.2, 0.3, 0.2, 30.0], False),  # ... but that one was let go on purpose
+    ],
+)
+def test_the_papers_fit_says_when_it_leaves_the_marks(errors, warns):
+    error = torch.tensor(errors)
+    let_go = torch.tensor([False, False, False, errors[-1] > 10])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn_missed(error, let_go)
+    if not warns:
+        assert caught == []
+        return
+    (w,) = caught
+    kept = error[~let_go]
+    assert f"end {float(kept.mean()):.1f} px from their targets on average, up to {float(kept.max()):.1f} px" in str(
+        w.message
+    )
+    assert str(w.message).endswith("a lower PaperSettings.smoothness (or more iterations) meets them closer")
+    assert w.message.explain({"smoothness": "--smoothness X"}).endswith(
+        "a lower --smoothness X (or more iterations) meets them closer"
+    )
+    assert LET_GO == 1.0

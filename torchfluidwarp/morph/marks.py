@@ -188,6 +188,30 @@ def warn_coarse_grid(
     )
 
 
+def warn_missed(error: Tensor, let_go: Tensor | None = None) -> None:
+    """Warn when the paper's keyframe fit leaves the marks more than :data:`LET_GO` px from their targets on
+    average, or one of them more than :data:`FAR_OFF` times that (``error`` ``(M,)``, the last frame's pixels; marks
+    let go, ``let_go`` ``(M,)`` bool, do not count): its smoothness term trades the marks for a smooth flow, and a
+    caller who asked for marks met should hear by how much they were not."""
+    kept = error if let_go is None else error[~let_go]
+    if kept.numel() == 0:
+        return
+    mean, worst = float(kept.mean()), float(kept.max())
+    if mean <= LET_GO and worst <= FAR_OFF * LET_GO:
+        return
+    warn(
+        AdvisedWarning(
+            f"the marks end {mean:.1f} px from their targets on average, up to {worst:.1f} px: the paper's fit "
+            "trades them for a smooth flow",
+            hint=Hint(
+                "a lower {setting} (or more iterations) meets them closer",
+                "smoothness",
+                spelling="PaperSettings.smoothness",
+            ),
+        )
+    )
+
+
 def _crossings(pa: Tensor, pb: Tensor) -> list[tuple[int, int]]:
     """:func:`crossing_pairs` as a list; none for fewer than 3 marks (no similarity to judge them by)."""
     return [] if pa.shape[0] < 3 else [(a, b) for a, b in crossing_pairs(pa, pb).tolist()]

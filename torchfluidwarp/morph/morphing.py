@@ -42,7 +42,15 @@ from torchfluidwarp.correspond.auto import MATCH_MODES
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
-from torchfluidwarp.morph.marks import LET_GO, check_marks, drop_repeats, pose, warn_coarse_grid, warn_let_go
+from torchfluidwarp.morph.marks import (
+    LET_GO,
+    check_marks,
+    drop_repeats,
+    pose,
+    warn_coarse_grid,
+    warn_let_go,
+    warn_missed,
+)
 from torchfluidwarp.morph.regions import hull_mask
 from torchfluidwarp.morph.render import Scene
 from torchfluidwarp.morph.result import MorphResult
@@ -472,4 +480,6 @@ def morph(
         warn_let_go(pa, pb, result.let_go, placed.matcher)
     if isinstance(settings, NaturalSettings):
         warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid, let_go)  # let go on purpose: not the grid's doing
+    else:
+        warn_missed(result.error, let_go)
     return result
