@@ -3,7 +3,9 @@ timing, regions and backgrounds, --frame, --report, RGBA outputs)."""
 
 import json
 import math
+import re
 import sys
+import warnings
 
 import imageio.v3 as iio
 import numpy as np
@@ -347,7 +349,15 @@ def test_average_and_sequence_of_faces_need_no_point_files(astronauts, tmp_path,
     found, given = tmp_path / "found.png", tmp_path / "given.png"
     settings = ["--grid", "12", "--steps", "3", "--max-iter", "5"]
     assert main(["average", str(a), str(b), "-o", str(found), *settings]) == 0
-    assert "average: found the face landmarks (63 points) of each of the 2 pictures" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "average: found the face landmarks (63 points) of each of the 2 pictures" in err
+    assert re.search(r"average: 2 images, mean point error [\d.]+ px, folded fraction \S+, [\d.]+ s \(", err), err
+    # a sequence: the note of the points comes before what the morphs warned of after them (the paper's fit for
+    # 2 iterations: its marks far off)
+    again = ["morph", str(a), str(b), str(a), "-o", str(tmp_path / "again.gif"), "--frames", "3"]
+    assert main([*again, "--method", "paper", "--max-iter", "2", "--grid", "12", "--steps", "3"]) == 0
+    err = capsys.readouterr().err
+    assert err.index("found the face landmarks") < err.index("warning: the marks end") < err.index("2 segments"), err
     assert main(["average", str(a), str(b), "--points", *files, "-o", str(given), *settings, "-q"]) == 0
     assert np.abs(iio.imread(found).astype(int) - iio.imread(given).astype(int)).max() <= 1
     seq = tmp_path / "seq.gif"

@@ -75,24 +75,25 @@ def _faces_said(command: str, args: argparse.Namespace, found: bool) -> Iterator
     """Around a call that finds each image's face landmarks (``found``): its note, in the command line's words
     (``--face-index I``), on stderr unless ``--quiet``."""
     caught: list[warnings.WarningMessage] = []
+    done = False
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MatchNotice)
             yield
-    finally:  # the call's other warnings go on as they came, even when it fails
+        done = True
+    finally:  # the note first (the points came first), then the call's other warnings as they came, even on failure
+        notes = [w.message.note for w in caught if isinstance(w.message, MatchNotice)]
+        if done and found and not args.quiet:
+            said = (
+                notes[0].explain({"face_index": "--face-index I"})
+                if notes
+                else f"found the face landmarks ({len(FACE_MESH_INDICES)} points) of each of the "
+                f"{len(args.images)} pictures"
+            )
+            print(f"{PROG} {command}: {said}; give --points FILE... to mark other features", file=sys.stderr)
         for w in caught:
             if not isinstance(w.message, MatchNotice):
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    notes = [w.message.note for w in caught if isinstance(w.message, MatchNotice)]
-    if found and not args.quiet:
-        said = (
-            notes[0].explain({"face_index": "--face-index I"})
-            if notes
-            else (
-                f"found the face landmarks ({len(FACE_MESH_INDICES)} points) of each of the {len(args.images)} pictures"
-            )
-        )
-        print(f"{PROG} {command}: {said}; give --points FILE... to mark other features", file=sys.stderr)
 
 
 def _measured(
@@ -213,13 +214,15 @@ def add_average(commands: argparse._SubParsersAction) -> None:
 
 
 def _cmd_average(args: argparse.Namespace) -> int:
+    clock = clock_of(args)
     try:
         if len(args.images) < 2:
             return fail("average", f"give two or more images, got {len(args.images)}")
         check_image_output(args.output, args.overwrite)
-        pictures, points = _read_all(args.images, args.points)
+        with clock.part("load"):
+            pictures, points = _read_all(args.images, args.points)
         settings = morph_settings(args)
-        with _faces_said("average", args, points is None):
+        with clock.part("points, fit and render"), _faces_said("average", args, points is None):
             result = average(
                 pictures,
                 points,
@@ -234,7 +237,7 @@ def _cmd_average(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(
                 f"{PROG} average: {len(pictures)} images, mean point error "
-                f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}",
+                f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}, {clock.summary()}",
                 file=sys.stderr,
             )
     except (OSError, ImportError) as exc:  # a file of the user's, or the faces extra missing: one line
