@@ -5,7 +5,6 @@ import json
 import math
 import re
 import sys
-import warnings
 
 import imageio.v3 as iio
 import numpy as np
