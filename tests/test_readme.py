@@ -24,9 +24,14 @@ def test_a_readme_example_runs_as_written(index, tmp_path, monkeypatch):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         exec(compile(BLOCKS[index], f"README.md python block {index}", "exec"), scope)  # noqa: S102
+        if "paper" in scope:
+            assert scope["paper"].folded > 0  # type: ignore[attr-defined]  # renders its frames: it folds here
     said = [str(w.message) for w in caught]
     if "paper" in scope:  # the paper's fit says that it met its marks loosely, as the README's comment does
         assert any("the paper's fit trades them for a smooth flow" in text for text in said), said
+        # where it folds, the advice names the paper's own setting (the natural method's would be refused)
+        folds = [text for text in said if "maps fold" in text]
+        assert folds and all(text.endswith("raising PaperSettings.smoothness smooths the flow") for text in folds)
     if "result" in scope:  # the morph: what the comments say it gives
         result = scope["result"]
         assert tuple(result.frames.shape) == (30, 3, 512, 512) and result.maps.shape == (30, 512, 512, 2)

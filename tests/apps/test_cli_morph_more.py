@@ -91,29 +91,36 @@ def test_faces_morph_finds_the_landmarks(astronauts, tmp_path):
 
 def test_face_index_picks_a_face_in_a_or_each_photo_that_shows_several(tmp_path, capsys):
     # a group photo (the astronaut's head large on the left, small on the right) and a portrait: --face-index 1
-    # takes the small face and keeps the portrait's only one; --face-index 1 0 says the same for A and B
+    # takes the small face and keeps the portrait's only one; --face-index 1,0 says the same for A and B, and may
+    # stand before the image files
     crop = load_sample("astronaut")[..., 0:256, 96:352]
     group = torch.full((1, 3, 256, 512), 0.5)
     group[..., :, :256] = crop
     group[..., 48:208, 304:464] = F.interpolate(crop, size=(160, 160), mode="bilinear", antialias=True)
     write_image(tmp_path / "group.png", group[0])
     write_image(tmp_path / "one.png", crop[0])
-    argv = ["morph", str(tmp_path / "group.png"), str(tmp_path / "one.png"), "--frames", "2", "--match", "faces"]
-    for index in (["1"], ["1", "0"]):
-        saved = tmp_path / f"a{len(index)}.pts", tmp_path / f"b{len(index)}.pts"
-        out = ["-o", str(tmp_path / f"m{len(index)}.gif"), "--save-points", *map(str, saved)]
-        assert main([*argv, "--face-index", *index, *out, *FAST]) == 0
+    images = [str(tmp_path / "group.png"), str(tmp_path / "one.png")]
+    for n, options in enumerate((["--face-index", "1"], ["--face-index", "1,0"])):
+        saved = tmp_path / f"a{n}.pts", tmp_path / f"b{n}.pts"
+        out = ["-o", str(tmp_path / f"m{n}.gif"), "--save-points", *map(str, saved), "--frames", "2"]
+        argv = ["morph", *options, *images, "--match", "faces"] if n else ["morph", *images, *options]
+        assert main([*argv, *out, *FAST]) == 0
         pa, pb = read_points(saved[0]), read_points(saved[1])
         inner = (pa[:, 0] > 4) & (pa[:, 0] < 507) & (pa[:, 1] > 4) & (pa[:, 1] < 251)  # not the border points
         assert pa[inner, 0].min() > 290  # the small face, on the right
         assert (pb[inner] - pb[inner].mean(0)).norm(dim=1).max() < 128  # the portrait's face
     capsys.readouterr()
     out = ["-o", str(tmp_path / "x.gif"), *FAST]
-    assert main([*argv, "--face-index", "1", "1", *out]) == 2
+    assert main(["morph", *images, "--face-index", "1,1", *out]) == 2
     assert "face_index=1, but " in (err := capsys.readouterr().err) and "one.png has 1 face(s)" in err
-    assert main([*argv, "--face-index", "1", "0", "2", *out]) == 2
+    assert main(["morph", *images, "--face-index", "1,0,2", *out]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "--face-index takes 1 or 2 integers" in err
+    assert err.count("\n") == 1 and "expected I or I,J" in err
+    # a morph through three photos takes one index (the face of each photo that shows several), not a pair
+    seq = ["morph", images[1], images[0], images[1], "--frames", "3"]
+    assert main([*seq, "-o", str(tmp_path / "s.gif"), "--face-index", "1", *FAST]) == 0
+    assert main([*seq, "-o", str(tmp_path / "t.gif"), "--face-index", "1,0", *FAST]) == 2
+    assert "a morph through 3 takes one index" in capsys.readouterr().err
 
 
 def test_missing_faces_extra_is_a_one_line_install_hint(astronauts, tmp_path, capsys, monkeypatch):

@@ -71,9 +71,9 @@ def test_marks_closer_than_the_cells_and_missed_get_a_warning_naming_the_remedy(
         return
     assert len(messages) == 1
     assert f"{error_px:.1f} px" in messages[0] and "0.30 fluid cells apart" in messages[0]
-    assert "NaturalSettings(grid=...), or more max_iter" in messages[0]  # the remedy, in Python's terms
+    assert "a finer grid (NaturalSettings.grid) or more iterations" in messages[0]  # in Python's terms
     said = [w.message for w in caught][0].explain({"grid": "--grid N"})  # and in the command line's
-    assert said.endswith("a finer grid meets them closer, at more time: --grid N") and "max_iter" not in said
+    assert said.endswith("a finer grid (--grid N) or more iterations meet them closer, at more time")
 
 
 def test_one_mark_far_off_where_the_marks_share_cells_warns_unless_it_was_let_go():

@@ -60,6 +60,7 @@ def test_settings_are_frozen_and_normalised():
         s.steps = 3  # type: ignore[misc]
     assert Timing(motion=[[0, 0], [0.5, 0.8], [1, 1]]).motion == ((0.0, 0.0), (0.5, 0.8), (1.0, 1.0))
     assert Matching(face_index=[0, None]).face_index == (0, None)
+    assert Matching(face_index=2).face_index == 2  # one index: the face of each picture that shows several
 
 
 @pytest.mark.parametrize(
@@ -87,6 +88,8 @@ def test_settings_are_frozen_and_normalised():
         (lambda: Blending(background="c"), ValueError, r"Blending\.background must be .* got 'c'"),
         (lambda: Matching(mode="eyes"), ValueError, r"Matching\.mode must be .* got 'eyes'"),
         (lambda: Matching(face_index=(0, -1)), ValueError, r"Matching\.face_index must be >= 0, got -1"),
+        (lambda: Matching(face_index=-1), ValueError, r"Matching\.face_index must be >= 0, got -1"),
+        (lambda: Matching(face_index="1"), TypeError, r"Matching\.face_index must be an int or a pair"),
     ],
 )
 def test_a_bad_setting_is_refused_naming_its_field_and_value(build, error, message):

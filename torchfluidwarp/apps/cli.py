@@ -414,7 +414,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
         check_output(args.output, args.overwrite)
         image = read_image(args.image)
     frames = animate.animate_frames(config, image, max_size=args.max_size)
-    with clock.part("fluid, render and write"):
+    with clock.part("frames"):
         first = next(frames)  # the (resized) photo: its size is known before the fluid runs
     (H, W), (h, w) = image.shape[-2:], first.shape[-2:]
     check_disk_space(args.output, config.steps + 1, h, w, first.shape[0])
@@ -426,7 +426,7 @@ def _cmd_animate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     stream = progress_bar(itertools.chain([first], frames), config.steps + 1, "animate", args.quiet)
-    with clock.part("fluid, render and write"):
+    with clock.part("frames"):
         path = write_animation(args.output, stream, fps=config.fps, overwrite=args.overwrite)
     if not args.quiet:
         print(f"{PROG} animate: {config.steps + 1} frames of {w} x {h} px, {clock.summary()}", file=sys.stderr)

@@ -71,7 +71,7 @@ __all__ = [
     "MAX_MINUTES",
     "add_limit_options",
     "add_face_index",
-    "face_indices",
+    "face_index_pair",
     "work_seconds",
     "check_work",
     "check_batch_work",
@@ -424,31 +424,26 @@ MAX_MINUTES = 10.0
 
 def add_face_index(p: argparse.ArgumentParser, when: str = "", pair: bool = False) -> None:
     """``--face-index I``: which face of a photograph that shows several the points are found on (``when`` says
-    when it applies, as a prefix of its help). With ``pair``, ``--face-index I J`` chooses in A and in B
-    separately (:func:`face_indices`)."""
+    when it applies, as a prefix of its help). With ``pair``, ``--face-index I,J`` chooses in A and in B
+    separately (one word, so that the option may stand before the image files), as
+    :func:`~torchfluidwarp.correspond.auto.find_points` takes them."""
     p.add_argument(
         "--face-index",
-        type=count(0),
+        type=face_index_pair if pair else count(0),
         default=None,
-        nargs="+" if pair else None,
-        metavar="I",
+        metavar="I" + ("[,J]" if pair else ""),
         help=f"{when}which face when a photo shows several: 0 = the largest (the default, with a note), 1 = the next"
-        + ("; I J: face I of A and face J of B" if pair else ""),
+        + ("; I,J: face I of A and face J of B" if pair else ""),
     )
 
 
-def face_indices(args: argparse.Namespace) -> int | tuple[int, int] | None:
-    """``--face-index I`` (the face of each photo that shows several) or ``I J`` (A's and B's) as
-    :func:`~torchfluidwarp.correspond.auto.find_points` takes them; ``None`` without it."""
-    value = args.face_index
-    if value is None or len(value) == 1:
-        return None if value is None else value[0]
-    if len(value) > 2:
-        raise InputError(
-            f"--face-index takes 1 or 2 integers (I for each photo that shows several faces, or I J for A and B), "
-            f"got {len(value)}: {' '.join(map(str, value))}"
-        )
-    return value[0], value[1]
+def face_index_pair(text: str) -> int | tuple[int, int]:
+    """An argparse ``type``: ``I`` (an index >= 0) or ``I,J`` (two)."""
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"expected I or I,J (integers >= 0), got {text!r}")
+    values = [count(0)(part.strip()) for part in parts]
+    return values[0] if len(values) == 1 else (values[0], values[1])
 
 
 def add_limit_options(p: argparse.ArgumentParser) -> None:

@@ -39,7 +39,6 @@ from torchfluidwarp.apps.cli_args import (
     check_work,
     clock_of,
     count,
-    face_indices,
     fail,
 )
 from torchfluidwarp.apps.cli_morph_output import (
@@ -379,14 +378,14 @@ def _cmd_morph(args: argparse.Namespace) -> int:
                 pa, pb = read_points(files[0]), read_points(files[1])
             check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
         else:
-            faces = face_indices(args)
+            faces = args.face_index  # I, or (I, J)
             with clock.part("points"):  # the face model's log lines are kept off stderr by the library
                 with warnings.catch_warnings():  # the reason is printed below, in the command line's words
                     warnings.simplefilter("ignore", MatchNotice)
                     found = find_points(a, b, match=args.match, face_index=faces, names=tuple(args.images))
             pa, pb = found.points_a, found.points_b
             if found.reason.notable and not args.quiet:  # a fall-back, or one face chosen among several
-                words = {"match": "--match", "face_index": "--face-index I (or I J, for A and B)"}
+                words = {"match": "--match", "face_index": "--face-index I (or I,J for A and B)"}
                 print(f"{PROG} morph: {found.reason.explain(words)}", file=sys.stderr)
             if args.save_points:
                 for path, points in zip(args.save_points, (pa, pb)):

@@ -136,6 +136,11 @@ def run_sequence(args: argparse.Namespace) -> int:
     if shrunk and not args.quiet:
         print(f"{PROG} morph: {shrunk}", file=sys.stderr)
     progress = not args.quiet and sys.stderr.isatty()
+    if isinstance(args.face_index, tuple):
+        raise InputError(
+            f"--face-index {args.face_index[0]},{args.face_index[1]} names a face of A and of B, for two photos; "
+            f"a morph through {len(args.images)} takes one index, the face of each photo that shows several"
+        )
     with clock.part("fit"), _faces_said("morph", args, points is None):
         sequence = morph_sequence(
             pictures,

@@ -226,7 +226,7 @@ def draw_fluid_warp(
     cell, typical = max(H / h, W / w), sum(settings.radius) / 2
     if typical < cell:  # the fluid cannot hold a push narrower than its cells: the warp is faint
         warn(
-            f"the brushes' radius, {typical:g} px on average, is under a fluid cell ({cell:.0f} px on a {W} x {H} "
+            f"the brushes' radius, {typical:.3g} px on average, is under a fluid cell ({cell:.3g} px on a {W} x {H} "
             f"image over {w} x {h} cells): the fluid smooths them away and the warp is faint; raise radius (and "
             "strength, both in pixels) with the image's size, or use a finer grid",
             RuntimeWarning,

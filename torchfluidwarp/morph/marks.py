@@ -92,10 +92,9 @@ LET_GO_HINT = Hint(
     "{setting} names the points let go and how far each ended",
     "report",
     spelling="result.let_go (and result.error)",
-    otherwise="the last line counts the points let go",
 )
 """Where a caller sees the marks a morph let go: the result's ``let_go`` and ``error`` (the command line's
-``--report``)."""
+``--report``; a command without one gives no advice)."""
 
 
 def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
@@ -180,9 +179,9 @@ def warn_coarse_grid(
             f"the marks end {mean:.1f} px from their targets on average, up to {worst:.1f} px: they lie "
             f"{spacing:.2f} fluid cells apart in A (median), where the fit converges slowly",
             hint=Hint(
-                "a finer grid meets them closer, at more time: {setting}",
+                "a finer grid ({setting}) or more iterations meet them closer, at more time",
                 "grid",
-                spelling="NaturalSettings(grid=...), or more max_iter",
+                spelling="NaturalSettings.grid",
             ),
         )
     )

@@ -39,7 +39,7 @@ from torchfluidwarp.control.keyframes import KeyframeFit, check_points
 from torchfluidwarp.core.grid import FluidGrid, inside_picture, rescale_points, scale_factor
 from torchfluidwarp.correspond import FoundPoints, MatchMode, MatchNotice, find_points, halfway_alignment
 from torchfluidwarp.correspond.auto import MATCH_MODES
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import Hint, InputError
 from torchfluidwarp.io import resize_image
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
 from torchfluidwarp.morph.marks import (
@@ -475,7 +475,9 @@ def morph(
         ]
     )  # (T + 1, M, 2)
     seconds = {"fit": t_fit - t0, "inverse": t_inv - t_fit, "total": t_inv - t0}
-    result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory, let_go)
+    smoother = "straightness" if isinstance(settings, NaturalSettings) else "smoothness"
+    advice = Hint("raising {setting} smooths the flow", smoother, spelling=f"{type(settings).__name__}.{smoother}")
+    result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory, let_go, advice)
     if placed is not None:
         warn_let_go(pa, pb, result.let_go, placed.matcher)
     if isinstance(settings, NaturalSettings):

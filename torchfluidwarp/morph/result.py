@@ -101,8 +101,11 @@ class MorphResult:
         seconds: dict[str, float],
         max_memory: float | None = None,
         let_go: Tensor | None = None,
+        smoother: Hint | None = None,
     ) -> None:
         self._scene = scene
+        # the fold warning's advice: the method's own setting that smooths its flow
+        self._smoother = smoother or Hint("raising {setting} smooths the flow", "straightness")
         self.fit = fit
         self.alignment = alignment
         self.trajectories = trajectories
@@ -158,8 +161,9 @@ class MorphResult:
 
     def error_summary(self, digits: int = 2) -> str:
         """:attr:`error`'s mean and maximum in words, over the marks met and over those let go (:attr:`let_go`,
-        named by their indices in the points, the first five) apart: a mark let go on purpose, however far it ends,
-        says nothing of how well the fit met the rest.
+        the first five named by their indices into :attr:`error`: the marks the morph kept, which are the points
+        given unless a ``Blending.size`` crop left some out or points placed twice were dropped) apart: a mark let
+        go on purpose, however far it ends, says nothing of how well the fit met the rest.
 
         Args:
             digits: decimals of the figures (pixels of the last frame).
@@ -302,11 +306,7 @@ class MorphResult:
                     f"the morph's maps fold on {count:,} of {n_pixels:,} pixels ({_share(count / n_pixels)}) over "
                     "all frames of both images: the flow crushes part of a picture onto itself; check the marks for "
                     "points that cross",
-                    hint=Hint(
-                        "raising {setting} smooths the flow",
-                        "straightness",
-                        spelling="NaturalSettings.straightness (PaperSettings.smoothness)",
-                    ),
+                    hint=self._smoother,
                 )
             )
 

@@ -328,17 +328,23 @@ class Matching:
             features, or the pixels where too few match:
             :data:`~torchfluidwarp.correspond.auto.TRUSTED_MATCHES`), ``"faces"``, ``"features"`` or
             ``"pixels"``. ``morph(match="pixels")`` is ``morph(match=Matching("pixels"))``.
-        face_index: which face in A and in B (0 = the largest; ``None``: the largest, with a warning if several).
+        face_index: which face in A and in B, ``(i, j)`` (0 = the largest; ``None``: the largest, with a warning if
+            several); one ``int``: that face in each picture that shows several (a picture of one face keeps it).
     """
 
     mode: MatchMode = "auto"
-    face_index: tuple[int | None, int | None] = field(default=(None, None))
+    face_index: int | tuple[int | None, int | None] = field(default=(None, None))
 
     def __post_init__(self) -> None:
         _choice("Matching.mode", self.mode, MATCH_MODES)
         pair = self.face_index
+        if isinstance(pair, int) and not isinstance(pair, bool):
+            check_int("Matching.face_index", pair, minimum=0)
+            return
         if not isinstance(pair, Sequence) or len(pair) != 2:
-            raise InputTypeError(f"Matching.face_index must be a pair (index in A, index in B), got {describe(pair)}")
+            raise InputTypeError(
+                f"Matching.face_index must be an int or a pair (index in A, index in B), got {describe(pair)}"
+            )
         for i in pair:
             if i is not None:
                 check_int("Matching.face_index", i, minimum=0)
