@@ -322,3 +322,19 @@ def test_malloc_trim_is_glibcs_on_linux_and_none_elsewhere():
         return
     assert trim is not None
     assert trim(0) in (0, 1)  # 1 if memory went back to the system
+
+
+def test_the_summarys_warnings_name_the_command_lines_flags(tmp_path, gen):
+    # a pair whose marks cross warns with advice; the command line's summary words it as its flags, Python's
+    # as Python's names
+    pairs = make_pairs(tmp_path, gen, n=1, bad=False)
+    crossing = torch.tensor([[8.0, 8.0], [24.0, 9.0], [15.0, 22.0], [10.0, 26.0]])
+    write_points(tmp_path / "data/a0.pts", crossing)
+    write_points(tmp_path / "data/b0.json", crossing[[1, 0, 2, 3]])  # the first two swap sides
+    assert main(["morph", "--pairs", str(pairs), "--out", str(tmp_path / "cli"), *FAST]) == 0
+    (row,) = read_csv(tmp_path / "cli/summary.csv")
+    assert "the marks cross: points 0 and 1" in row["warnings"]
+    assert "--report JSON names the points let go" in row["warnings"] and "result." not in row["warnings"]
+    morph_pairs(pairs, tmp_path / "py", progress=False, **OPTIONS)
+    (row,) = read_csv(tmp_path / "py/summary.csv")
+    assert "result.let_go (and result.error) names the points let go" in row["warnings"]

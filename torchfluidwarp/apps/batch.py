@@ -35,7 +35,7 @@ import shutil
 import sys
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -46,7 +46,7 @@ from tqdm import tqdm
 
 from torchfluidwarp._checks import check_instance, check_int, check_size
 from torchfluidwarp.apps.cli_args import check_disk_space, first_line
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import AdvisedWarning, InputError
 from torchfluidwarp.io import (
     FFMPEG_HINT,
     check_point_counts,
@@ -195,6 +195,7 @@ def morph_pairs(
     blending: Blending = Blending(),
     max_memory: float | None = None,
     max_size: int = 0,
+    names: Mapping[str, str] | None = None,
 ) -> BatchReport:
     """Morph every pair of the CSV ``pairs`` into the folder ``out``, one after another.
 
@@ -213,6 +214,9 @@ def morph_pairs(
         max_size: without ``blending.size``, each pair's GIF or MP4 is written with its image A's size shrunk so
             that its longer side is at most this many pixels (:func:`~torchfluidwarp.io.shrunk_size`; 0 keeps
             it, as do PNG frames).
+        names: how the summary's ``warnings`` column names the settings a warning's advice names (an
+            :class:`~torchfluidwarp.errors.AdvisedWarning`'s :class:`~torchfluidwarp.errors.Hint`): the command line
+            passes its flags (``{"straightness": "--straightness S"}``); by default Python's.
 
     Returns:
         This process's :class:`BatchReport` (with several ranks, its ``failed`` lists every rank's failures).
@@ -229,7 +233,9 @@ def morph_pairs(
             "blending.region must be 'points' or None for a batch: one pair of masks cannot serve every pair"
         )
     check_int("max_size", max_size, minimum=0)
-    options = _MorphOptions(settings, frames, timing, blending, max_memory, _animation_limit(fmt, max_size))
+    options = _MorphOptions(
+        settings, frames, timing, blending, max_memory, _animation_limit(fmt, max_size), dict(names or {})
+    )
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise InputError(FFMPEG_HINT)
     rank, world_size = _ranks(rank, world_size)
@@ -264,9 +270,9 @@ def morph_pairs(
     if gather:
         summary, report.failed = _gather(summary, report.failed)
     if rank == 0 or not gather:
-        names = {r.name for r in rows}
+        listed = {r.name for r in rows}
         ordered = [summary[r.name] for r in rows if r.name in summary]
-        ordered += [v for k, v in summary.items() if k not in names]  # earlier runs' other rows
+        ordered += [v for k, v in summary.items() if k not in listed]  # earlier runs' other rows
         _write_csv(summary_path, SUMMARY_FIELDS, ordered)
         report.failed.sort()
         failures = (dict(zip(FAILURE_FIELDS, f)) for f in report.failed)
@@ -376,6 +382,7 @@ class _MorphOptions:
     blending: Blending
     max_memory: float | None
     max_size: int  # 0: image A's size (PNG frames, or not asked)
+    names: dict[str, str]  # the settings' names in the warnings' advice (the command line's flags); {}: Python's
 
 
 def _morph_pair(
@@ -419,8 +426,14 @@ def _morph_pair(
         "let_go": str(int(result.let_go.sum())),
         "folded": f"{result.folded:.6g}",
         "seconds": f"{time.perf_counter() - t0:.2f}",
-        "warnings": " | ".join(first_line(w.message) for w in caught),
+        "warnings": " | ".join(first_line(_said(w.message, options.names)) for w in caught),
     }
+
+
+def _said(message: Warning | str, names: Mapping[str, str]) -> object:
+    """A warning as the summary records it: an :class:`~torchfluidwarp.errors.AdvisedWarning`'s advice in the
+    caller's ``names`` where it gave any."""
+    return message.explain(names) if names and isinstance(message, AdvisedWarning) else message
 
 
 def _device() -> torch.device:

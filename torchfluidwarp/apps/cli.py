@@ -154,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         except SystemExit as exc:  # --help, --version and usage errors: return their status instead of exiting
             return exc.code if isinstance(exc.code, int) else (EXIT_OK if exc.code is None else EXIT_BAD_INPUT)
     args.clock = clock
-    with command_run(args.command, _options(parser, args.command)):  # SIGTERM as Ctrl-C; a warning in one line
+    args.options = _options(parser, args.command)  # the command's flags by the library setting each sets
+    with command_run(args.command, args.options):  # SIGTERM as Ctrl-C; a warning in one line, in the flags' words
         try:
             return args.handler(args)
         except Terminated:

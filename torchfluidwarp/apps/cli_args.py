@@ -72,6 +72,7 @@ __all__ = [
     "add_limit_options",
     "add_face_index",
     "face_index_pair",
+    "setting_names",
     "work_seconds",
     "check_work",
     "check_batch_work",
@@ -128,6 +129,13 @@ def _flag(action: argparse.Action) -> str:
 def _usage(action: argparse.Action) -> str:
     """``--max-memory GIB``: the option as it is typed, with its metavar when it has one."""
     return f"{_flag(action)} {action.metavar}" if isinstance(action.metavar, str) else _flag(action)
+
+
+def setting_names(args: argparse.Namespace) -> dict[str, str]:
+    """The command line's name of each library setting the running command's options set (``{"max_memory":
+    "--max-memory GIB"}``): :func:`torchfluidwarp.apps.cli.main` puts the options on ``args``; ``{}`` without
+    them (a handler called directly)."""
+    return _names(getattr(args, "options", {}) or {})
 
 
 def _names(options: Mapping[str, argparse.Action]) -> dict[str, str]:

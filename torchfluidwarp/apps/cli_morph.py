@@ -40,6 +40,7 @@ from torchfluidwarp.apps.cli_args import (
     clock_of,
     count,
     fail,
+    setting_names,
 )
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
@@ -335,6 +336,7 @@ def _run_pairs(args: argparse.Namespace) -> int:
         blending=blending,
         max_memory=max_memory(args),
         max_size=args.max_size,
+        names=setting_names(args),  # the summary's warnings in the command line's words
     )
     print(  # even with --quiet, as the failures below: the command's result
         f"{PROG} morph: {len(report.morphed)} morphed, {len(report.skipped)} skipped (done before), "
