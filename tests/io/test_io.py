@@ -199,8 +199,10 @@ def test_a_tiff_reads_as_the_picture_it_shows(tmp_path, gen, kind):
 def test_a_tiff_of_colour_planes_is_measured_by_its_tags_before_decoding(tmp_path, gen):
     """Its page's shape is (3, H, W): the pixel count checked against max_pixels is H * W, not 3 * H."""
     _tiff(tmp_path / "x.tif", "planes", (random_image(gen, (20, 30, 3)) * 255).to(torch.uint8).numpy())
-    with pytest.raises(ValueError, match=r"30 x 20 = 600 pixels, more than max_pixels=599"):
+    with pytest.raises(ValueError, match=r"30 x 20 = 600 pixels, more than max_pixels=599") as info:
         read_image(tmp_path / "x.tif", max_pixels=599)
+    assert str(info.value).endswith("; pass a larger max_pixels to read it")  # the advice, to a Python caller
+    assert info.value.explain({}).endswith("more than max_pixels=599")  # none to one without the argument (studio)
     assert read_image(tmp_path / "x.tif", max_pixels=600).shape == (1, 3, 20, 30)
 
 

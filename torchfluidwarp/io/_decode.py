@@ -19,7 +19,7 @@ from imageio.plugins.pillow import PillowPlugin
 from PIL import Image
 
 from torchfluidwarp._checks import warn
-from torchfluidwarp.errors import InputError
+from torchfluidwarp.errors import Hint, InputError
 from torchfluidwarp.io._colour import in_srgb, nclx_in_srgb
 from torchfluidwarp.io._files import DECODE_ERRORS, first_line
 
@@ -54,8 +54,9 @@ def decode(uri: Path | bytes, source: str, max_pixels: int) -> np.ndarray:
     if array is None:
         raise InputError(
             f"cannot read {source}: its header claims {shape[1]} x {shape[0]} = {shape[0] * shape[1]:,} pixels, "
-            f"more than max_pixels={max_pixels:,} (pass a larger max_pixels to read it)",
+            f"more than max_pixels={max_pixels:,}",
             argument=argument,
+            hint=Hint("pass a larger {setting} to read it", "max_pixels"),  # a caller without one says nothing
         )
     _check_pixels(array.shape, source, argument)
     if frames > 1:  # an animation or a multi-page file: say what was left out

@@ -72,7 +72,7 @@ async def put_image(session: Session, request: Request) -> Response:
     try:
         img, said = await in_thread(lambda: _read_upload(data, name))
     except InputError as exc:  # the reader's reason: not an image, a HEIC without pillow-heif, too many pixels
-        raise BadInput(str(exc)) from None
+        raise BadInput(exc.explain({})) from None  # without advice on Python arguments a page user cannot pass
     if min(img.shape[-2:]) < 8:
         raise BadInput(f"{name!r} is too small ({img.shape[-1]}x{img.shape[-2]} pixels; at least 8x8)")
     session.set_image(slot, img, name)
