@@ -164,12 +164,10 @@ def warn_coarse_grid(
     that share cells without a zoom to focus on remain (obama3 -> breakingbad, whose border points hold the whole
     of A: 2.5 px on square cells). A face small in a large photograph is another: on a whole-body portrait the
     mouth's marks end up to 5.7 px off while the marks' mean stays under a pixel (biden -> obama, 0.87 px)."""
-    kept = error if let_go is None else error[~let_go]
-    if points.shape[0] < 2 or kept.numel() == 0:
+    missed = _missed(error, let_go)
+    if points.shape[0] < 2 or missed is None:
         return
-    mean, worst = float(kept.mean()), float(kept.max())
-    if mean <= LET_GO and worst <= FAR_OFF * LET_GO:
-        return
+    mean, worst = missed
     gaps = torch.cdist(points.double(), points.double()).fill_diagonal_(math.inf)
     spacing = float(gaps.min(1).values.median()) / mean_pixels_per_cell(box, grid)  # type: ignore[arg-type]
     if spacing >= MIN_SPACING:
@@ -192,12 +190,10 @@ def warn_missed(error: Tensor, let_go: Tensor | None = None) -> None:
     average, or one of them more than :data:`FAR_OFF` times that (``error`` ``(M,)``, the last frame's pixels; marks
     let go, ``let_go`` ``(M,)`` bool, do not count): its smoothness term trades the marks for a smooth flow, and a
     caller who asked for marks met should hear by how much they were not."""
-    kept = error if let_go is None else error[~let_go]
-    if kept.numel() == 0:
+    missed = _missed(error, let_go)
+    if missed is None:
         return
-    mean, worst = float(kept.mean()), float(kept.max())
-    if mean <= LET_GO and worst <= FAR_OFF * LET_GO:
-        return
+    mean, worst = missed
     warn(
         AdvisedWarning(
             f"the marks end {mean:.1f} px from their targets on average, up to {worst:.1f} px: the paper's fit "
@@ -209,6 +205,17 @@ def warn_missed(error: Tensor, let_go: Tensor | None = None) -> None:
             ),
         )
     )
+
+
+def _missed(error: Tensor, let_go: Tensor | None) -> tuple[float, float] | None:
+    """The mean and the largest of ``error`` ``(M,)`` over the marks not let go (``let_go`` ``(M,)`` bool), when
+    the mean passes :data:`LET_GO` or the largest :data:`FAR_OFF` times it; ``None`` when they are met (or all
+    were let go)."""
+    kept = error if let_go is None else error[~let_go]
+    if kept.numel() == 0:
+        return None
+    mean, worst = float(kept.mean()), float(kept.max())
+    return None if mean <= LET_GO and worst <= FAR_OFF * LET_GO else (mean, worst)
 
 
 def _crossings(pa: Tensor, pb: Tensor) -> list[tuple[int, int]]:
