@@ -104,8 +104,7 @@ class MorphResult:
         smoother: Hint | None = None,
     ) -> None:
         self._scene = scene
-        # the fold warning's advice: the method's own setting that smooths its flow
-        self._smoother = smoother or Hint("raising {setting} smooths the flow", "straightness")
+        self._smoother = smoother  # the fold warning's advice: the method's own setting that smooths its flow
         self.fit = fit
         self.alignment = alignment
         self.trajectories = trajectories
