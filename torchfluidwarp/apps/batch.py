@@ -45,8 +45,8 @@ from torch import Tensor
 from tqdm import tqdm
 
 from torchfluidwarp._checks import check_instance, check_int, check_size
-from torchfluidwarp.apps.cli_args import check_disk_space, first_line
-from torchfluidwarp.errors import AdvisedWarning, InputError
+from torchfluidwarp.apps.cli_args import check_disk_space, first_line, worded
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import (
     FFMPEG_HINT,
     check_point_counts,
@@ -233,9 +233,7 @@ def morph_pairs(
             "blending.region must be 'points' or None for a batch: one pair of masks cannot serve every pair"
         )
     check_int("max_size", max_size, minimum=0)
-    options = _MorphOptions(
-        settings, frames, timing, blending, max_memory, _animation_limit(fmt, max_size), dict(names or {})
-    )
+    options = _MorphOptions(settings, frames, timing, blending, max_memory, _animation_limit(fmt, max_size), names)
     if fmt == "mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise InputError(FFMPEG_HINT)
     rank, world_size = _ranks(rank, world_size)
@@ -382,7 +380,7 @@ class _MorphOptions:
     blending: Blending
     max_memory: float | None
     max_size: int  # 0: image A's size (PNG frames, or not asked)
-    names: dict[str, str]  # the settings' names in the warnings' advice (the command line's flags); {}: Python's
+    names: Mapping[str, str] | None  # the settings' names in the warnings' advice (the command line's flags)
 
 
 def _morph_pair(
@@ -426,14 +424,8 @@ def _morph_pair(
         "let_go": str(int(result.let_go.sum())),
         "folded": f"{result.folded:.6g}",
         "seconds": f"{time.perf_counter() - t0:.2f}",
-        "warnings": " | ".join(first_line(_said(w.message, options.names)) for w in caught),
+        "warnings": " | ".join(first_line(worded(w.message, options.names)) for w in caught),
     }
-
-
-def _said(message: Warning | str, names: Mapping[str, str]) -> object:
-    """A warning as the summary records it: an :class:`~torchfluidwarp.errors.AdvisedWarning`'s advice in the
-    caller's ``names`` where it gave any."""
-    return message.explain(names) if names and isinstance(message, AdvisedWarning) else message
 
 
 def _device() -> torch.device:

@@ -73,6 +73,7 @@ __all__ = [
     "add_face_index",
     "face_index_pair",
     "setting_names",
+    "worded",
     "work_seconds",
     "check_work",
     "check_batch_work",
@@ -142,6 +143,13 @@ def _names(options: Mapping[str, argparse.Action]) -> dict[str, str]:
     """The command line's name of each library setting its ``options`` set (``{"max_memory": "--max-memory
     GIB"}``), for a :class:`~torchfluidwarp.errors.Hint`."""
     return {name: _usage(action) for name, action in options.items()}
+
+
+def worded(message: Warning | str, names: Mapping[str, str] | None) -> Warning | str:
+    """A warning as a command says it: an :class:`~torchfluidwarp.errors.AdvisedWarning`'s advice with the
+    settings called by ``names`` (:func:`setting_names`); any other warning, or any with ``names=None``, as it is
+    (its advice in Python's names)."""
+    return message.explain(names) if names is not None and isinstance(message, AdvisedWarning) else message
 
 
 def fail(command: str, message: object, options: Mapping[str, argparse.Action] | None = None) -> int:
@@ -579,6 +587,8 @@ def _show_warning(command: str, options: Mapping[str, argparse.Action]) -> Calla
     :class:`~torchfluidwarp.errors.AdvisedWarning`'s advice naming the command's flags (``options``, as
     :func:`flags` gives them)."""
 
+    names = _names(options)
+
     def show(
         message: Warning | str,
         category: type[Warning],
@@ -587,8 +597,8 @@ def _show_warning(command: str, options: Mapping[str, argparse.Action]) -> Calla
         file: Any = None,
         line: str | None = None,
     ) -> None:
-        text = message.explain(_names(options)) if isinstance(message, AdvisedWarning) else message
-        print(f"{PROG} {command}: warning: {first_line(text)}", file=sys.stderr if file is None else file)
+        text = first_line(worded(message, names))
+        print(f"{PROG} {command}: warning: {text}", file=sys.stderr if file is None else file)
 
     return show
 
