@@ -6,7 +6,7 @@ A morph is a forward warp of image A, an inverse warp of image B along the same 
 (:func:`~torchfluidwarp.morph.morphing.morph`). B can be pulled back two ways:
 
 * ``inverse="flow"`` (the default) carries each pixel forward through the *same* fitted velocities
-  (:func:`~torchfluidwarp.warp.layer.maps_to_end`): no second fit;
+  (:func:`~torchfluidwarp.warp.maps.maps_to_end`): no second fit;
 * ``inverse="paper"`` is the paper's stepwise method: one small keyframe fit per fluid step, from the last
   step back to the first, composed.
 

@@ -12,12 +12,16 @@
   into the gallery's image folder and shows them on the example's page.
 * :func:`reset_example`: run before every example: restores torch's global grad mode, which a careless
   example could leave off for the ones after it (they all run in one process), and notes the start time.
+* :func:`_reexported`: a cross-reference to a name where a subpackage re-exports it
+  (``torchfluidwarp.morph.morph``) resolves to the page of the module that defines it
+  (``torchfluidwarp.morph.morphing.morph``): the API pages document each object once, where it lives.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import re
 import shutil
 import time
@@ -26,10 +30,12 @@ from pathlib import Path
 from docutils import nodes
 from docutils.parsers.rst import directives
 from sphinx.application import Sphinx
+from sphinx.util import logging
 from sphinx.util.docutils import SphinxDirective
 
 ROOT = Path(__file__).resolve().parents[2]
 _started: dict[str, float] = {}
+_log = logging.getLogger(__name__)
 
 
 class _IfPath(SphinxDirective):
@@ -143,9 +149,61 @@ class CliSubcommands(SphinxDirective):
         return self.parse_text_to_nodes("\n".join(lines), allow_section_headings=True)
 
 
+_MISSING, _FIELD = object(), object()
+
+
+def _lookup(target: str) -> object:
+    """The object a dotted ``target`` names (a module path, then attributes), or ``_MISSING``."""
+    parts = target.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            obj: object = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for i, name in enumerate(parts[cut:]):
+            owner, obj = obj, getattr(obj, name, _MISSING)
+            if obj is _MISSING:  # an attribute set in __init__ or a dataclass field: documented, not on the class
+                last = cut + i == len(parts) - 1
+                return _FIELD if last and isinstance(owner, type) and _documents(owner, name) else _MISSING
+        return obj
+    return _MISSING
+
+
+def _documents(cls: type, name: str) -> bool:
+    """Whether class ``cls`` has an instance attribute ``name``: a dataclass field without a default (an
+    annotation), or an entry of its docstring's ``Attributes:`` section (set in ``__init__``)."""
+    if any(name in getattr(k, "__annotations__", {}) for k in cls.__mro__):
+        return True
+    return re.search(rf"^\s+{re.escape(name)}( \(.*\))?:", inspect.getdoc(cls) or "", re.MULTILINE) is not None
+
+
+def _reexported(app: Sphinx, env, node, contnode):  # noqa: ANN001 - Sphinx's missing-reference signature
+    """Resolve a Python cross-reference to a re-exported ``torchfluidwarp`` name by where it is defined, and warn
+    of one to a name that does not exist (a renamed or moved function: without ``nitpicky``, Sphinx would show
+    it as plain text in silence)."""
+    target = node.get("reftarget", "")
+    if node.get("refdomain") != "py" or not target.startswith("torchfluidwarp."):
+        return None
+    obj = _lookup(target)
+    if obj is _MISSING:
+        _log.warning("cross-reference to %s, which does not exist", target, location=node)
+        return None
+    if obj is _FIELD:
+        return None
+    module, qualname = getattr(obj, "__module__", None), getattr(obj, "__qualname__", None)
+    if not isinstance(module, str) or not isinstance(qualname, str) or "<" in qualname:
+        return None
+    canonical = f"{module}.{qualname}"
+    if canonical == target:
+        return None
+    domain = env.get_domain("py")
+    return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], canonical, node, contnode)
+
+
 def setup(app: Sphinx) -> dict[str, object]:
     app.add_directive("if-exists", IfExists)
     app.add_directive("if-missing", IfMissing)
     app.add_directive("cli-subcommands", CliSubcommands)
     app.connect("source-read", _outside_links)
+    app.connect("missing-reference", _reexported)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

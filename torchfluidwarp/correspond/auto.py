@@ -277,8 +277,9 @@ def _faces_note(chosen: tuple[Chosen, Chosen], names: tuple[str, str], face_inde
 def find_each_face(
     images: Sequence[Tensor], *, face_index: int | None = None, names: Sequence[str] | None = None
 ) -> tuple[list[Tensor], Note]:
-    """The landmarks of one face in each of several pictures: the same :data:`~torchfluidwarp.correspond.faces.
-    FACE_MESH_INDICES` points in the same order, for a morph through them or their average.
+    """The landmarks of one face in each of several pictures: the same
+    :data:`~torchfluidwarp.correspond.faces.FACE_MESH_INDICES` points in the same order, for a morph through them
+    or their average.
 
     Args:
         images: pictures ``(C, H, W)`` or ``(1, C, H, W)`` in ``[0, 1]``, any size.

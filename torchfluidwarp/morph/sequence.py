@@ -169,9 +169,9 @@ def morph_sequence(
     Args:
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio.
         points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
-            ``None`` (the default): the landmarks of each image's face (:func:`~torchfluidwarp.correspond.
-            find_each_face`; needs the ``faces`` extra), with border pairs and a crossing among them let go, as
-            in a two-image face morph (:func:`~torchfluidwarp.correspond.find_points`).
+            ``None`` (the default): the landmarks of each image's face
+            (:func:`~torchfluidwarp.correspond.find_each_face`; needs the ``faces`` extra), with border pairs and a
+            crossing among them let go, as in a two-image face morph (:func:`~torchfluidwarp.correspond.find_points`).
         face_index: with ``points=None``, which face where an image shows several (0 = the largest, the default).
         names: what to call each image in messages (file names, say); default ``images[i]``.
         settings, timing, blending, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for
@@ -264,8 +264,8 @@ def average(
         images: two or more images ``(C, H, W)`` (or ``(1, C, H, W)``), of any size and aspect ratio; the
             average takes the richest colour model among them.
         points: one ``(M, 2)`` set per image, in that image's own pixels, the same features in the same order;
-            ``None`` (the default): the landmarks of each image's face (:func:`~torchfluidwarp.correspond.
-            find_each_face`; needs the ``faces`` extra).
+            ``None`` (the default): the landmarks of each image's face
+            (:func:`~torchfluidwarp.correspond.find_each_face`; needs the ``faces`` extra).
         face_index: with ``points=None``, which face where an image shows several (0 = the largest, the default).
         names: what to call each image in messages (file names, say); default ``images[i]``.
         settings, progress, max_memory: as for :func:`~torchfluidwarp.morph.morph`, used for every warp (each

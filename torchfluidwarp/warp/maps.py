@@ -78,7 +78,7 @@ class MapConfig:
             (:meth:`~torchfluidwarp.core.staggered.StaggeredGrid.substeps`). Default
             :data:`~torchfluidwarp.core.staggered.MAX_STRAIN_PER_SUBSTEP`.
         max_substeps: the most sub-steps one step may take; a flow that needs more is refused with a
-            ``ValueError``. Default :data:`~torchfluidwarp.core.staggered.MAX_SUBSTEPS`.
+            :class:`~torchfluidwarp.errors.FlowBlewUp`. Default :data:`~torchfluidwarp.core.staggered.MAX_SUBSTEPS`.
         max_memory: bytes the maps of one call may hold; default :data:`torchfluidwarp._checks.MAX_BYTES`.
     """
 
