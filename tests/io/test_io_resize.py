@@ -3,6 +3,7 @@ import torch
 import torch.nn.functional as F
 
 from torchfluidwarp.io import resize_image, shrink_image
+from torchfluidwarp.io.images import premultiplied, straight
 
 
 def _image(h=40, w=30, dtype=torch.float64):
@@ -53,3 +54,28 @@ def test_shrink_names_a_bad_longest():
         shrink_image(_image(), -1)
     with pytest.raises(TypeError, match="image"):
         resize_image([[0.0]], (2, 2))
+
+
+def test_premultiplied_and_straight_are_inverse_where_there_is_alpha() -> None:
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(1, 4, 8, 8, generator=g)
+    image[:, 3, 0, 0] = 0.0
+    back = straight(premultiplied(image))
+    torch.testing.assert_close(back[:, :, 1:], image[:, :, 1:])
+    assert float(back[0, :3, 0, 0].abs().max()) == 0.0  # no alpha: no colour to recover
+    rgb = torch.rand(1, 3, 8, 8, generator=g)
+    assert premultiplied(rgb) is rgb and straight(rgb) is rgb
+
+
+def test_rgba_is_resized_premultiplied_so_a_hidden_colour_does_not_bleed() -> None:
+    # left half transparent over a hidden red, right half opaque blue: halving the size mixes the two across
+    # the edge; the mixed pixels are blue at part alpha, never reddish
+    image = torch.zeros(1, 4, 8, 8)
+    image[:, 0, :, :4] = 1.0
+    image[:, 2, :, 4:] = 1.0
+    image[:, 3, :, 4:] = 1.0
+    small = resize_image(image, (4, 3))  # an odd width: a column straddles the edge
+    assert float(small[0, 0].abs().max()) < 1e-6
+    seen = small[0, 3] > 0
+    torch.testing.assert_close(small[0, 2][seen], torch.ones_like(small[0, 2][seen]))
+    assert bool(((small[0, 3] > 0) & (small[0, 3] < 1)).any())  # the edge column is part transparent

@@ -81,6 +81,7 @@ def test_paste_back_round_trip_and_only_the_box_changes():
 
 
 def test_alpha_is_warped_like_colour():
+    from torchfluidwarp.io.images import premultiplied, straight
     from torchfluidwarp.warp import warp_image
 
     alpha = hull_mask(PA, (64, 64), margin=0.2, band=4.0)
@@ -90,7 +91,12 @@ def test_alpha_is_warped_like_colour():
     assert r.frames.shape == (4, 4, 64, 64)
     assert float(r.frames[:, 3].min()) >= 0 and float(r.frames[:, 3].max()) <= 1
     k = 2
-    torch.testing.assert_close(r.forward_frames[k], warp_image(rgba_a[None], r.maps[k : k + 1])[0], atol=1e-5, rtol=0)
+    # alpha is warped like colour; the colour is warped premultiplied, so the colour under alpha 0 does not bleed
+    warped = warp_image(premultiplied(rgba_a[None]), r.maps[k : k + 1])
+    torch.testing.assert_close(r.forward_frames[k], straight(warped)[0], atol=1e-5, rtol=0)
+    torch.testing.assert_close(
+        r.forward_frames[k][3], warp_image(rgba_a[None], r.maps[k : k + 1])[0, 3], atol=1e-5, rtol=0
+    )
     # an RGB B with an RGBA A gets an opaque alpha
     mixed = morph(rgba_a, B, PA, PB, **KW)
     torch.testing.assert_close(mixed.frames[-1][3], torch.ones(64, 64))

@@ -57,3 +57,34 @@ def test_a_strip_a_picture_leaves_uncovered_dissolves_into_it_as_it_takes_over()
     assert weights == sorted(weights) and weights[0] > 0.05  # B takes the strip over the last frames
     assert weights[-2] > 0.97 - 0.07 and weights[-1] > 0.99 - 0.01, weights  # nearly the frame's own weight
     assert abs(b_weight(1.0) - 1.0) < 1e-6
+
+
+def test_a_transparent_pixels_hidden_colour_never_shows_and_an_edge_of_alpha_does_not_tint() -> None:
+    # A: RGBA, its left half transparent over a hidden red, its right half opaque blue; B: opaque green. Blended
+    # straight, the middle frame showed the hidden red at half strength over the left half ((0.5, 0.5, 0) at alpha
+    # 0.5); premultiplied, it is B's green at B's share of the alpha. The marks stay put: the frames are a
+    # cross-dissolve, so every pixel's expected value is known.
+    from torchfluidwarp.morph import NaturalSettings, morph
+
+    a = torch.zeros(1, 4, 64, 64)
+    a[:, 0] = 1.0  # red everywhere, hidden where alpha is 0
+    a[:, :3, :, 32:] = torch.tensor([0.0, 0.0, 1.0])[:, None, None]
+    a[:, 3, :, 32:] = 1.0
+    b = torch.zeros(1, 3, 64, 64)
+    b[:, 1] = 1.0
+    p = torch.tensor([[10.0, 10.0], [50.0, 10.0], [30.0, 50.0], [15.0, 45.0]])
+    result = morph(a, b, p, p, frames=3, progress=False, settings=NaturalSettings(dense=None))
+    mid = result.frame(0.5)  # (4, H, W)
+    left, right = mid[:, :, :24], mid[:, :, 40:]  # away from the edge of alpha, which the flow may blur a pixel
+    torch.testing.assert_close(left[3], torch.full_like(left[3], 0.5), atol=1e-3, rtol=0)
+    torch.testing.assert_close(
+        left[:3], torch.tensor([0.0, 1.0, 0.0])[:, None, None].expand_as(left[:3]), atol=2e-3, rtol=0
+    )
+    torch.testing.assert_close(right[3], torch.ones_like(right[3]), atol=1e-3, rtol=0)
+    torch.testing.assert_close(
+        right[:3], torch.tensor([0.0, 0.5, 0.5])[:, None, None].expand_as(right[:3]), atol=2e-3, rtol=0
+    )
+    # across the edge of alpha, no red at all: the colour is a mix of green and blue only
+    assert float(mid[0].abs().max()) < 1e-3
+    # the endpoints are the pictures themselves (A's hidden red included: nothing is lost from the input)
+    torch.testing.assert_close(result.frame(0.0), a[0])

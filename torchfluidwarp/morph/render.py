@@ -5,17 +5,22 @@ fluid's frame; image A is read at ``g_s(z)`` (the fluid's backward map) and imag
 ``K_s`` carries ``z`` forward from ``s`` to ``T`` through the same velocities (``inverse="flow"``), or through a
 chain of small per-step fits (``inverse="paper"``). Maps are ``(1, H, W, 2)`` in pixels, ``(x, y)``, pixel
 centres at integers.
+
+Pictures with alpha (``C = 4``, RGBA) are read and blended premultiplied (colour times alpha) and shown straight:
+the colour stored under transparent pixels, often black or anything, never bleeds into a frame (a cross-dissolve
+of a transparent pixel into an opaque green one is green at half alpha, not half the hidden colour).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
 
 from torchfluidwarp.control.alignment import apply_alignment, interpolate_alignment
+from torchfluidwarp.io.images import premultiplied, straight
 from torchfluidwarp.morph.regions import composite
 from torchfluidwarp.morph.settings import FEATHER, InverseMethod
 from torchfluidwarp.warp.frames import identity_map, jacobian_determinant, sample_map
@@ -241,12 +246,13 @@ def on_canvas(
 
     ``place`` ``(3, 3)`` takes the picture's pixels to the canvas's
     (:func:`~torchfluidwarp.morph.morphing.placement`); ``image`` ``(1, C, h, w)`` is the picture of ``size``
-    ``(H_p, W_p)`` or a resized copy of it (:func:`read`; ``None``: the picture itself)."""
+    ``(H_p, W_p)`` or a resized copy of it (:func:`read`; ``None``: the picture itself). RGBA is read premultiplied
+    and returned straight (:func:`premultiplied`)."""
     r0, r1 = rows or (0, canvas[0])
     ident = identity_map((r1 - r0, canvas[1]), device=image.device, dtype=torch.float64)
     ident = ident + ident.new_tensor([0.0, float(r0)])
     coords = apply_alignment(torch.linalg.inv(place.double()), ident).to(image.dtype)
-    return read(image, coords, size or (image.shape[-2], image.shape[-1]))
+    return straight(read(premultiplied(image), coords, size or (image.shape[-2], image.shape[-1])))
 
 
 def _sample_map(coords: Tensor, at: Tensor) -> Tensor:
@@ -313,8 +319,12 @@ class Scene:
     size_b: tuple[int, int] | None = None
     place_a: Tensor | None = None  # (3, 3) float64, A's pixels to the canvas's; default the identity
     place_b: Tensor | None = None
+    read_a: Tensor = field(init=False, repr=False)  # what the frames read: premultiplied where there is alpha
+    read_b: Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        # what the frames read and blend: RGBA premultiplied (see the module's docstring), the rest as it is
+        self.read_a, self.read_b = premultiplied(self.a), premultiplied(self.b)
         eye = torch.eye(3, dtype=torch.float64, device=self.a.device)
         self.size_a = self.size_a or (self.a.shape[-2], self.a.shape[-1])
         self.size_b = self.size_b or (self.b.shape[-2], self.b.shape[-1])
@@ -328,9 +338,12 @@ class Scene:
         assert self.canvas is not None
         return self.canvas
 
-    def placed(self, which: str, rows: tuple[int, int]) -> Tensor:
+    def placed(self, which: str, rows: tuple[int, int], blended: bool = False) -> Tensor:
         """Rows ``[r0, r1)`` of picture ``which`` (``"a"`` or ``"b"``) placed on the canvas, ``(1, C, n, W)``: what
-        the first (``"a"``) and the last frame show, and a region's background."""
+        the first (``"a"``) and the last frame show, and (``blended``: premultiplied, as the frames are blended) a
+        region's background."""
+        if blended:
+            return premultiplied(self.placed(which, rows))
         image, size, place = (
             (self.a, self.size_a, self.place_a) if which == "a" else (self.b, self.size_b, self.place_b)
         )
@@ -382,7 +395,7 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     ``(1, C, n, W)``, the maps ``(1, n, W, 2)`` (each in its own picture's pixels) and the folded pixel count,
     over the rows ``r0 - 1`` to ``r1`` (one more row each side, where the picture has one, for the Jacobian's
     central differences)."""
-    a, b = scene.a, scene.b
+    a, b = scene.read_a, scene.read_b  # premultiplied where they have alpha: straight() below
     H, W = scene.size
     assert scene.place_a is not None and scene.place_b is not None and scene.size_a and scene.size_b
     lo, hi = max(rows[0] - 1, 0), min(rows[1] + 1, H)
@@ -407,14 +420,14 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
         ma = read(scene.masks[0], map_a, scene.size_a)
         mb = read(scene.masks[1], map_b, scene.size_b)
         if scene.background == "a":
-            background = scene.placed("a", rows)
+            background = scene.placed("a", rows, blended=True)
         elif scene.background == "b":
-            background = scene.placed("b", rows)
+            background = scene.placed("b", rows, blended=True)
         else:
-            background = torch.lerp(scene.placed("a", rows), scene.placed("b", rows), w)
+            background = torch.lerp(scene.placed("a", rows, blended=True), scene.placed("b", rows, blended=True), w)
         frame = composite(frame, background, torch.lerp(ma, mb, w))
     folded = (det_a[:, mine] <= 0).sum() + (det_b[:, mine] <= 0).sum()
-    return [frame, fa, fb, map_a, map_b, folded]
+    return [straight(frame), straight(fa), straight(fb), map_a, map_b, folded]
 
 
 def raster_maps(scene: Scene, ts: list[float]) -> tuple[Tensor, Tensor | None]:

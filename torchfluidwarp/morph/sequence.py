@@ -29,6 +29,7 @@ from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_
 from torchfluidwarp.correspond.auto import bordered_pairs
 from torchfluidwarp.errors import InputError, InputTypeError
 from torchfluidwarp.io import write_animation
+from torchfluidwarp.io.images import premultiplied, straight
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
 from torchfluidwarp.morph.render import on_canvas
 from torchfluidwarp.morph.result import MorphResult
@@ -311,4 +312,5 @@ def average(
         folded += end.folded / (2 * H * W)
         errors.append(float(result.met_error.mean()))  # the marks let go so as not to fold left out
     stack = torch.stack(warped)
-    return AverageResult(stack.mean(0), back.to(first.dtype), stack, folded / len(pairs), torch.tensor(errors))
+    mean = straight(premultiplied(stack).mean(0, keepdim=True))[0]  # RGBA: averaged premultiplied, as frames blend
+    return AverageResult(mean, back.to(first.dtype), stack, folded / len(pairs), torch.tensor(errors))
