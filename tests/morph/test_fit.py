@@ -204,3 +204,44 @@ def test_square_cells_on_a_wide_picture_meet_marks_that_stretched_cells_blur():
     # measured: 0.18 px on average (0.27 at most) on square cells, 0.74 (1.28) on stretched ones
     assert float(error[SquareCells(576)].mean()) < 0.3 and float(error[SquareCells(576)].max()) < 0.5
     assert float(error[24].mean()) > 2 * float(error[SquareCells(576)].mean())
+
+
+def test_a_natural_warm_start_after_a_dragged_mark_starts_nearer_and_leaves_the_previous_fit_alone():
+    # the studio's case: one mark dragged by 3 px. The lattice between the marks changes in number with the
+    # travel, so the corrections are matched by place (they were dropped whenever the counts differed).
+    from torchfluidwarp.data import load_sample, load_sample_points
+    from torchfluidwarp.morph import morph
+    from torchfluidwarp.morph.fit import warm_corrections
+
+    a, b = load_sample("astronaut"), load_sample("cat")
+    pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
+    settings = NaturalSettings(dense=None)
+    first = morph(a, b, pa, pb, frames=2, progress=False, settings=settings)
+    before = first.fit.forces.weight.detach().clone()
+    moved = pb.clone()
+    moved[0] += 3.0
+    cold = morph(a, b, pa, moved, frames=2, progress=False, settings=settings)
+    warm = morph(a, b, pa, moved, frames=2, progress=False, settings=settings, warm_start=first.fit)
+    assert torch.equal(first.fit.forces.weight, before)  # the previous fit is left as it was
+    assert warm.fit.loss_history[0] < 0.5 * cold.fit.loss_history[0]
+    assert float(warm.error.mean()) <= float(cold.error.mean()) + 0.05
+    # every point of the new fit found its counterpart: the marks within a few pixels, the lattice in place
+    forces = cold.fit.forces
+    assert warm_corrections(forces, first.fit.forces) == forces.weight.shape[2]
+
+
+def test_a_warm_start_of_the_other_method_or_another_control_grid_is_refused():
+    from torchfluidwarp.morph import morph
+
+    a = torch.rand(1, 3, 48, 48, generator=torch.Generator().manual_seed(0))
+    pb = PA * 0.7 + 3.0
+    natural = morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=NaturalSettings(dense=None))
+    paper = PaperSettings(steps=4, control=(3, 3), max_iter=3)
+    with pytest.raises(InputError, match="warm_start is a fit of the natural method and this morph uses the paper's"):
+        morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=paper, warm_start=natural.fit)
+    fitted = morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=paper)
+    with pytest.raises(InputError, match="warm_start is a fit of the paper's method"):
+        morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=NaturalSettings(dense=None), warm_start=fitted.fit)
+    with pytest.raises(InputError, match=r"control grid is \(4, 2, 3, 3\).*\(4, 2, 4, 4\)"):
+        morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=PaperSettings(steps=4, control=4, max_iter=3),
+              warm_start=fitted.fit)  # fmt: skip

@@ -258,7 +258,7 @@ def fit_natural(
         target: ``(M, 2)`` where they must go, A's pixels (B's points taken back through the pre-alignment).
         size: ``(H, W)`` of image A.
         settings: the method's settings.
-        warm_start: a previous fit whose kicks' corrections start this one, when their shapes agree.
+        warm_start: a previous natural fit whose kicks' corrections start this one (:func:`warm_corrections`).
         progress: tqdm bars.
         dense: given the marks' midpoints and travels ``(M, 2)`` (A's pixels), the residual travel ``R`` between
             them, points ``(N, 2)`` -> ``(N, 2)``, A's pixels
@@ -320,10 +320,8 @@ def fit_natural(
         weights = torch.cat([mids.new_ones(marks), mids.new_full((len(extra),), LATTICE_WEIGHT)])
     whole = None if dense is None and mids.shape[0] == marks else travel
     forces = LandmarkForces(mids, disp, steps, inside=inside, travel=whole)
-    previous = None if warm_start is None else getattr(warm_start.forces, "weight", None)
-    if previous is not None and previous.shape == forces.weight.shape:
-        with torch.no_grad():
-            forces.weight.copy_(previous)
+    if warm_start is not None:
+        warm_corrections(forces, warm_start.forces)
     along = torch.linspace(0, 1, steps + 1, dtype=torch.float64, device=pa.device).view(-1, 1, 1)
     straight = mids + (along - 0.5) * disp  # (T + 1, M, 2) box pixels
     keyframes = [(t, straight[t]) for t in range(1, steps + 1)]
@@ -373,6 +371,28 @@ def _plus(
 def _shifted(travel: Callable[[Tensor], Tensor], by: float) -> Callable[[Tensor], Tensor]:
     """Points ``(N, 2)`` -> ``(N, 2)`` pixels: ``travel(p + by)``."""
     return lambda p: travel(p + by)
+
+
+def warm_corrections(forces: LandmarkForces, previous: nn.Module) -> int:
+    """Start ``forces``' corrections (``weight`` ``(1, T, N, 2)``) from a previous natural fit's forces: each of
+    its points takes the corrections of the previous fit's point whose midpoint is nearest, where that is within
+    half the median distance between this fit's neighbouring points (a mark dragged by a few pixels keeps its
+    corrections; the lattice between the marks, whose points change in number as the travel changes, keeps
+    those at the same places); the rest start at 0. Returns how many points were started.
+    """
+    if not isinstance(previous, LandmarkForces) or previous.weight.shape[:2] != forces.weight.shape[:2]:
+        return 0
+    new, old = forces.midpoints, previous.midpoints.to(forces.midpoints)
+    if new.shape[0] < 2 or old.shape[0] == 0:
+        return 0
+    gaps = torch.cdist(new, new)
+    gaps.fill_diagonal_(float("inf"))
+    reach = 0.5 * float(gaps.min(1).values.median())
+    distance, nearest = torch.cdist(new, old).min(1)
+    keep = distance <= reach
+    with torch.no_grad():
+        forces.weight[:, :, keep] = previous.weight.detach().to(forces.weight)[:, :, nearest[keep]]
+    return int(keep.sum())
 
 
 def _lattice(mids: Tensor, travel: Callable[[Tensor], Tensor], inside: tuple[float, float, float, float],

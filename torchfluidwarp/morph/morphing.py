@@ -16,6 +16,7 @@ the point matching's, each a frozen dataclass whose defaults are the morph's.
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -64,6 +65,8 @@ from torchfluidwarp.morph.settings import (
     Timing,
 )
 from torchfluidwarp.morph.timing import schedule
+from torchfluidwarp.warp.forces import ControlGrid
+from torchfluidwarp.warp.landmarks import LandmarkForces
 
 __all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
 
@@ -221,6 +224,28 @@ def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid:
     return float(frames * per_frame * itemsize + fluid)
 
 
+def _check_warm_start(warm_start: KeyframeFit, settings: MorphSettings) -> None:
+    """Refuse a ``warm_start`` that cannot start a fit with ``settings``: a fit of the other method, or a paper's
+    fit of another number of steps or control points (its forces would be fitted as they are, another model)."""
+    natural = isinstance(warm_start.forces, LandmarkForces)
+    if natural != isinstance(settings, NaturalSettings):
+        given, wanted = ("the natural", "the paper's") if natural else ("the paper's", "the natural")
+        raise InputError(
+            f"warm_start is a fit of {given} method and this morph uses {wanted}: pass a result.fit of a morph "
+            f"with the same settings' class, or none",
+            argument="warm_start",
+        )
+    if isinstance(settings, PaperSettings):
+        expected = ControlGrid(settings.steps, settings.control).weight.shape[1:]
+        given_shape = getattr(warm_start.forces, "weight", torch.empty(0)).shape[1:]
+        if given_shape != expected:
+            raise InputError(
+                f"warm_start's control grid is {tuple(given_shape)} (steps, 2, K_y, K_x) and this morph's is "
+                f"{tuple(expected)}: pass a result.fit of a morph with the same PaperSettings.steps and control",
+                argument="warm_start",
+            )
+
+
 def resize_pair(image_a: Tensor, image_b: Tensor, points_b: Tensor) -> tuple[Tensor, Tensor]:
     """Bring ``image_b`` ``(1, C, H_b, W_b)`` to image A's size, scaling ``points_b`` ``(M, 2)`` to match.
 
@@ -315,8 +340,11 @@ def morph(
             (:class:`~torchfluidwarp.morph.settings.Blending`).
         match: how the points are found when none are given (:class:`~torchfluidwarp.morph.settings.Matching`),
             or its mode alone: ``match="pixels"`` is ``match=Matching("pixels")``.
-        warm_start: a previous morph's ``result.fit`` of the same method and number of points: its forces
-            start this fit (the studio's live previews).
+        warm_start: a previous morph's ``result.fit`` of the same method (the studio's live previews): the paper's
+            fit starts from its forces (the same ``steps`` and ``control``); the natural fit starts each point's
+            corrections from those of the previous fit's point at about the same place (a mark dragged by a few
+            pixels keeps them; :func:`~torchfluidwarp.morph.fit.warm_corrections`). A fit of the other method is
+            refused.
         placed: points that :func:`~torchfluidwarp.correspond.auto.find_points` already found for this pair (the
             command line finds them first, to say which matcher it used), taken as ``match`` would take its own:
             face landmarks held like given points, others only starting the pixels' alignment. Give it instead
@@ -361,6 +389,8 @@ def morph(
         match = Matching(match)
     check_instance("match", match, Matching)
     check_instance("warm_start", warm_start, KeyframeFit, optional=True)
+    if warm_start is not None:
+        _check_warm_start(warm_start, settings)
     a = _as_image("image_a", image_a)
     b = _as_image("image_b", image_b)
     if b.device != a.device:
@@ -449,7 +479,9 @@ def morph(
             box = region_of_interest(torch.cat([pa_c, target]), settings.margin)
         offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)
         roi = (box[3] - box[1], box[2] - box[0])
-        start = None if warm_start is None else warm_start.forces
+        start = (
+            None if warm_start is None else copy.deepcopy(warm_start.forces)
+        )  # the previous result's stays as it was
         fit = fit_paper(pa_c - offset, target - offset, roi, settings, start, progress, max_memory)
     roi = (box[3] - box[1], box[2] - box[0])  # (H, W) of the fluid's box, pixels
     offset = torch.tensor([box[0], box[1]], dtype=torch.float64, device=a.device)

@@ -7,8 +7,6 @@ centres at integers (as in :mod:`torchfluidwarp.io`).
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import threading
 from dataclasses import dataclass
 from typing import Any
@@ -110,12 +108,12 @@ class Session:
         return out
 
     def warm(self, key: tuple) -> KeyframeFit | None:
-        """A copy of the newest fit if it was made with settings ``key``, to start the next fit from."""
+        """The newest fit if it was made with settings ``key``, to start the next fit from (``morph`` leaves the
+        fit it starts from as it was)."""
         with self.lock:
             if self.fit is None or self.fit_key != key:
                 return None
-            # fit_keyframes optimises the module in place: give it a copy so the stored fit stays intact
-            return dataclasses.replace(self.fit, forces=copy.deepcopy(self.fit.forces))
+            return self.fit
 
     def keep_fit(self, key: tuple, fit: KeyframeFit) -> None:
         """Remember ``fit``, made with settings ``key``, for warm starts."""
