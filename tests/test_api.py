@@ -153,12 +153,16 @@ def test_importing_the_package_or_the_command_line_imports_no_torch():
     assert done.returncode == 0, done.stdout + done.stderr
 
 
-def test_morph_stays_the_function_whichever_is_imported_first():
-    # ``morph`` is a function at the top level and a subpackage below it: importing the subpackage first must not
-    # put the module where the function is
+def test_morph_is_the_package_and_calls_the_function_whichever_is_imported_first():
+    # ``morph`` is the function users call and the package of its settings: the package, callable, serves both,
+    # so that ``import torchfluidwarp.morph as m`` and ``import torchfluidwarp.morph.fit`` reach the package (a
+    # function at the top level hid it: "cannot import name 'fit' from 'morph'")
     code = (
-        "import torchfluidwarp as t; import torchfluidwarp.morph.settings; "
-        "assert callable(t.morph) and t.morph.__module__.startswith('torchfluidwarp.morph'), t.morph; "
+        "import inspect, torchfluidwarp as t; import torchfluidwarp.morph.settings; "
+        "import torchfluidwarp.morph as m; import torchfluidwarp.morph.fit as f; "
+        "from torchfluidwarp import morph; "
+        "assert morph is m is t.morph and callable(m) and m.NaturalSettings and f.fit_natural, m; "
+        "assert 'points_a' in inspect.signature(morph).parameters; "
         "assert t.io.read_image and t.core.FluidGrid is t.FluidGrid"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)

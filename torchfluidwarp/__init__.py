@@ -1,11 +1,12 @@
-"""torchfluidwarp: warp and morph images with a differentiable 2-D incompressible fluid.
+"""torchfluidwarp: warp and morph images with a differentiable 2-D fluid.
 
 The top level holds what most users need:
 
 * simulate and warp: :class:`FluidSimulator` (its :class:`FluidRollout`), :class:`FluidWarp`, ``warp_image``,
   ``jacobian_determinant``, the grid :class:`FluidGrid` and the solve settings :class:`CGConfig`;
 * fit and morph: ``fit_keyframes`` (:class:`KeyframeFit`), ``fit_images`` (:class:`ImageFit`), ``morph``
-  (:class:`MorphResult`; its typed settings are in :mod:`torchfluidwarp.morph`);
+  (:class:`MorphResult`; its typed settings are in :mod:`torchfluidwarp.morph`, the package that ``morph`` is:
+  calling it calls :func:`torchfluidwarp.morph.morphing.morph`);
 * augment: :class:`RandomFluidWarp`, the torchvision v2 transform (imported on first access: torchvision is
   needed only then); the tensor-level ``nn.Module`` is :class:`torchfluidwarp.augment.FluidWarpAugment`.
 
@@ -29,8 +30,6 @@ integers (``align_corners=False``); fluid quantities in fluid cells and time ste
 from __future__ import annotations
 
 import importlib
-import sys
-import types
 from typing import TYPE_CHECKING, Any
 
 from torchfluidwarp._version import __version__
@@ -78,7 +77,6 @@ _LAZY = {
     "KeyframeFit": "torchfluidwarp.control",
     "fit_images": "torchfluidwarp.control",
     "ImageFit": "torchfluidwarp.control",
-    "morph": "torchfluidwarp.morph",
     "MorphResult": "torchfluidwarp.morph",
     "RandomFluidWarp": "torchfluidwarp.augment.transforms",
 }
@@ -101,20 +99,3 @@ def __getattr__(name: str) -> Any:
 def __dir__() -> list[str]:
     """The public names and the subpackages (not this module's own imports: ``importlib``, ``Any``, ...)."""
     return sorted(set(__all__) | _SUBPACKAGES)
-
-
-class _TopLevel(types.ModuleType):
-    """The package's module type: a top-level name keeps its meaning when its subpackage is imported.
-
-    ``morph`` is a function here and a subpackage below. Importing ``torchfluidwarp.morph`` (by any path)
-    binds the subpackage to the package's attribute ``morph``; when the function was imported eagerly it
-    overwrote that binding. Imported lazily, it could come second, so the binding is dropped instead.
-    """
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in _LAZY and isinstance(value, types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _TopLevel

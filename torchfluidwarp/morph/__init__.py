@@ -5,7 +5,17 @@
 the flow (:mod:`~torchfluidwarp.morph.fit`) and returns a :class:`MorphResult` (:mod:`~torchfluidwarp.morph.result`)
 that renders frames on demand (:mod:`~torchfluidwarp.morph.render`): one at any time ``t``, all ``N`` streamed, or
 all at once.
+
+The package is also the function: ``torchfluidwarp.morph(a, b, ...)`` and ``from torchfluidwarp import morph;
+morph(a, b, ...)`` call :func:`morph`, while ``import torchfluidwarp.morph as m; m.NaturalSettings`` and
+``import torchfluidwarp.morph.fit`` reach the package (one name, which a function at the top level would have
+hidden).
 """
+
+import inspect
+import sys
+import types
+from typing import Any
 
 from torchfluidwarp.morph.morphing import morph, region_of_interest, resize_pair
 from torchfluidwarp.morph.regions import hull_mask, paste_back
@@ -17,3 +27,14 @@ from torchfluidwarp.morph.settings import Blending, Matching, MorphSettings, Nat
 __all__ = ["MorphFrames", "MorphResult", "morph", "region_of_interest", "resize_pair", "hull_mask", "paste_back"]
 __all__ += ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 __all__ += ["NaturalSettings", "PaperSettings", "MorphSettings", "Timing", "Blending", "Matching"]
+
+
+class _Callable(types.ModuleType):
+    """This package's module type: calling the package calls :func:`morph`."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> MorphResult:
+        return morph(*args, **kwargs)
+
+
+__signature__ = inspect.signature(morph)  # what help() and IDEs show for a call of the package
+sys.modules[__name__].__class__ = _Callable
