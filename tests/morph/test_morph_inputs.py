@@ -96,8 +96,9 @@ def test_requests_beyond_the_memory_limit_are_refused_before_work_with_the_setti
         ((A * 255).to(torch.uint8), "image_a must be a floating-point tensor"),
         (A.to(torch.complex64), "image_a must be a floating-point tensor"),
         (torch.rand(2, 3, 16, 16), "image_a must be a single image"),
+        (torch.rand(3, 1, 1), r"image_a must be a single image .* at least 2 x 2 pixels, got \(3, 1, 1\)"),
     ],
-    ids=["no-channels", "uint8", "complex", "batch"],
+    ids=["no-channels", "uint8", "complex", "batch", "one-pixel"],
 )
 def test_images_that_cannot_be_morphed_are_refused(image, match):
     with pytest.raises((TypeError, ValueError), match=match):
@@ -158,3 +159,35 @@ def test_a_matchers_note_is_warned_in_the_morphs_own_terms(monkeypatch):
         "b.jpg shows 2 faces: used the largest; choose another with match=Matching(face_index=(i, j))"
     )
     assert caught[0].message.note is note
+
+
+def test_points_as_lists_arrays_or_integers_morph_as_the_same_tensors():
+
+    reference = _morph(A, A, PA, PA + 1.0, frames=3)
+    for pa, pb in (
+        (PA.tolist(), (PA + 1.0).tolist()),
+        (PA.numpy(), (PA + 1.0).numpy()),
+        (PA.round().long(), (PA.round() + 1).long()),
+    ):
+        result = _morph(A, A, pa, pb, frames=3)
+        expected = reference if not isinstance(pa, torch.Tensor) else _morph(A, A, PA.round(), PA.round() + 1, frames=3)
+        torch.testing.assert_close(result.frames, expected.frames)
+    with pytest.raises(TypeError, match="points_a must be a torch.Tensor, got str"):
+        _morph(A, A, "corners", PA, frames=3)
+
+
+def test_empty_or_malformed_points_are_said_in_the_callers_shape():
+    with pytest.raises(ValueError, match=r"points_a must have shape \(M, 2\) .* got \(0, 2\)"):
+        _morph(A, A, torch.zeros(0, 2), torch.zeros(0, 2), frames=3)
+    with pytest.raises(ValueError, match=r"points_a must have shape \(M, 2\) .* got \(3, 3\)"):
+        _morph(A, A, torch.zeros(3, 3), PA, frames=3)
+
+
+@pytest.mark.parametrize("scale, advice", [(255.0, "divide by 255"), (-1.0, "bring them to")])
+def test_values_outside_a_pictures_range_are_said_naming_the_image(scale, advice):
+    with pytest.warns(UserWarning, match=rf"image_b's values span \[.*\], not a picture's \[0, 1\].*{advice}"):
+        morph(A, A * scale, PA, PA + 0.5, frames=3, progress=False, settings=NaturalSettings(**KW))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # a picture in [0, 1] says nothing
+        warnings.simplefilter("ignore", RuntimeWarning)
+        morph(A, A, PA, PA + 0.5, frames=3, progress=False, settings=NaturalSettings(**KW))

@@ -116,12 +116,15 @@ def check_fit_memory(
 def check_points(name: str, points: object, image_size: tuple[int, int], batch: int | None = None) -> Tensor:
     """Validate pixel points ``(M, 2)`` or ``(B, M, 2)`` inside the image; returns ``(B, M, 2)``."""
     p = check_tensor(name, points, ndim=(2, 3))
+    given = tuple(p.shape)  # the caller's shape, for the messages
     if p.ndim == 2:
         p = p.unsqueeze(0)
     if p.shape[-1] != 2 or p.shape[1] < 1:
-        raise InputError(f"{name} must have shape (M, 2) or (B, M, 2) with M >= 1, got {tuple(p.shape)}")
+        raise InputError(
+            f"{name} must have shape (M, 2) or (B, M, 2) with M >= 1, got {given}", argument=argument_of(name)
+        )
     if batch is not None and p.shape[0] not in (1, batch):
-        raise InputError(f"{name} must have batch size {batch} (or 1), got {tuple(p.shape)}")
+        raise InputError(f"{name} must have batch size {batch} (or 1), got {given}", argument=argument_of(name))
     H, W = image_size
     outside = ~inside_picture(p, image_size)
     if bool(outside.any()):

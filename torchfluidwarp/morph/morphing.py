@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -71,18 +72,41 @@ from torchfluidwarp.warp.landmarks import LandmarkForces
 __all__ = ["morph", "match_channels", "placement", "resize_pair", "region_of_interest", "PAD", "MIN_AREA", "FEATHER"]
 
 
+RANGE_SLACK = 1 / 255
+"""How far beyond ``[0, 1]`` a picture's values may reach (rounding of a resize or a colour conversion) before
+:func:`morph` says that they are not a picture's."""
+
+
 def _as_image(name: str, image: Tensor) -> Tensor:
+    """One picture ``(1, C, H, W)``, detached; values far outside ``[0, 1]`` are said (the frames are written
+    clipped to it, so a 0..255 float picture would come out nearly white)."""
     img = check_picture(name, image)
     img = img.unsqueeze(0) if img.ndim == 3 else img
-    if img.shape[0] != 1 or min(img.shape[1:]) < 1:
+    if img.shape[0] != 1 or img.shape[1] < 1 or min(img.shape[2:]) < 2:
         raise InputError(
-            f"{name} must be a single image (C, H, W) or (1, C, H, W) with C, H, W >= 1, got {tuple(image.shape)}"
+            f"{name} must be a single image (C, H, W) or (1, C, H, W) of at least 2 x 2 pixels, got "
+            f"{tuple(image.shape)}",
+            argument=name,
+        )
+    low, high = float(img.amin()), float(img.amax())
+    if low < -RANGE_SLACK or high > 1 + RANGE_SLACK:
+        advice = "divide by 255" if high > 2 and low >= 0 else "bring them to [0, 1]"
+        warn(
+            f"{name}'s values span [{low:.4g}, {high:.4g}], not a picture's [0, 1]: the morph blends them as they "
+            f"are, and its frames are saved clipped to [0, 1] ({advice})"
         )
     return img.detach()
 
 
 def _as_points(name: str, points: object, image: Tensor) -> Tensor:
-    """One set of points ``(M, 2)`` inside ``image``, detached, on the image's device."""
+    """One set of points ``(M, 2)`` inside ``image``, detached, on the image's device, in its dtype (a list of
+    ``[x, y]`` pairs, a NumPy array or an integer tensor is converted)."""
+    if not (isinstance(points, Tensor) and points.is_floating_point()):
+        try:
+            data = points.detach().cpu().numpy() if isinstance(points, Tensor) else points
+            points = torch.as_tensor(np.asarray(data, dtype=np.float64), dtype=image.dtype, device=image.device)
+        except (TypeError, ValueError):
+            pass  # not numbers: check_points refuses it, naming it
     p = check_points(name, points, (image.shape[-2], image.shape[-1]))
     if p.shape[0] != 1:
         raise InputError(f"{name} must be one set of points (M, 2) for a morph, got shape {tuple(p.shape)}")
@@ -316,7 +340,8 @@ def morph(
       area) over a box around the points.
 
     Args:
-        image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]``; it sets the output size unless
+        image_a: ``(C, H, W)`` or ``(1, C, H, W)`` source image in ``[0, 1]`` (values far outside it are said:
+            the frames are saved clipped to it), at least 2 x 2 pixels; it sets the output size unless
             ``Blending(size=...)`` does.
         image_b: ``(C_b, H_b, W_b)`` or ``(1, C_b, H_b, W_b)`` target image, of any size and aspect ratio. Neither
             picture is stretched: each is placed on the output canvas by one scale factor for both axes, the
@@ -325,7 +350,8 @@ def morph(
             the canvas shows it smaller). Grey, grey + alpha, RGB and RGBA mix: the frames take
             the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
-            integers); the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
+            integers): tensors, or lists of ``[x, y]`` pairs or NumPy arrays (converted to the images' dtype);
+            the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
             from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says. Points
             that features or a flow placed (not face landmarks) only start the natural method's pixel alignment
             (``NaturalSettings.dense``, then not anchored to them): A's points stay, and B's side follows the
