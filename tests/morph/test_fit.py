@@ -245,3 +245,15 @@ def test_a_warm_start_of_the_other_method_or_another_control_grid_is_refused():
     with pytest.raises(InputError, match=r"control grid is \(4, 2, 3, 3\).*\(4, 2, 4, 4\)"):
         morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=PaperSettings(steps=4, control=4, max_iter=3),
               warm_start=fitted.fit)  # fmt: skip
+
+
+def test_marks_whose_midpoints_lie_on_one_line_are_refused_naming_the_points():
+    line = torch.tensor([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0], [40.0, 40.0], [50.0, 50.0]], dtype=torch.float64)
+    with pytest.raises(InputError, match="points_a and points_b: the 5 marks' midpoints .* lie on one line") as caught:
+        straight_paths(line, line + line.new_tensor([3.0, -2.0]), (0.0, 0.0, 64.0, 64.0))
+    assert caught.value.argument == "points_a"
+    # A's marks in a row are fine when B's are not: their midpoints are not
+    bent = line[:3].clone()
+    bent[2, 1] += 1.0
+    mids, disp = straight_paths(line[:3], bent, (0.0, 0.0, 64.0, 64.0))
+    torch.testing.assert_close(mids - disp / 2, line[:3])

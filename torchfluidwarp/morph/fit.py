@@ -89,6 +89,7 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     squeezed, and each mark travels as that spline says. The marks not met show in the morph's ``result.error``.
     """
     mids, disp = 0.5 * (src + tgt), tgt - src
+    _check_spread(mids)
     at = _squeeze_points(mids, inside)
     n = mids.shape[0]
     keep = torch.ones(n, dtype=torch.bool, device=mids.device)
@@ -134,6 +135,31 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     if smoothing == 0.0:  # the kept marks travel straight, exactly
         m[keep] = mids[keep]
     return m, travel(m)
+
+
+def _check_spread(mids: Tensor) -> None:
+    """Refuse marks whose midpoints ``(M, 2)`` (pixels) lie on one line: no spline says how the picture moves off
+    it (the caller's points are to blame, so the error names them)."""
+    distinct = torch.unique(torch.round(mids / SPREAD), dim=0).shape[0]
+    if distinct < 3:
+        raise InputError(
+            "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
+            "places meet halfway) to guide the morph; check that both list the same features in the same order",
+            argument="points_a",
+        )
+    spread = torch.linalg.svdvals(mids - mids.mean(0))
+    if float(spread[-1]) < SPREAD:
+        raise InputError(
+            f"points_a and points_b: the {mids.shape[0]} marks' midpoints (halfway between each pair) lie on one "
+            f"line, so nothing says how the picture moves off it; add a mark away from that line (the natural "
+            f"method needs 3 or more whose midpoints are not in a row)",
+            argument="points_a",
+        )
+
+
+SPREAD = 1e-3
+"""Pixels: the least spread of the marks' midpoints across their best-fitting line (the second singular value of
+the centred midpoints) for :func:`straight_paths`; below it they lie on one line."""
 
 
 RELEASE = 0.5

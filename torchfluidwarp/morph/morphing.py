@@ -351,7 +351,8 @@ def morph(
             the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
             integers): tensors, or lists of ``[x, y]`` pairs or NumPy arrays (converted to the images' dtype);
-            the natural method needs ``M >= 3`` points, not all on one line. ``None`` (both): found
+            the natural method needs ``M >= 3`` points whose midpoints (halfway between each pair) are not all
+            on one line. ``None`` (both): found
             from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says. Points
             that features or a flow placed (not face landmarks) only start the natural method's pixel alignment
             (``NaturalSettings.dense``, then not anchored to them): A's points stay, and B's side follows the

@@ -115,7 +115,7 @@ class NaturalSettings:
     (:class:`~torchfluidwarp.warp.landmarks.LandmarkForces`) sets it moving, after which every particle coasts on
     a straight line (Burgers' equation), and ``max_iter`` L-BFGS iterations correct the kicks so that the points,
     and a lattice of points between them (``lattice``), stay on their paths at every step. Needs at least 3
-    points, not all on one line.
+    points whose midpoints (halfway between each pair) are not all on one line.
 
     Attributes:
         grid: the fluid's cells over the picture (or the part the fluid covers) and its margin:
