@@ -160,7 +160,7 @@ def test_a_fit_whose_map_folds_warns_with_the_count_and_regularization_calms_it(
     source, target = _blob(8.0, 8.0, sigma=4.0), _blob(24.0, 24.0, sigma=4.0)
     kw = dict(loss="mse", compressible=False, grid=16, levels=None, steps=4, control=4, max_iter=40, progress=False)
     # the swirl misses the blob's travel too, and says so (a shift by it matches far better)
-    with pytest.warns(RuntimeWarning, match=r"fit_images: a plain shift of source by \(-16, -16\) px"):
+    with pytest.warns(RuntimeWarning, match=r"fit_images: moving source's content by \(\+16, \+16\) px \(x, y\)"):
         with pytest.warns(RuntimeWarning, match=r"fit_images: the fitted map folds on \d+ of 1024 pixels") as caught:
             fit = fit_images(source, target, **kw)
     folded = int(str(caught[0].message).split("folds on ")[1].split()[0])
@@ -174,7 +174,7 @@ def test_a_fit_whose_map_folds_warns_with_the_count_and_regularization_calms_it(
     assert float(calm.min_det) > 0
     # but it barely moves the blob, and says so: a plain shift by the blob's travel matches far better
     assert calm.final_loss > 0.9 * calm.initial_loss
-    shift = "fit_images: a plain shift of source by (-16, -16) px"
+    shift = "fit_images: moving source's content by (+16, +16) px (x, y)"  # the blob's travel, (8, 8) to (24, 24)
     assert [str(w.message).split(" matches")[0] for w in said] == [shift]
 
 

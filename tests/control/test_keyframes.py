@@ -61,6 +61,24 @@ def test_two_keyframes_are_both_met():
     for t, err in fit.keyframe_errors:
         assert err.max() <= 0.02, f"keyframe {t}: {err.max():.3f} px"
     torch.testing.assert_close(fit.trajectories[:, 3], mid[None], atol=0.02, rtol=0)
+    assert "at the last keyframe (step 6)" in fit.message
+
+
+def test_the_message_names_the_worst_keyframe_when_it_is_not_the_last():
+    # two iterations leave both keyframes missed; whichever is farther off, the message's words match the errors
+    src = _ring(6, (24.0, 24.0), 8.0).float()
+    mid = src + torch.tensor([3.0, 0.0])
+    fit = fit_keyframes(
+        src, [(3, mid), (6, src)], image_size=(48, 48), grid=24, steps=6, control=(4, 4), progress=False,
+        tolerance=1e-6, max_iter=2, method="lbfgs",
+    )  # fmt: skip
+    (_, first), (_, last) = fit.keyframe_errors
+    assert fit.message.startswith("did not reach")
+    assert f"max {float(last.max()):.4f} px at the last keyframe (step 6)" in fit.message
+    if float(first.max()) > float(last.max()):
+        assert f"worst at step 3: max {float(first.max()):.4f} px" in fit.message
+    else:
+        assert "worst at step" not in fit.message
 
 
 def test_the_returned_warp_replays_the_fitted_forces():

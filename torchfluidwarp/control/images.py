@@ -442,12 +442,12 @@ def fit_images(
     if final > SHIFT_CHECK * initial:  # much of the mismatch is left: would the simplest motion do as well?
         shift, by_shift = best_shift(src, tgt, objective)
         if shift_rivals(shift, by_shift, final, initial, (src.shape[-2], src.shape[-1])):
-            dx, dy = (float(v) for v in shift)
+            dx, dy = (0.0 - float(v) for v in shift)  # source is read at x + shift: its content moves by -shift (no -0)
             warn(
-                f"fit_images: a plain shift of source by ({dx:+.0f}, {dy:+.0f}) px matches target about as well as "
-                f"the fitted flow or better (loss {by_shift:.4g} against {final:.4g}; {initial:.4g} before): the "
-                "flow has likely missed the pictures' main motion, and its map may lie farther from the true one "
-                "than no motion at all. "
+                f"fit_images: moving source's content by ({dx:+.0f}, {dy:+.0f}) px (x, y) matches target about "
+                f"as well as the fitted flow or better (loss {by_shift:.4g} against {final:.4g}; {initial:.4g} "
+                "before): the flow has likely missed the pictures' main motion, and its map may lie farther from the "
+                "true one than no motion at all. "
                 + (
                     "Pre-align the pictures (torchfluidwarp.control.best_shift)"
                     if compressible

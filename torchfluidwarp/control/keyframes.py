@@ -69,7 +69,8 @@ class KeyframeFit:
             before ``max_iter`` iterations; False also when a non-finite loss stopped it
             (:func:`~torchfluidwarp.control.optim.minimize`'s NaN policy: the best finite iterate is kept).
         reached: every point is within ``tolerance`` pixels of its target at every keyframe.
-        message: a one-line summary.
+        message: a one-line summary: reached or not, the last keyframe's mean and largest error and, with several
+            keyframes, the largest error of the worst one.
     """
 
     forces: nn.Module
@@ -135,6 +136,18 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
             argument=argument_of(name),
         )
     return p
+
+
+def _worst_keyframe(errors: list[tuple[int, Tensor]]) -> str:
+    """The message's words on which keyframe its figures are of, when there are several: the last one's, and the
+    worst one's maximum where another is farther off (``" at the last keyframe (step 10); worst at step 5: max
+    0.0649 px"``)."""
+    if len(errors) < 2:
+        return ""
+    last = errors[-1][0]
+    step, worst = max(errors, key=lambda item: float(item[1].max()))
+    note = f" at the last keyframe (step {last})"
+    return note if step == last else f"{note}; worst at step {step}: max {float(worst.max()):.4f} px"
 
 
 def _keyframes(
@@ -371,8 +384,7 @@ def fit_keyframes(
     err = kf_err[-1][1]
     message = (
         f"{'reached' if reached else 'did not reach'} the targets (within {tolerance:g} px): mean error "
-        f"{float(err.mean()):.4f} px, "
-        f"max {float(err.max()):.4f} px; {how}"
+        f"{float(err.mean()):.4f} px, max {float(err.max()):.4f} px{_worst_keyframe(kf_err)}; {how}"
     )
     return KeyframeFit(
         forces=module,
