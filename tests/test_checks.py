@@ -13,8 +13,19 @@ def test_all_finite_finds_one_bad_value(bad):
     assert all_finite(x)
     x[1, 2, 16, 3] = bad
     assert not all_finite(x)
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(
+        ValueError, match=r"velocity contains non-finite values \(NaN or inf\): 1, the first at index \(1, 2, 16, 3\)"
+    ):
         check_tensor("velocity", x)
+
+
+def test_a_single_picture_where_a_batch_goes_is_told_how_to_make_one():
+    with pytest.raises(
+        ValueError, match=r"image must have 4 dimensions, got shape \(3, 8, 8\); image\[None\] makes a batch of one"
+    ):
+        check_tensor("image", torch.zeros(3, 8, 8), ndim=4)
+    with pytest.raises(ValueError, match=r"got shape \(8, 8\)$"):  # not one short of a batch: no such advice
+        check_tensor("image", torch.zeros(8, 8), ndim=4)
 
 
 def test_all_finite_is_not_fooled_by_a_sum_that_overflows():

@@ -123,16 +123,21 @@ def check_tensor(
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if x.ndim not in allowed:
             ranks = " or ".join(map(str, allowed))
+            one = f"; {name}[None] makes a batch of one" if x.ndim + 1 in allowed and x.ndim + 1 == max(allowed) else ""
             raise InputError(
-                f"{name} must have {ranks} dimensions, got shape {tuple(x.shape)}", argument=argument_of(name)
+                f"{name} must have {ranks} dimensions, got shape {tuple(x.shape)}{one}", argument=argument_of(name)
             )
     if shape is not None:
         if x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
             want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
             raise InputError(f"{name} must have shape {want}, got {tuple(x.shape)}", argument=argument_of(name))
     if finite and x.numel() and not all_finite(x):
+        bad = ~torch.isfinite(x.detach())
+        first = tuple(int(i) for i in bad.nonzero()[0])
         raise InputError(
-            f"{name} contains non-finite values (NaN or inf); shape {tuple(x.shape)}", argument=argument_of(name)
+            f"{name} contains non-finite values (NaN or inf): {int(bad.sum())}, the first at index {first}; "
+            f"shape {tuple(x.shape)}",
+            argument=argument_of(name),
         )
     return x
 

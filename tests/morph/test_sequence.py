@@ -60,6 +60,15 @@ def test_sequence_arguments_are_checked():
         morph_sequence([_blobs(BASE)], [BASE], **KW)
     with pytest.raises(TypeError, match="frames"):  # average renders each warp's end only: it takes no frames
         average([_blobs(BASE)] * 2, [BASE, BASE + 1], frames=5, **KW)
+    with pytest.raises(ValueError, match=r"frames must be at least the number of images \(3: each is a frame"):
+        morph_sequence([_blobs(BASE)] * 3, [BASE, BASE + 1, BASE + 2], frames=2, **KW)
+
+
+def test_an_average_says_itself_in_one_line():
+    result = average([_blobs(BASE), _blobs(BASE + 1)], [BASE, BASE + 1], **KW)
+    text = repr(result)
+    assert text.startswith("AverageResult((3, 64, 64) mean of 2 images, 4 points, mean point error ")
+    assert "\n" not in text and len(text) < 120
 
 
 def test_the_average_of_two_shifted_images_sits_halfway_without_folds():
@@ -137,7 +146,7 @@ def test_without_points_each_images_face_landmarks_are_used():
     found, given = average([a, b], **KW), average([a, b], marks, **KW)
     torch.testing.assert_close(found.image, given.image)
     torch.testing.assert_close(found.points, given.points)
-    with pytest.raises(ValueError, match=r"no face found in images\[1\]"):
+    with pytest.raises(ValueError, match=r"no face found in images\[1\].*; give every picture's points \(points\)"):
         average([a, torch.full_like(a, 0.5)], **KW)
     # a sequence of found landmarks morphs as a two-image face morph does: the border pairs added per segment
     seq = morph_sequence([a, b], frames=3, **KW)

@@ -303,7 +303,11 @@ def find_each_face(
     for image, name in zip(images, labels):
         x = single_image(name, image)
         faces = find_faces(x)
-        chosen = choose_face(faces, face_index if len(faces) > 1 else None, name, (x.shape[-2], x.shape[-1]))
+        try:
+            chosen = choose_face(faces, face_index if len(faces) > 1 else None, name, (x.shape[-2], x.shape[-1]))
+        except NoFaceFound as exc:  # the caller's way past it: its own points for every picture
+            hint = Hint("give every picture's points ({setting}) to mark other features", "points")
+            raise NoFaceFound(exc.message, argument=exc.argument, hint=hint) from None
         points.append(chosen.face.mesh[list(FACE_MESH_INDICES)].to(device=x.device, dtype=x.dtype))
         if chosen.count > 1:
             several.append(_several(name, chosen))

@@ -191,7 +191,12 @@ def morph_sequence(
     canvas = (first.shape[-2], first.shape[-1]) if blending.size is None else check_size("blending.size", blending.size)
     on_canvas = replace(blending, size=canvas)
     placed = [apply_alignment(_placed(im, canvas, p), p.double()) for im, p in pairs]  # (M, 2) canvas pixels each
-    n = check_int("frames", frames, minimum=len(images))
+    n = check_int("frames", frames)
+    if n < len(images):  # one frame at each image, the joints shared
+        raise InputError(
+            f"frames must be at least the number of images ({len(images)}: each is a frame of its own), got {n}",
+            argument="frames",
+        )
     travel = [max(_travel(a, b), 1e-6) for a, b in zip(placed, placed[1:])]
     segments = len(travel)
     # frames per segment (joints shared): at least 1 step each, then in proportion to the travel
@@ -241,6 +246,13 @@ class AverageResult:
     warped: Tensor
     folded: float
     errors: Tensor
+
+    def __repr__(self) -> str:
+        C, H, W = self.image.shape
+        return (
+            f"AverageResult(({C}, {H}, {W}) mean of {self.warped.shape[0]} images, {self.points.shape[0]} points, "
+            f"mean point error {float(self.errors.mean()):.2f} px, folded {self.folded:.2%})"
+        )
 
 
 def average(
