@@ -260,9 +260,12 @@ def _check_warm_start(warm_start: KeyframeFit, settings: MorphSettings) -> None:
             argument="warm_start",
         )
     if isinstance(settings, PaperSettings):
-        expected = ControlGrid(settings.steps, settings.control).weight.shape[1:]
-        given_shape = getattr(warm_start.forces, "weight", torch.empty(0)).shape[1:]
-        if given_shape != expected:
+        control = settings.control  # a pair once checked by PaperSettings
+        ky, kx = (control, control) if isinstance(control, int) else control
+        expected = (settings.steps, 2, ky, kx)  # a ControlGrid's weight is (B, T, 2, K_y, K_x)
+        weight = getattr(warm_start.forces, "weight", None)
+        given_shape = tuple(weight.shape[1:]) if isinstance(weight, Tensor) else ()
+        if not isinstance(warm_start.forces, ControlGrid) or given_shape != expected:
             raise InputError(
                 f"warm_start's control grid is {tuple(given_shape)} (steps, 2, K_y, K_x) and this morph's is "
                 f"{tuple(expected)}: pass a result.fit of a morph with the same PaperSettings.steps and control",
