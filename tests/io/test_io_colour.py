@@ -239,3 +239,28 @@ def test_a_heic_tagged_srgb_or_hdr_by_its_nclx_box_is_read_as_stored(tmp_path, r
     with pytest.warns(UserWarning, match="tagged.heic' are tagged with transfer characteristics 16"):
         image = read_image(path)
     np.testing.assert_array_equal((image[0].permute(1, 2, 0).numpy() * 255).round(), stored)
+
+
+def test_a_cielab_tiff_is_read_in_srgb_not_as_its_raw_samples(tmp_path):
+    """A CIELab TIFF (a scanner's or a print workflow's export) against the colour science in numpy: Lab (D50) to
+    XYZ, to linear sRGB through LittleCMS's D50-adapted sRGB matrix, to the sRGB curve; its raw samples, L*, a*
+    and b* read as red, green and blue, are far off."""
+    tifffile = pytest.importorskip("tifffile")
+    y, x = np.meshgrid(np.linspace(0, 1, 16), np.linspace(0, 1, 24), indexing="ij")
+    lightness, a_star, b_star = 35 + 50 * x, -25 + 45 * y, 20 - 40 * x * y  # inside sRGB's gamut
+    stored = np.stack([np.round(lightness * 255 / 100), np.round(a_star) % 256, np.round(b_star) % 256], -1).astype(
+        np.uint8
+    )  # L* scaled to a byte, a* and b* as signed bytes
+    path = tmp_path / "scan.tif"
+    tifffile.imwrite(path, stored, photometric="cielab")
+    image = read_image(path, dtype=torch.float64)[0].permute(1, 2, 0).numpy()
+    L = stored[..., 0].astype(float) * 100 / 255
+    a, b = stored[..., 1].astype(np.int8).astype(float), stored[..., 2].astype(np.int8).astype(float)
+    fy = (L + 16) / 116
+    f = np.stack([fy + a / 500, fy, fy - b / 200], -1)
+    xyz = np.where(f**3 > 216 / 24389, f**3, (116 * f - 16) * 27 / 24389) * np.array(D50)
+    linear = xyz @ np.linalg.inv(SRGB_D50).T
+    want = _srgb_curve(linear.clip(0, 1), decode=False)
+    # LittleCMS interpolates an 8-bit Lab table: within 2.5 levels of 255, within 1 on average
+    assert np.abs(image - want).max() < 2.5 / 255 and np.abs(image - want).mean() < 1 / 255
+    assert np.abs(stored / 255.0 - want).max() > 0.3  # the raw samples could not pass

@@ -12,7 +12,7 @@ from PIL import Image
 from torchfluidwarp._checks import warn
 from torchfluidwarp.io._files import first_line
 
-__all__ = ["in_srgb", "nclx_in_srgb", "SRGB_NAMES"]
+__all__ = ["in_srgb", "lab_in_srgb", "nclx_in_srgb", "SRGB_NAMES"]
 
 
 def in_srgb(array: np.ndarray, icc: bytes, source: str, mode: str = "RGB") -> np.ndarray:
@@ -48,6 +48,25 @@ def in_srgb(array: np.ndarray, icc: bytes, source: str, mode: str = "RGB") -> np
         )
     out = np.asarray(srgb)
     return out if mode == "CMYK" or array.shape[-1] == 3 else np.concatenate([out, array[..., 3:]], axis=-1)
+
+
+def lab_in_srgb(array: np.ndarray, source: str) -> np.ndarray:
+    """8-bit CIELab pixels ``(H, W, 3)`` as Pillow reads a CIELab TIFF (``L*`` scaled to 0..255, ``a*`` and ``b*``
+    signed bytes; a scanner's or a print workflow's export), in sRGB: read as RGB they would show ``L*`` as red and
+    the two colour axes as green and blue. LittleCMS converts them from its D50 Lab space, relative colorimetric;
+    where it cannot, the picture is refused (there is no plain formula worth showing), naming ``source``."""
+    try:
+        from PIL import ImageCms
+
+        lab = Image.frombytes("LAB", (array.shape[1], array.shape[0]), np.ascontiguousarray(array[..., :3]).tobytes())
+        transform = ImageCms.buildTransform(
+            ImageCms.createProfile("LAB"), ImageCms.createProfile("sRGB"), "LAB", "RGB",
+            renderingIntent=ImageCms.Intent.RELATIVE_COLORIMETRIC,
+        )  # fmt: skip
+        return np.asarray(ImageCms.applyTransform(lab, transform))
+    except (ImportError, OSError, ValueError) as exc:
+        reason = first_line(exc)
+        raise ValueError(f"{source} is a CIELab picture whose colours could not be converted ({reason})") from exc
 
 
 SRGB_NAMES = frozenset(

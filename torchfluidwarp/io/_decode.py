@@ -20,7 +20,7 @@ from PIL import Image
 
 from torchfluidwarp._checks import warn
 from torchfluidwarp.errors import Hint, InputError
-from torchfluidwarp.io._colour import in_srgb, nclx_in_srgb
+from torchfluidwarp.io._colour import in_srgb, lab_in_srgb, nclx_in_srgb
 from torchfluidwarp.io._files import DECODE_ERRORS, first_line
 
 _BOMB_PIXELS = re.compile(r"\((\d+) pixels\)")
@@ -103,6 +103,8 @@ def _pillow_frame(file: Any, meta: dict[str, Any], source: str) -> np.ndarray:
     inks = meta.get("mode") == "CMYK" and bool(icc)  # converted through its profile, not Pillow's plain formula
     array = file.read(index=0, rotate=False, **({} if inks else _pillow_options(meta)))
     array = _upright(array, file.metadata(index=0, exclude_applied=False).get("Orientation", 1))
+    if meta.get("mode") == "LAB":  # a CIELab TIFF: its samples are L*, a*, b*, not red, green, blue
+        return lab_in_srgb(array, source)
     return in_srgb(array, icc, source, "CMYK" if inks else "RGB") if icc else array
 
 
