@@ -163,6 +163,8 @@ def test_morph_is_the_package_and_calls_the_function_whichever_is_imported_first
         "from torchfluidwarp import morph; "
         "assert morph is m is t.morph and callable(m) and m.NaturalSettings and f.fit_natural, m; "
         "assert 'points_a' in inspect.signature(morph).parameters; "
+        "import pickle, copy, functools; assert pickle.loads(pickle.dumps(morph)) is morph is copy.deepcopy(m); "
+        "assert pickle.loads(pickle.dumps(functools.partial(morph, frames=3))).func is morph; "
         "assert t.io.read_image and t.core.FluidGrid is t.FluidGrid"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)

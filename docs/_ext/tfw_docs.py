@@ -161,7 +161,10 @@ def _lookup(target: str) -> object:
         except ImportError:
             continue
         for i, name in enumerate(parts[cut:]):
-            owner, obj = obj, getattr(obj, name, _MISSING)
+            try:
+                owner, obj = obj, getattr(obj, name, _MISSING)
+            except Exception:  # noqa: BLE001 - a lazy attribute whose import fails (an optional dependency)
+                return _FIELD  # exists, but cannot be looked at here: leave it to Sphinx
             if obj is _MISSING:  # an attribute set in __init__ or a dataclass field: documented, not on the class
                 last = cut + i == len(parts) - 1
                 return _FIELD if last and isinstance(owner, type) and _documents(owner, name) else _MISSING

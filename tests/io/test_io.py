@@ -517,6 +517,20 @@ def test_mp4_round_trip_frame_count(tmp_path, gen):
     assert listing(tmp_path) == ["a.mp4"]
 
 
+def test_an_mp4_of_rgba_frames_shows_them_over_black(tmp_path):
+    # MP4 has no alpha: a transparent pixel is black whatever colour it stores (a morph's first frame stores the
+    # picture's own, its middle frames none), an opaque one its colour, half alpha half its colour
+    frames = torch.zeros(3, 4, 16, 16)
+    frames[:, :3] = torch.tensor([1.0, 1.0, 1.0])[:, None, None]  # white stored everywhere
+    frames[:, 3, :, 8:] = 1.0  # the right half opaque
+    frames[:, 3, :8, :8] = 0.5  # the top-left quarter half transparent, the bottom-left fully
+    path = write_animation(tmp_path / "a.mp4", frames, fps=12)
+    back = iio.imread(path, plugin="FFMPEG").astype(float)  # (3, 16, 16, 3)
+    assert back[:, 10:14, 1:5].max() < 24  # transparent: black (H.264's rounding aside)
+    assert back[:, 2:6, 10:14].min() > 230  # opaque white
+    assert abs(back[:, 2:6, 1:5].mean() - 128) < 16  # half alpha over black
+
+
 def test_json_written_as_points_object(tmp_path):
     write_points(tmp_path / "p.json", POINTS[:1])
     assert json.loads((tmp_path / "p.json").read_text()) == {"points": [[12.5, 40.25]]}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 
 import pytest
@@ -19,7 +20,9 @@ from torchfluidwarp.morph.fit import (
     fit_paper,
     focus,
     straight_paths,
+    warm_corrections,
 )
+from torchfluidwarp.morph.morphing import morph
 from torchfluidwarp.morph.settings import NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import solve_midpoints
 
@@ -210,8 +213,6 @@ def test_a_natural_warm_start_after_a_dragged_mark_starts_nearer_and_leaves_the_
     # the studio's case: one mark dragged by 3 px. The lattice between the marks changes in number with the
     # travel, so the corrections are matched by place (they were dropped whenever the counts differed).
     from torchfluidwarp.data import load_sample, load_sample_points
-    from torchfluidwarp.morph import morph
-    from torchfluidwarp.morph.fit import warm_corrections
 
     a, b = load_sample("astronaut"), load_sample("cat")
     pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
@@ -226,13 +227,37 @@ def test_a_natural_warm_start_after_a_dragged_mark_starts_nearer_and_leaves_the_
     assert warm.fit.loss_history[0] < 0.5 * cold.fit.loss_history[0]
     assert float(warm.error.mean()) <= float(cold.error.mean()) + 0.05
     # every point of the new fit found its counterpart: the marks within a few pixels, the lattice in place
-    forces = cold.fit.forces
+    forces = copy.deepcopy(cold.fit.forces)
     assert warm_corrections(forces, first.fit.forces) == forces.weight.shape[2]
 
 
-def test_a_warm_start_of_the_other_method_or_another_control_grid_is_refused():
-    from torchfluidwarp.morph import morph
+def test_a_warm_start_matches_marks_to_marks_when_the_box_moves():
+    # dragging a mark near the edge widens the fluid's margin, which moves the box's origin: the points are
+    # matched in A's pixels, not in each box's own (they were matched to lattice points 20 px away)
+    a = torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0))
+    pa = torch.tensor([[16.0, 16.0], [48.0, 16.0], [48.0, 48.0], [16.0, 48.0], [32.0, 32.0]])
+    pb = pa + torch.tensor([[-6.0, 4.0], [6.0, 4.0], [6.0, -4.0], [-6.0, -4.0], [0.0, 0.0]])
+    settings = NaturalSettings(dense=None, max_iter=5)
+    first = morph(a, a, pa, pb, frames=2, progress=False, settings=settings)
+    dragged = pb.clone()
+    dragged[1] += 3.0
+    second = morph(a, a, pa, dragged, frames=2, progress=False, settings=settings)
+    assert first.box != second.box  # the case this test is about
+    forces = copy.deepcopy(second.fit.forces)
+    forces.weight.data.zero_()
+    warm_corrections(forces, first.fit.forces)
+    torch.testing.assert_close(forces.weight[:, :, :5], first.fit.forces.weight[:, :, :5].detach())
 
+
+def test_a_natural_warm_start_of_other_steps_is_refused():
+    a = torch.rand(1, 3, 48, 48, generator=torch.Generator().manual_seed(0))
+    fitted = morph(a, a, PA * 0.7, PA * 0.7 + 3.0, frames=2, progress=False, settings=NaturalSettings(dense=None))
+    with pytest.raises(InputError, match="warm_start is a fit of 10 steps and this morph's has 6"):
+        morph(a, a, PA * 0.7, PA * 0.7 + 3.0, frames=2, progress=False, warm_start=fitted.fit,
+              settings=NaturalSettings(dense=None, steps=6))  # fmt: skip
+
+
+def test_a_warm_start_of_the_other_method_or_another_control_grid_is_refused():
     a = torch.rand(1, 3, 48, 48, generator=torch.Generator().manual_seed(0))
     pb = PA * 0.7 + 3.0
     natural = morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=NaturalSettings(dense=None))

@@ -191,3 +191,14 @@ def test_values_outside_a_pictures_range_are_said_naming_the_image(scale, advice
         warnings.simplefilter("error", UserWarning)  # a picture in [0, 1] says nothing
         warnings.simplefilter("ignore", RuntimeWarning)
         morph(A, A, PA, PA + 0.5, frames=3, progress=False, settings=NaturalSettings(**KW))
+
+
+def test_points_keep_their_fraction_with_a_half_precision_picture_and_booleans_are_refused():
+    from torchfluidwarp.morph.morphing import _as_points
+
+    picture = torch.zeros(1, 3, 2000, 2000, dtype=torch.bfloat16)
+    p = _as_points("points_a", [[300.7, 1500.3], [10.0, 20.0], [40.0, 5.0]], picture)
+    assert p.dtype == torch.float32
+    torch.testing.assert_close(p[0], torch.tensor([300.7, 1500.3]))
+    with pytest.raises(TypeError, match="points_a must be a torch.Tensor, got list"):
+        _as_points("points_a", [[True, False], [False, True], [True, True]], picture)

@@ -88,3 +88,17 @@ def test_a_transparent_pixels_hidden_colour_never_shows_and_an_edge_of_alpha_doe
     assert float(mid[0].abs().max()) < 1e-3
     # the endpoints are the pictures themselves (A's hidden red included: nothing is lost from the input)
     torch.testing.assert_close(result.frame(0.0), a[0])
+
+
+def test_grey_with_alpha_is_blended_premultiplied_as_rgba_is():
+    from torchfluidwarp.morph import NaturalSettings, morph
+
+    a = torch.ones(1, 2, 64, 64)  # white stored everywhere, hidden where alpha is 0 (the left half)
+    a[:, 1, :, :32] = 0.0
+    b = torch.zeros(1, 2, 64, 64)
+    b[:, 1] = 1.0  # opaque black
+    p = torch.tensor([[10.0, 10.0], [50.0, 10.0], [30.0, 50.0], [15.0, 45.0]])
+    mid = morph(a, b, p, p, frames=3, progress=False, settings=NaturalSettings(dense=None)).frame(0.5)
+    assert mid.shape[0] == 2
+    torch.testing.assert_close(mid[1, :, :24], torch.full((64, 24), 0.5), atol=1e-3, rtol=0)
+    assert float(mid[0, :, :24].abs().max()) < 2e-3  # black at half alpha, not the hidden white at 0.5

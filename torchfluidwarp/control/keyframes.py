@@ -70,7 +70,7 @@ class KeyframeFit:
             (:func:`~torchfluidwarp.control.optim.minimize`'s NaN policy: the best finite iterate is kept).
         reached: every point is within ``tolerance`` pixels of its target at every keyframe.
         message: a one-line summary: reached or not, the last keyframe's mean and largest error and, with several
-            keyframes, the largest error of the worst one.
+            keyframes, the largest error of the worst one where another keyframe is farther off than the last.
     """
 
     forces: nn.Module

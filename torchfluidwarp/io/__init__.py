@@ -22,11 +22,13 @@ from torchfluidwarp.io.animation import AnimationFormat as AnimationFormat
 from torchfluidwarp.io.images import (
     MAX_IMAGE_PIXELS,
     image_shape,
+    premultiplied,
     read_image,
     read_image_bytes,
     resize_image,
     shrink_image,
     shrunk_size,
+    straight,
     write_image,
 )
 from torchfluidwarp.io.points import MAX_POINTS_BYTES, check_point_counts, read_points, write_points
@@ -39,6 +41,8 @@ __all__ = [
     "write_image",
     "resize_image",
     "shrink_image",
+    "premultiplied",
+    "straight",
     "shrunk_size",
     "read_points",
     "write_points",

@@ -51,8 +51,8 @@ def in_srgb(array: np.ndarray, icc: bytes, source: str, mode: str = "RGB") -> np
 
 
 def lab_in_srgb(array: np.ndarray, source: str) -> np.ndarray:
-    """8-bit CIELab pixels ``(H, W, 3)`` as Pillow reads a CIELab TIFF (``L*`` scaled to 0..255, ``a*`` and ``b*``
-    signed bytes; a scanner's or a print workflow's export), in sRGB: read as RGB they would show ``L*`` as red and
+    """8-bit CIELab pixels ``(H, W, 3)`` as Pillow reads a CIELab TIFF (its mode ``LAB``: ``L*`` scaled to 0..255;
+    a scanner's or a print workflow's export), in sRGB: read as RGB they would show ``L*`` as red and
     the two colour axes as green and blue. LittleCMS converts them from its D50 Lab space, relative colorimetric;
     where it cannot, the picture is refused (there is no plain formula worth showing), naming ``source``."""
     try:

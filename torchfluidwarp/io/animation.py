@@ -92,7 +92,8 @@ def write_animation(
     * a path ending in ``/``, an existing directory or a path without suffix: a folder of
       ``frame_0000.png``, ``frame_0001.png``, ... (all channels kept, alpha included).
 
-    Gray frames are repeated to RGB for GIF, MP4 and WebP; MP4 drops an alpha channel.
+    Gray frames are repeated to RGB for GIF, MP4 and WebP; MP4, which has no alpha, shows frames with alpha
+    composited over black.
 
     Frames are encoded as they come, so an iterable (e.g. ``result.iter_frames()`` of a morph) is written in
     the memory of one frame whatever its length (a GIF's: of up to :data:`QUANTIZE_AHEAD` more 8-bit frames,
@@ -424,7 +425,7 @@ def _write_mp4(file: Path, frames: Iterator[np.ndarray], fps: float) -> None:
     count, w, h = 0, 0, 0
     try:
         for frame in frames:
-            rgb = _rgb(frame)
+            rgb = _rgb(_over_black(frame))
             h, w = rgb.shape[:2]
             rgb = np.pad(rgb, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")  # yuv420p needs even sizes
             if writer is None:
@@ -441,6 +442,16 @@ def _write_mp4(file: Path, frames: Iterator[np.ndarray], fps: float) -> None:
             writer.close()
     if not file.is_file() or file.stat().st_size == 0:  # ffmpeg does not always pass its failure on
         raise RuntimeError(f"ffmpeg wrote no video for {count} frames of {w} x {h} at {fps:g} fps")
+
+
+def _over_black(frame: np.ndarray) -> np.ndarray:
+    """``(H, W, C)`` uint8 with alpha (``C`` 2 or 4) composited over black, for a format without alpha (MP4):
+    a transparent pixel shows black whatever colour it stores (a morph's frames store none under alpha 0, its
+    first and last frames the pictures' own); other frames as they are."""
+    if frame.shape[-1] not in (2, 4):
+        return frame
+    alpha = frame[..., -1:].astype(np.uint16)
+    return ((frame[..., :-1].astype(np.uint16) * alpha + 127) // 255).astype(np.uint8)
 
 
 def _rgb(frame: np.ndarray) -> np.ndarray:

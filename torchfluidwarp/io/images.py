@@ -46,6 +46,8 @@ __all__ = [
     "resize_image",
     "shrink_image",
     "shrunk_size",
+    "premultiplied",
+    "straight",
     "MAX_IMAGE_PIXELS",
 ]
 
@@ -188,23 +190,25 @@ def write_image(path: PathLike, image: Tensor) -> Path:
 
 
 def premultiplied(image: Tensor) -> Tensor:
-    """``(B, 4, H, W)`` RGBA with its colour multiplied by its alpha; any other channel count as it is.
+    """A picture with alpha, ``(B, 2, H, W)`` grey + alpha or ``(B, 4, H, W)`` RGBA (alpha last), with its colour
+    multiplied by its alpha; 1 or 3 channels (no alpha) as it is.
 
     Resampling and blending premultiplied colour is what keeps the colour stored under transparent pixels (often
     black, or anything) from bleeding into its neighbours: a bilinear read between a transparent and an opaque
     pixel gives the opaque pixel's colour at half alpha, not half the hidden colour."""
-    if image.shape[1] != 4:
+    if image.shape[1] not in (2, 4):
         return image
-    return torch.cat([image[:, :3] * image[:, 3:], image[:, 3:]], 1)
+    return torch.cat([image[:, :-1] * image[:, -1:], image[:, -1:]], 1)
 
 
 def straight(image: Tensor) -> Tensor:
-    """The inverse of :func:`premultiplied` ``(B, 4, H, W)``: the colour divided by the alpha where it is above 0
-    (0 where not); any other channel count as it is."""
-    if image.shape[1] != 4:
+    """The inverse of :func:`premultiplied`: the colour divided by the alpha where it is above 0 (0 where it is
+    not: a fully transparent pixel has no colour to recover); 1 or 3 channels as it is."""
+    if image.shape[1] not in (2, 4):
         return image
-    alpha = image[:, 3:]
-    colour = torch.where(alpha > 0, image[:, :3] / alpha.clamp(min=torch.finfo(alpha.dtype).tiny), 0.0)
+    alpha = image[:, -1:]
+    seen = alpha > 0
+    colour = torch.where(seen, image[:, :-1] / torch.where(seen, alpha, torch.ones_like(alpha)), 0.0)
     return torch.cat([colour, alpha], 1)
 
 
@@ -217,7 +221,8 @@ def resize_image(image: Tensor, size: tuple[int, int], *, max_memory: float | No
     with a Gaussian first and then samples; it is slower and aliases at mild factors: ``docs/design.rst``.)
 
     Conventions: ``align_corners=False``; pixel centres at integers, and the image's outer edges (``-0.5`` and
-    ``H - 0.5``) map onto each other. Four channels are RGBA, resized premultiplied (:func:`premultiplied`).
+    ``H - 0.5``) map onto each other. Every channel is resized alike, whatever it holds: a caller that knows its
+    picture has alpha resizes it premultiplied (:func:`premultiplied`, :func:`straight`), as the morph does.
 
     Args:
         image: ``(B, C, H, W)`` floats, ``C``, ``H``, ``W`` >= 1; float16 and bfloat16 are resized in float32
@@ -246,8 +251,8 @@ def resize_image(image: Tensor, size: tuple[int, int], *, max_memory: float | No
     work = compute_dtype(image.dtype)  # float16 and bfloat16 in float32: torch's CPU antialiased kernel has neither
     nbytes = image.shape[0] * image.shape[1] * size[0] * size[1] * (work.itemsize + image.dtype.itemsize)
     check_memory(f"resize_image to {size[0]} x {size[1]}", nbytes, max_memory, "max_memory")
-    out = F.interpolate(premultiplied(image.to(work)), size=size, mode="bilinear", align_corners=False, antialias=True)
-    return straight(out).to(image.dtype)
+    out = F.interpolate(image.to(work), size=size, mode="bilinear", align_corners=False, antialias=True)
+    return out.to(image.dtype)
 
 
 def shrink_image(image: Tensor, longest: int) -> Tensor:

@@ -12,6 +12,7 @@ morph(a, b, ...)`` call :func:`morph`, while ``import torchfluidwarp.morph as m;
 hidden).
 """
 
+import importlib
 import inspect
 import sys
 import types
@@ -34,6 +35,10 @@ class _Callable(types.ModuleType):
 
     def __call__(self, *args: Any, **kwargs: Any) -> MorphResult:
         return morph(*args, **kwargs)
+
+    def __reduce__(self) -> tuple[Any, tuple[str]]:
+        # pickled by name, as a function is (a process pool sends ``morph`` to its workers)
+        return importlib.import_module, (self.__name__,)
 
 
 __signature__ = inspect.signature(morph)  # what help() and IDEs show for a call of the package

@@ -345,7 +345,7 @@ def fit_natural(
         mids, disp, src = torch.cat([mids, extra]), torch.cat([disp, moved]), torch.cat([src, extra - moved / 2])
         weights = torch.cat([mids.new_ones(marks), mids.new_full((len(extra),), LATTICE_WEIGHT)])
     whole = None if dense is None and mids.shape[0] == marks else travel
-    forces = LandmarkForces(mids, disp, steps, inside=inside, travel=whole)
+    forces = LandmarkForces(mids, disp, steps, inside=inside, travel=whole, origin=(float(offset[0]), float(offset[1])))
     if warm_start is not None:
         warm_corrections(forces, warm_start.forces)
     along = torch.linspace(0, 1, steps + 1, dtype=torch.float64, device=pa.device).view(-1, 1, 1)
@@ -404,11 +404,16 @@ def warm_corrections(forces: LandmarkForces, previous: nn.Module) -> int:
     its points takes the corrections of the previous fit's point whose midpoint is nearest, where that is within
     half the median distance between this fit's neighbouring points (a mark dragged by a few pixels keeps its
     corrections; the lattice between the marks, whose points change in number as the travel changes, keeps
-    those at the same places); the rest start at 0. Returns how many points were started.
+    those at the same places); the rest start at 0. The midpoints are compared in A's pixels (each fit's box has
+    its own origin, :attr:`LandmarkForces.origin`, which moves when a dragged mark widens the margin). Returns
+    how many points were started.
     """
     if not isinstance(previous, LandmarkForces) or previous.weight.shape[:2] != forces.weight.shape[:2]:
         return 0
-    new, old = forces.midpoints, previous.midpoints.to(forces.midpoints)
+    shift = forces.midpoints.new_tensor(
+        [previous.origin[0] - forces.origin[0], previous.origin[1] - forces.origin[1]]
+    )  # the previous box's pixels to this box's
+    new, old = forces.midpoints, previous.midpoints.to(forces.midpoints) + shift
     if new.shape[0] < 2 or old.shape[0] == 0:
         return 0
     gaps = torch.cdist(new, new)

@@ -43,6 +43,7 @@ from torchfluidwarp.correspond import FoundPoints, MatchMode, MatchNotice, find_
 from torchfluidwarp.correspond.auto import MATCH_MODES
 from torchfluidwarp.errors import Hint, InputError
 from torchfluidwarp.io import resize_image
+from torchfluidwarp.io.images import premultiplied, straight
 from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, fluid_grid, focus, paper_flows
 from torchfluidwarp.morph.marks import (
     LET_GO,
@@ -90,7 +91,9 @@ def _as_image(name: str, image: Tensor) -> Tensor:
         )
     low, high = float(img.amin()), float(img.amax())
     if low < -RANGE_SLACK or high > 1 + RANGE_SLACK:
-        advice = "divide by 255" if high > 2 and low >= 0 else "bring them to [0, 1]"
+        advice = "bring them to [0, 1]"
+        if low >= 0 and high > 2:  # whole-number levels: 8 or 16 bits
+            advice = "divide by 65535" if high > 256 else "divide by 255"
         warn(
             f"{name}'s values span [{low:.4g}, {high:.4g}], not a picture's [0, 1]: the morph blends them as they "
             f"are, and its frames are saved clipped to [0, 1] ({advice})"
@@ -99,14 +102,16 @@ def _as_image(name: str, image: Tensor) -> Tensor:
 
 
 def _as_points(name: str, points: object, image: Tensor) -> Tensor:
-    """One set of points ``(M, 2)`` inside ``image``, detached, on the image's device, in its dtype (a list of
-    ``[x, y]`` pairs, a NumPy array or an integer tensor is converted)."""
+    """One set of points ``(M, 2)`` inside ``image``, detached, on the image's device. A list of ``[x, y]`` pairs,
+    a NumPy array or an integer tensor is converted to the image's computing dtype (float32 for a half-precision
+    picture, so that a point keeps its fraction of a pixel); a float tensor keeps its own."""
     if not (isinstance(points, Tensor) and points.is_floating_point()):
         try:
-            data = points.detach().cpu().numpy() if isinstance(points, Tensor) else points
-            points = torch.as_tensor(np.asarray(data, dtype=np.float64), dtype=image.dtype, device=image.device)
+            data = np.asarray(points.detach().cpu() if isinstance(points, Tensor) else points)
+            if data.dtype.kind in "iuf":  # numbers, not booleans or strings: those check_points refuses by name
+                points = torch.as_tensor(data.astype(np.float64), device=image.device).to(compute_dtype(image.dtype))
         except (TypeError, ValueError):
-            pass  # not numbers: check_points refuses it, naming it
+            pass  # a ragged list, tensors on a GPU: check_points refuses it, naming it
     p = check_points(name, points, (image.shape[-2], image.shape[-1]))
     if p.shape[0] != 1:
         raise InputError(f"{name} must be one set of points (M, 2) for a morph, got shape {tuple(p.shape)}")
@@ -232,11 +237,12 @@ def _marks_on_canvas(points: Tensor, canvas: tuple[int, int]) -> Tensor:
 def _at_scale(image: Tensor, scale: float) -> Tensor:
     """``image`` as it is read on the canvas: shrunk (antialiased, one factor for both axes up to the rounding of
     its size) when the canvas shows it smaller, so that the frames' bilinear reads do not alias; the renderer
-    reads it in the original picture's pixels (:func:`~torchfluidwarp.morph.render.read`)."""
+    reads it in the original picture's pixels (:func:`~torchfluidwarp.morph.render.read`). A picture with alpha
+    is shrunk premultiplied, so that no colour hidden under its transparent pixels bleeds into its edges."""
     if scale >= 1:
         return image
     H, W = image.shape[-2:]
-    return resize_image(image, (max(2, round(H * scale)), max(2, round(W * scale))))
+    return straight(resize_image(premultiplied(image), (max(2, round(H * scale)), max(2, round(W * scale)))))
 
 
 def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid: object, itemsize: int) -> float:
@@ -249,8 +255,8 @@ def _memory(size: tuple[int, int], channels: int, frames: int, steps: int, grid:
 
 
 def _check_warm_start(warm_start: KeyframeFit, settings: MorphSettings) -> None:
-    """Refuse a ``warm_start`` that cannot start a fit with ``settings``: a fit of the other method, or a paper's
-    fit of another number of steps or control points (its forces would be fitted as they are, another model)."""
+    """Refuse a ``warm_start`` that cannot start a fit with ``settings``: a fit of the other method, or one of
+    another number of steps (or, for the paper's, of control points: its forces would be fitted as they are)."""
     natural = isinstance(warm_start.forces, LandmarkForces)
     if natural != isinstance(settings, NaturalSettings):
         given, wanted = ("the natural", "the paper's") if natural else ("the paper's", "the natural")
@@ -259,6 +265,17 @@ def _check_warm_start(warm_start: KeyframeFit, settings: MorphSettings) -> None:
             f"with the same settings' class, or none",
             argument="warm_start",
         )
+    if isinstance(settings, NaturalSettings):
+        forces = warm_start.forces
+        assert isinstance(forces, LandmarkForces)  # checked above: a natural fit's
+        steps = int(forces.weight.shape[1])  # (B, T, N, 2)
+        if steps != settings.steps:
+            raise InputError(
+                f"warm_start is a fit of {steps} steps and this morph's has {settings.steps}: pass a result.fit "
+                f"of a morph with the same NaturalSettings.steps",
+                argument="warm_start",
+            )
+        return
     if isinstance(settings, PaperSettings):
         control = settings.control  # a pair once checked by PaperSettings
         ky, kx = (control, control) if isinstance(control, int) else control

@@ -6,7 +6,7 @@ fluid's frame; image A is read at ``g_s(z)`` (the fluid's backward map) and imag
 chain of small per-step fits (``inverse="paper"``). Maps are ``(1, H, W, 2)`` in pixels, ``(x, y)``, pixel
 centres at integers.
 
-Pictures with alpha (``C = 4``, RGBA) are read and blended premultiplied (colour times alpha) and shown straight:
+Pictures with alpha (``C = 2`` or ``4``) are read and blended premultiplied (colour times alpha) and shown straight:
 the colour stored under transparent pixels, often black or anything, never bleeds into a frame (a cross-dissolve
 of a transparent pixel into an opaque green one is green at half alpha, not half the hidden colour).
 """
@@ -246,8 +246,8 @@ def on_canvas(
 
     ``place`` ``(3, 3)`` takes the picture's pixels to the canvas's
     (:func:`~torchfluidwarp.morph.morphing.placement`); ``image`` ``(1, C, h, w)`` is the picture of ``size``
-    ``(H_p, W_p)`` or a resized copy of it (:func:`read`; ``None``: the picture itself). RGBA is read premultiplied
-    and returned straight (:func:`premultiplied`)."""
+    ``(H_p, W_p)`` or a resized copy of it (:func:`read`; ``None``: the picture itself). Alpha is read premultiplied
+    and returned straight (:func:`~torchfluidwarp.io.images.premultiplied`)."""
     r0, r1 = rows or (0, canvas[0])
     ident = identity_map((r1 - r0, canvas[1]), device=image.device, dtype=torch.float64)
     ident = ident + ident.new_tensor([0.0, float(r0)])
@@ -323,7 +323,7 @@ class Scene:
     read_b: Tensor = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        # what the frames read and blend: RGBA premultiplied (see the module's docstring), the rest as it is
+        # what the frames read and blend: premultiplied where there is alpha (the module's docstring)
         self.read_a, self.read_b = premultiplied(self.a), premultiplied(self.b)
         eye = torch.eye(3, dtype=torch.float64, device=self.a.device)
         self.size_a = self.size_a or (self.a.shape[-2], self.a.shape[-1])

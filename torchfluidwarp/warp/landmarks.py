@@ -94,6 +94,9 @@ class LandmarkForces(nn.Module):
             pixels found (:func:`~torchfluidwarp.correspond.halfway.halfway_alignment`), so that every particle
             travels ``x(s) = m + (s - 1/2) (D + R)(m)``. The kick at step 0 carries ``R``; the corrections stay the
             marks' own.
+        origin: ``(x, y)`` where pixel ``(0, 0)`` of these forces lies in the caller's frame (a morph's fluid box
+            in A's pixels), so that another fit's forces can be compared point by point with these (a warm start,
+            :func:`~torchfluidwarp.morph.fit.warm_corrections`); it changes nothing in the flow.
 
     Example:
         >>> mid = torch.tensor([[8.0, 8.0], [24.0, 8.0], [16.0, 24.0]])
@@ -110,6 +113,7 @@ class LandmarkForces(nn.Module):
         batch: int = 1,
         inside: tuple[float, float, float, float] | None = None,
         travel: Callable[[Tensor], Tensor] | None = None,
+        origin: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         super().__init__()
         m = check_tensor("midpoints", midpoints, shape=[None, 2])
@@ -124,6 +128,7 @@ class LandmarkForces(nn.Module):
         self.weight = nn.Parameter(torch.zeros(batch, steps, m.shape[0], 2, device=m.device, dtype=m.dtype))
         self.inside = None if inside is None else tuple(float(v) for v in inside)
         self.travel = travel
+        self.origin = (float(origin[0]), float(origin[1]))
         self._basis: dict[tuple, tuple[Tensor, Tensor]] = {}  # (T, h w, M), (h w, 2) per grid, size, device, dtype
 
     def extra_repr(self) -> str:
