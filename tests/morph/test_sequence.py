@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 from discs import aspect, crop, crop_offset, disc_marks, disc_picture
@@ -154,3 +156,12 @@ def test_without_points_each_images_face_landmarks_are_used():
     torch.testing.assert_close(seq.points[1], marks[1])
     # 63 landmarks and up to 8 border pairs (3 a side), less those whose partner the shift puts outside B
     assert 63 < seq.segments[0].error.shape[0] <= 63 + 8
+
+
+def test_a_sequence_says_each_pictures_range_once_by_its_name():
+    images = [_blobs(BASE) * 255, _blobs(BASE + 1) * 255, _blobs(BASE + 2) * 255]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        morph_sequence(images, [BASE, BASE + 1, BASE + 2], frames=5, **KW)
+    said = [str(w.message).split("'s values")[0] for w in caught if "values span" in str(w.message)]
+    assert said == ["images[0]", "images[1]", "images[2]"]

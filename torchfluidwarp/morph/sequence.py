@@ -209,22 +209,29 @@ def morph_sequence(
     for i in range(segments):
         (a, pa), (b, pb) = pairs[i], pairs[i + 1]
         ma, mb, found_marks = _marks(pa, pb, found, ((a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])))
-        results.append(
-            morph(
-                a,
-                b,
-                ma,
-                mb,
-                placed=found_marks,
-                settings=settings,
-                frames=shares[i] + 1,
-                timing=timing,
-                blending=on_canvas,
-                progress=progress,
-                max_memory=max_memory,
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name, above
+            results.append(
+                morph(
+                    a,
+                    b,
+                    ma,
+                    mb,
+                    placed=found_marks,
+                    settings=settings,
+                    frames=shares[i] + 1,
+                    timing=timing,
+                    blending=on_canvas,
+                    progress=progress,
+                    max_memory=max_memory,
+                )
             )
-        )
     return MorphSequence(results, [s + 1 for s in shares], [p for _, p in pairs])
+
+
+SAID_RANGE = r"image_[ab]'s values span"
+"""The start of :func:`~torchfluidwarp.morph.morph`'s note of a picture's values beyond ``[0, 1]``, which a
+sequence or an average says once per picture under its own name instead of once per morph under another."""
 
 
 @dataclass
@@ -306,6 +313,7 @@ def average(
         placed = on_canvas(image, place, canvas)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
+            warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name
             ma, mb, found_marks = _marks(p, back.to(p), found)
             result = morph(
                 image,
