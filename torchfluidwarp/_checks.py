@@ -133,8 +133,8 @@ def check_tensor(
             raise InputError(f"{name} must have shape {want}, got {tuple(x.shape)}", argument=argument_of(name))
     if finite and x.numel() and not all_finite(x):
         bad = ~torch.isfinite(x.detach())
-        flat = int(bad.flatten().to(torch.uint8).argmax())  # the first, without indexing every bad value
-        first = tuple(int(i) for i in torch.unravel_index(torch.tensor(flat), tuple(x.shape)))
+        flat = bad.flatten().to(torch.uint8).argmax()  # the first, without indexing every bad value
+        first = tuple(int(i) for i in torch.unravel_index(flat, tuple(x.shape)))
         raise InputError(
             f"{name} contains non-finite values (NaN or inf): {int(bad.sum())}, the first at index {first}; "
             f"shape {tuple(x.shape)}",
