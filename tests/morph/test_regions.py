@@ -80,6 +80,23 @@ def test_paste_back_round_trip_and_only_the_box_changes():
     assert edge.shape == photo.shape
 
 
+def test_paste_back_blends_pictures_with_alpha_premultiplied():
+    # an opaque blue RGBA photo; a frame whose left half is transparent over a hidden red, its right half opaque
+    # green, pasted at half strength (the frame replaces the region by half): the left half is blue at half alpha,
+    # the right half blue-green, opaque; no red anywhere (straight blending gave the left half (0.5, 0, 0.5))
+    photo = torch.zeros(4, 40, 40)
+    photo[2], photo[3] = 1.0, 1.0
+    frame = torch.zeros(4, 20, 20)
+    frame[0, :, :10] = 1.0
+    frame[1, :, 10:], frame[3, :, 10:] = 1.0, 1.0
+    out = paste_back(frame, photo, (10, 10, 30, 30), mask=torch.full((20, 20), 0.5), band=0.0)
+    assert float(out[0].abs().max()) < 1e-6  # the hidden red never shows
+    torch.testing.assert_close(out[:3, 15:25, 12:16], photo[:3, 15:25, 12:16])  # the photo's colour
+    torch.testing.assert_close(out[3, 15:25, 12:16], torch.full((10, 4), 0.5))  # at half alpha
+    torch.testing.assert_close(out[3, 15:25, 24:28], torch.ones(10, 4))
+    torch.testing.assert_close(out[1:3, 15:25, 24:28], torch.full((2, 10, 4), 0.5))
+
+
 def test_alpha_is_warped_like_colour():
     from torchfluidwarp.io.images import premultiplied, straight
     from torchfluidwarp.warp import warp_image

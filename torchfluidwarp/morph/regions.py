@@ -15,7 +15,7 @@ from torch import Tensor
 
 from torchfluidwarp._checks import check_positive, check_tensor
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.io import resize_image
+from torchfluidwarp.io import premultiplied, resize_image, straight
 
 __all__ = ["Background", "hull_mask", "paste_back"]
 
@@ -94,7 +94,9 @@ def paste_back(
     The frame is resized to the box ``(x0, y0, x1, y1)`` (pixels of the photo; x1, y1 exclusive) and blended in
     with ``mask`` ``(h, w)`` (the region the frame should replace; default the whole box), whose edge, and the
     box's, fades over ``band`` photo pixels so that no seam shows. Parts of the box beyond the photo are
-    dropped. Returns a new photo ``(C, H, W)``; ``photo`` is left as it was.
+    dropped. Pictures with alpha (``C`` 2 or 4) are resized and blended premultiplied, as the morph's frames are
+    (:func:`~torchfluidwarp.io.images.premultiplied`): no colour stored under a transparent pixel shows. Returns a
+    new photo ``(C, H, W)``; ``photo`` is left as it was, and so is the new one outside the box.
     """
     f = check_tensor("frame", frame, ndim=3)
     ph = check_tensor("photo", photo, ndim=3)
@@ -105,7 +107,7 @@ def paste_back(
         raise InputError(f"box must be (x0, y0, x1, y1) with x1 > x0 and y1 > y0, got {box}")
     band = check_positive("band", band, allow_zero=True)
     h, w = y1 - y0, x1 - x0
-    resized = resize_image(f[None].to(ph.dtype), (h, w))[0]
+    resized = resize_image(premultiplied(f[None].to(ph.dtype)), (h, w))[0]
     m = torch.ones(1, f.shape[1], f.shape[2], dtype=ph.dtype, device=ph.device) if mask is None else mask[None]
     m = check_tensor("mask", m, shape=[1, f.shape[1], f.shape[2]]).to(ph.dtype)
     m = resize_image(m[None], (h, w))[0]
@@ -121,6 +123,6 @@ def paste_back(
     if cx1 <= cx0 or cy1 <= cy0:
         return out
     sl = (slice(None), slice(cy0 - y0, cy1 - y0), slice(cx0 - x0, cx1 - x0))
-    region = out[:, cy0:cy1, cx0:cx1]
-    out[:, cy0:cy1, cx0:cx1] = torch.lerp(region, resized[sl], m[sl])
+    region = premultiplied(out[None, :, cy0:cy1, cx0:cx1])[0]
+    out[:, cy0:cy1, cx0:cx1] = straight(torch.lerp(region, resized[sl], m[sl])[None])[0]
     return out
