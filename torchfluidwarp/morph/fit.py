@@ -127,10 +127,7 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     try:
         travel = tps_fit(mids[keep], disp[keep], smoothing)
     except InputError as exc:
-        raise InputError(
-            "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
-            "places meet halfway) to guide the morph; check that both list the same features in the same order"
-        ) from exc
+        raise InputError(TOO_FEW_MIDPOINTS) from exc
     m = solve_midpoints(travel, src, -0.5)
     if smoothing == 0.0:  # the kept marks travel straight, exactly
         m[keep] = mids[keep]
@@ -142,11 +139,7 @@ def _check_spread(mids: Tensor) -> None:
     it (the caller's points are to blame, so the error names them)."""
     distinct = torch.unique(torch.round(mids / SPREAD), dim=0).shape[0]
     if distinct < 3:
-        raise InputError(
-            "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap "
-            "places meet halfway) to guide the morph; check that both list the same features in the same order",
-            argument="points_a",
-        )
+        raise InputError(TOO_FEW_MIDPOINTS, argument="points_a")
     spread = torch.linalg.svdvals(mids - mids.mean(0))
     if float(spread[-1]) < SPREAD:
         raise InputError(
@@ -155,6 +148,13 @@ def _check_spread(mids: Tensor) -> None:
             f"method needs 3 or more whose midpoints are not in a row)",
             argument="points_a",
         )
+
+
+TOO_FEW_MIDPOINTS = (
+    "points_a and points_b: the marks' straight paths meet in too few distinct midpoints (marks that swap places "
+    "meet halfway) to guide the morph; check that both list the same features in the same order"
+)
+"""The refusal of marks that leave fewer than 3 distinct midpoints, before the paths and after some are let go."""
 
 
 SPREAD = 1e-3
@@ -413,9 +413,7 @@ def warm_corrections(forces: LandmarkForces, previous: nn.Module) -> int:
     shift = forces.midpoints.new_tensor(
         [previous.origin[0] - forces.origin[0], previous.origin[1] - forces.origin[1]]
     )  # the previous box's pixels to this box's
-    new, old = forces.midpoints, previous.midpoints.to(forces.midpoints) + shift
-    if new.shape[0] < 2 or old.shape[0] == 0:
-        return 0
+    new, old = forces.midpoints, previous.midpoints.to(forces.midpoints) + shift  # 3 or more each
     gaps = torch.cdist(new, new)
     gaps.fill_diagonal_(float("inf"))
     reach = 0.5 * float(gaps.min(1).values.median())

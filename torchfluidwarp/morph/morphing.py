@@ -89,7 +89,7 @@ def _as_image(name: str, image: Tensor) -> Tensor:
             f"{tuple(image.shape)}",
             argument=name,
         )
-    low, high = float(img.amin()), float(img.amax())
+    low, high = (float(v) for v in torch.aminmax(img))
     if low < -RANGE_SLACK or high > 1 + RANGE_SLACK:
         advice = "bring them to [0, 1]"
         if low >= 0 and high > 2:  # whole-number levels: 8 or 16 bits
@@ -370,7 +370,8 @@ def morph(
             the canvas shows it smaller). Grey, grey + alpha, RGB and RGBA mix: the frames take
             the richer model (:func:`match_channels`).
         points_a, points_b: ``(M, 2)`` corresponding points ``(x, y)`` in each image's pixels (pixel centres at
-            integers): tensors, or lists of ``[x, y]`` pairs or NumPy arrays (converted to the images' dtype);
+            integers): tensors, or lists of ``[x, y]`` pairs or NumPy arrays (converted to the images' computing
+            dtype);
             the natural method needs ``M >= 3`` points whose midpoints (halfway between each pair) are not all
             on one line. ``None`` (both): found
             from the pictures by :func:`~torchfluidwarp.correspond.auto.auto_points` as ``match`` says. Points
@@ -387,10 +388,10 @@ def morph(
             (:class:`~torchfluidwarp.morph.settings.Blending`).
         match: how the points are found when none are given (:class:`~torchfluidwarp.morph.settings.Matching`),
             or its mode alone: ``match="pixels"`` is ``match=Matching("pixels")``.
-        warm_start: a previous morph's ``result.fit`` of the same method (the studio's live previews): the paper's
-            fit starts from its forces (the same ``steps`` and ``control``); the natural fit starts each point's
-            corrections from those of the previous fit's point at about the same place (a mark dragged by a few
-            pixels keeps them; :func:`~torchfluidwarp.morph.fit.warm_corrections`). A fit of the other method is
+        warm_start: a previous morph's ``result.fit`` of the same method and ``steps`` (the studio's live
+            previews): the paper's fit starts from its forces (the same ``control`` too); the natural fit starts
+            each point's corrections from those of the previous fit's point at about the same place (a mark dragged
+            by a few pixels keeps them; :func:`~torchfluidwarp.morph.fit.warm_corrections`). Any other fit is
             refused.
         placed: points that :func:`~torchfluidwarp.correspond.auto.find_points` already found for this pair (the
             command line finds them first, to say which matcher it used), taken as ``match`` would take its own:

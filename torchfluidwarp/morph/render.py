@@ -338,12 +338,9 @@ class Scene:
         assert self.canvas is not None
         return self.canvas
 
-    def placed(self, which: str, rows: tuple[int, int], blended: bool = False) -> Tensor:
+    def placed(self, which: str, rows: tuple[int, int]) -> Tensor:
         """Rows ``[r0, r1)`` of picture ``which`` (``"a"`` or ``"b"``) placed on the canvas, ``(1, C, n, W)``: what
-        the first (``"a"``) and the last frame show, and (``blended``: premultiplied, as the frames are blended) a
-        region's background."""
-        if blended:
-            return premultiplied(self.placed(which, rows))
+        the first (``"a"``) and the last frame show, and a region's background."""
         image, size, place = (
             (self.a, self.size_a, self.place_a) if which == "a" else (self.b, self.size_b, self.place_b)
         )
@@ -419,12 +416,14 @@ def _band(scene: Scene, g: Tensor, k: Tensor, unalign: Tensor, w: float, rows: t
     if scene.masks is not None:  # the region, carried by each image's map, shows the morph; the rest the background
         ma = read(scene.masks[0], map_a, scene.size_a)
         mb = read(scene.masks[1], map_b, scene.size_b)
-        if scene.background == "a":
-            background = scene.placed("a", rows, blended=True)
-        elif scene.background == "b":
-            background = scene.placed("b", rows, blended=True)
+
+        def behind(which: str) -> Tensor:  # the background, premultiplied as the frame is blended
+            return premultiplied(scene.placed(which, rows))
+
+        if scene.background == "blend":
+            background = torch.lerp(behind("a"), behind("b"), w)
         else:
-            background = torch.lerp(scene.placed("a", rows, blended=True), scene.placed("b", rows, blended=True), w)
+            background = behind(scene.background)
         frame = composite(frame, background, torch.lerp(ma, mb, w))
     folded = (det_a[:, mine] <= 0).sum() + (det_b[:, mine] <= 0).sum()
     return [straight(frame), straight(fa), straight(fb), map_a, map_b, folded]
