@@ -3,7 +3,12 @@ import math
 import pytest
 import torch
 
-from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, interpolate_alignment
+from torchfluidwarp.control.alignment import (
+    apply_alignment,
+    estimate_alignment,
+    interpolate_alignment,
+    robust_alignment,
+)
 
 
 def _similarity(scale, angle, tx, ty):
@@ -19,6 +24,26 @@ def test_recovers_a_known_transform(kind, gen):
         m[0, 1] += 0.3
     b = apply_alignment(m, a)
     torch.testing.assert_close(estimate_alignment(a, b, kind), m)
+
+
+@pytest.mark.parametrize("kind", ["similarity", "affine"])
+@pytest.mark.parametrize("noise, n", [(0.0, 40), (0.5, 40), (0.5, 80)])  # 80: 3,160 pairs, more than are tried
+def test_a_robust_pose_is_not_dragged_by_pairs_far_off(kind, noise, n, gen):
+    a = torch.rand(n, 2, generator=gen, dtype=torch.float64) * 400
+    m = _similarity(0.8, 0.5, -20.0, 35.0)
+    if kind == "affine":
+        m[0, 1] += 0.2
+    b = apply_alignment(m, a) + noise * torch.randn(n, 2, generator=gen, dtype=torch.float64)
+    far = torch.tensor([3, 11, 12, 25, 30, 38])  # 15% of the pairs, thrown 150-600 px off
+    b[far] += torch.rand(6, 2, generator=gen, dtype=torch.float64) * 450 + 150
+    least_squares = estimate_alignment(a, b, kind)
+    robust, inliers = robust_alignment(a, b, kind)
+    assert set((~inliers).nonzero()[:, 0].tolist()) == set(far.tolist())
+    err = (apply_alignment(robust, a) - apply_alignment(m, a)).norm(dim=-1).max()
+    err_ls = (apply_alignment(least_squares, a) - apply_alignment(m, a)).norm(dim=-1).max()
+    assert float(err) < 1e-6 + 2 * noise and float(err_ls) > 40, (float(err), float(err_ls))
+    again, _ = robust_alignment(a, b, kind)
+    torch.testing.assert_close(again, robust, atol=0, rtol=0)  # no randomness from call to call
 
 
 def test_interpolation_ends_and_centre_path():

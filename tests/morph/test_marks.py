@@ -8,7 +8,9 @@ import warnings
 import pytest
 import torch
 
-from torchfluidwarp.control.alignment import apply_alignment
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.morph import NaturalSettings, morph
 from torchfluidwarp.morph.marks import LET_GO, MIN_POSE_FIT, pose, warn_coarse_grid, warn_missed
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
@@ -36,6 +38,41 @@ def test_marks_in_no_common_pose_get_the_identity_and_a_warning(kind, shuffled_m
         got = pose(*shuffled_marks, kind)
     torch.testing.assert_close(got, torch.eye(3, dtype=torch.float64), atol=0, rtol=0)
     assert 0 < MIN_POSE_FIT < 0.73  # below the worst pair of real faces (see its docstring)
+
+
+def _grid_marks(n: int = 5) -> torch.Tensor:
+    ys, xs = torch.meshgrid(torch.linspace(12.0, 52.0, n), torch.linspace(12.0, 52.0, n), indexing="ij")
+    return torch.stack([xs, ys], -1).reshape(-1, 2).double()
+
+
+@pytest.mark.parametrize("kind", ["similarity", "affine"])
+def test_a_mark_placed_far_off_is_outvoted_and_named(kind):
+    pa = _grid_marks()
+    M = similarity(0.9, 0.3, (4.0, -2.0))
+    pb = apply_alignment(M, pa)
+    pb[7] = torch.tensor([900.0, -700.0], dtype=torch.float64)  # one mark put in the wrong place
+    residual = apply_alignment(estimate_alignment(pa, pb, kind), pa) - pb
+    assert 1 - float(residual.square().sum() / (pb - pb.mean(0)).square().sum()) < MIN_POSE_FIT  # least squares fails
+    with pytest.warns(RuntimeWarning, match=r"points 7 of points_a and points_b lie far from the .* other 24 marks"):
+        got = pose(pa, pb, kind)
+    torch.testing.assert_close(apply_alignment(got, pa), apply_alignment(M, pa), atol=1e-6, rtol=0)
+
+
+def test_a_morph_meets_the_other_marks_when_one_is_put_far_off():
+    a, b = load_sample("astronaut"), load_sample("cat")
+    pa, pb = load_sample_points("astronaut"), load_sample_points("cat")
+    pa[0], pb[0] = torch.tensor([-0.5, -0.5]), torch.tensor([511.5, 511.5])  # one mark clicked in the wrong corner
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = morph(a, b, pa, pb, frames=2, progress=False,
+                       settings=NaturalSettings(grid=32, max_iter=10, dense=None))  # fmt: skip
+    said = [str(w.message) for w in caught]
+    assert any("points 0 of points_a and points_b lie far from the similarity pose the other 22" in m for m in said)
+    assert not any("do not agree on a pose" in m for m in said), said
+    # without the pre-alignment, every one of the 23 marks was let go; with it, most are met
+    met = ~result.let_go
+    assert bool(result.let_go[0]) and int(met.sum()) >= 15, result.let_go
+    assert float(result.error[met].mean()) < 2.0, result.error_summary()
 
 
 def test_no_pre_alignment_asked_is_the_identity_without_a_check():

@@ -9,6 +9,7 @@ import torch
 from discs import aspect, crop, crop_offset, disc_marks, disc_picture
 
 from torchfluidwarp.control.alignment import apply_alignment
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import resize_image, write_animation
 from torchfluidwarp.morph import NaturalSettings, average, morph_sequence
 from torchfluidwarp.morph.morphing import placement
@@ -64,6 +65,14 @@ def test_sequence_arguments_are_checked():
         average([_blobs(BASE)] * 2, [BASE, BASE + 1], frames=5, **KW)
     with pytest.raises(ValueError, match=r"frames must be at least the number of images \(3: each is a frame"):
         morph_sequence([_blobs(BASE)] * 3, [BASE, BASE + 1, BASE + 2], frames=2, **KW)
+
+    # an error of one segment's morph names the sequence's own arguments, not that morph's points_a and points_b
+    row = torch.tensor([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0], [40.0, 40.0]])
+    with pytest.raises(InputError, match=r"^points\[1\] and points\[2\]: the 4 marks' midpoints") as caught:
+        morph_sequence([_blobs(BASE)] * 3, [BASE, row, row + 1], frames=5, **KW)
+    assert caught.value.argument == "points" and "points_a" not in str(caught.value)
+    with pytest.raises(InputError, match=r"points\[0\] and points\[1\]: the 4 marks' midpoints"):
+        morph_sequence([_blobs(BASE)] * 2, [row, row + 1], names=["a.png", "b.png"], frames=3, **KW)
 
 
 def test_an_average_says_itself_in_one_line():

@@ -8,10 +8,17 @@
   adjoint gradients;
 * :mod:`~torchfluidwarp.control.images`: :func:`fit_images`, one image onto another by its pixels, with the
   image terms of :mod:`~torchfluidwarp.control.losses` (MSE, NCC, kornia's SSIM);
-* :mod:`~torchfluidwarp.control.alignment`: the similarity/affine pre-alignment of two point sets.
+* :mod:`~torchfluidwarp.control.alignment`: the similarity/affine pre-alignment of two point sets (least squares,
+  or robust to a few pairs far off).
 """
 
-from torchfluidwarp.control.alignment import apply_alignment, best_shift, estimate_alignment, interpolate_alignment
+from torchfluidwarp.control.alignment import (
+    apply_alignment,
+    best_shift,
+    estimate_alignment,
+    interpolate_alignment,
+    robust_alignment,
+)
 from torchfluidwarp.control.images import FoldWarning, ImageFit, LevelFit, fit_images
 from torchfluidwarp.control.keyframes import (
     KeyframeFit,
@@ -28,6 +35,7 @@ __all__ = [
     "best_shift",
     "estimate_alignment",
     "interpolate_alignment",
+    "robust_alignment",
     "FoldWarning",
     "ImageFit",
     "LevelFit",

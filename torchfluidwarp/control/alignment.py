@@ -18,7 +18,14 @@ from torchfluidwarp._checks import check_int, check_tensor
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.warp.frames import identity_map, warp_image
 
-__all__ = ["estimate_alignment", "interpolate_alignment", "apply_alignment", "best_shift", "SHIFT_SIDE"]
+__all__ = [
+    "estimate_alignment",
+    "robust_alignment",
+    "interpolate_alignment",
+    "apply_alignment",
+    "best_shift",
+    "SHIFT_SIDE",
+]
 
 AlignKind = Literal["similarity", "affine", "none"]
 
@@ -72,6 +79,88 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     m[:2, :2] = lin
     m[:2, 2] = cb - lin @ ca
     return m.to(points_a.dtype)
+
+
+INLIER = 2.5
+""":func:`robust_alignment` keeps the pairs within this many robust standard deviations of the pose (the scale
+of the residuals estimated from their median, 1.4826 times it: a standard deviation for Gaussian noise)."""
+
+PAIR_CANDIDATES = 2000
+""":func:`robust_alignment` tries the similarities through at most this many pairs of points (all pairs of up to
+63 points; a fixed sample of pairs beyond)."""
+
+
+def robust_alignment(
+    points_a: Tensor, points_b: Tensor, kind: AlignKind | None = "similarity"
+) -> tuple[Tensor, Tensor]:
+    """A transform that most of the pairs agree on, and which pairs they are: a pose that a few pairs placed far
+    off (a mark in the wrong place, two listed in the wrong order) do not drag, as they drag
+    :func:`estimate_alignment`'s least squares.
+
+    The least median of squares (Rousseeuw 1984) over the similarities through two pairs each (all pairs of
+    points, or :data:`PAIR_CANDIDATES` of them drawn with a fixed seed: the result does not vary from call to
+    call) gives a first pose and a robust scale of its residuals; then, twice, the least-squares ``kind``
+    (:func:`estimate_alignment`) through the pairs within :data:`INLIER` robust standard
+    deviations of the pose.
+
+    Args:
+        points_a, points_b: ``(M, 2)`` corresponding points in pixels, ``M >= 3``.
+        kind: as for :func:`estimate_alignment`.
+
+    Returns:
+        ``(M_ab, inliers)``: the ``(3, 3)`` transform (``points_a``'s dtype) and ``(M,)`` bool, the pairs it
+        agrees with. Half of the pairs or more are always inliers (the median's).
+
+    Example:
+        >>> a = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0]])
+        >>> b = a + 3.0
+        >>> b[4] = torch.tensor([40.0, -20.0])  # one pair far off
+        >>> M, inliers = robust_alignment(a, b)
+        >>> inliers.tolist(), round(float(M[0, 2]), 3)
+        ([True, True, True, True, False], 3.0)
+    """
+    a = check_tensor("points_a", points_a, shape=[None, 2]).double()
+    b = check_tensor("points_b", points_b, shape=[None, 2]).double()
+    n = a.shape[0]
+    if b.shape != a.shape or n < 3:
+        raise InputError(
+            f"points_a and points_b must be (M, 2) with the same M >= 3, got {tuple(a.shape)} and {tuple(b.shape)}",
+            argument="points_b",
+        )
+    if kind in (None, "none"):
+        return estimate_alignment(points_a, points_b, kind), torch.ones(n, dtype=torch.bool, device=a.device)
+    i, j = torch.triu_indices(n, n, 1, device=a.device)
+    if i.numel() > PAIR_CANDIDATES:  # a fixed sample: the same pose on every call
+        pick = torch.randperm(i.numel(), generator=torch.Generator().manual_seed(0), device="cpu")[:PAIR_CANDIDATES]
+        i, j = i[pick.to(a.device)], j[pick.to(a.device)]
+    da, db = a[j] - a[i], b[j] - b[i]  # (P, 2)
+    norm = (da * da).sum(1)
+    usable = norm > 1e-12 * float(norm.max())  # two pairs at one place in A say nothing of a pose
+    if not bool(usable.any()):
+        raise InputError("points_a must hold at least 2 distinct points for an alignment", argument="points_a")
+    da, db, i, norm = da[usable], db[usable], i[usable], norm[usable]
+    # the similarity z a + t through both pairs, z = db / da as complex numbers
+    zr = (db[:, 0] * da[:, 0] + db[:, 1] * da[:, 1]) / norm
+    zi = (db[:, 1] * da[:, 0] - db[:, 0] * da[:, 1]) / norm
+    tx = b[i, 0] - (zr * a[i, 0] - zi * a[i, 1])
+    ty = b[i, 1] - (zi * a[i, 0] + zr * a[i, 1])
+    rx = zr[:, None] * a[None, :, 0] - zi[:, None] * a[None, :, 1] + tx[:, None] - b[None, :, 0]
+    ry = zi[:, None] * a[None, :, 0] + zr[:, None] * a[None, :, 1] + ty[:, None] - b[None, :, 1]
+    residual = (rx * rx + ry * ry).sqrt()  # (P, M)
+    median = residual.median(1).values
+    best = int(median.argmin())
+    floor = 1e-9 * float((b - b.mean(0)).norm(dim=-1).max()) + 1e-12
+    scale = 1.4826 * (1 + 5 / max(n - 2, 1)) * max(float(median[best]), floor)
+    inliers = residual[best] <= INLIER * scale
+    least = 3 if kind == "affine" else 2
+    for _ in range(3):  # refit through the inliers, then find them again
+        if int(inliers.sum()) < least:  # too few agree to say more than least squares through all
+            return estimate_alignment(points_a, points_b, kind), torch.ones_like(inliers)
+        M = estimate_alignment(a[inliers], b[inliers], kind)
+        r = (apply_alignment(M, a) - b).norm(dim=-1)
+        scale = 1.4826 * max(float(r[inliers].median()), floor)
+        inliers = r <= INLIER * scale
+    return M.to(points_a.dtype), inliers
 
 
 def interpolate_alignment(matrix: Tensor, u: float, center: Tensor | None = None) -> Tensor:

@@ -15,6 +15,7 @@ axes: :func:`~torchfluidwarp.morph.morphing.placement`), never stretched.
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
@@ -38,6 +39,11 @@ from torchfluidwarp.morph.settings import Blending, MorphSettings, NaturalSettin
 __all__ = ["MorphSequence", "morph_sequence", "AverageResult", "average"]
 
 
+def _labels(images: Sequence[Tensor], names: Sequence[str] | None) -> list[str]:
+    """What messages call each image: its name, or ``images[i]``."""
+    return list(names) if names is not None else [f"images[{i}]" for i in range(len(images))]
+
+
 def _checked(
     images: Sequence[Tensor],
     points: Sequence[Tensor] | None,
@@ -54,7 +60,7 @@ def _checked(
         raise InputError(f"images must hold at least 2 images, got {len(images)}")
     if points is not None and len(points) != len(images):
         raise InputError(f"points must hold one point set per image: {len(images)} images, {len(points)} sets")
-    labels = list(names) if names is not None else [f"images[{i}]" for i in range(len(images))]
+    labels = _labels(images, names)
     pictures = [_as_image(name, image) for name, image in zip(labels, images)]
     found = points is None
     if points is None:  # the same landmarks of each one's face, in the same order
@@ -187,6 +193,7 @@ def morph_sequence(
     """
     check_instance("blending", blending, Blending)
     pairs, found = _checked(images, points, face_index, names)
+    labels = _labels(images, names)
     first = pairs[0][0]
     canvas = (first.shape[-2], first.shape[-1]) if blending.size is None else check_size("blending.size", blending.size)
     on_canvas = replace(blending, size=canvas)
@@ -211,22 +218,38 @@ def morph_sequence(
         ma, mb, found_marks = _marks(pa, pb, found, ((a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])))
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name, above
-            results.append(
-                morph(
-                    a,
-                    b,
-                    ma,
-                    mb,
-                    placed=found_marks,
-                    settings=settings,
-                    frames=shares[i] + 1,
-                    timing=timing,
-                    blending=on_canvas,
-                    progress=progress,
-                    max_memory=max_memory,
+            try:
+                results.append(
+                    morph(
+                        a,
+                        b,
+                        ma,
+                        mb,
+                        placed=found_marks,
+                        settings=settings,
+                        frames=shares[i] + 1,
+                        timing=timing,
+                        blending=on_canvas,
+                        progress=progress,
+                        max_memory=max_memory,
+                    )
                 )
-            )
+            except (InputError, InputTypeError) as exc:
+                raise _in_sequence_terms(exc, i, labels) from exc
     return MorphSequence(results, [s + 1 for s in shares], [p for _, p in pairs])
+
+
+def _in_sequence_terms(exc: InputError | InputTypeError, i: int, labels: Sequence[str]) -> InputError | InputTypeError:
+    """The error that segment ``i``'s :func:`~torchfluidwarp.morph.morph` raised, said in
+    :func:`morph_sequence`'s terms: its ``image_a`` and ``image_b`` are the sequence's images ``i`` and ``i + 1``
+    (by their ``labels``), its ``points_a`` and ``points_b`` are ``points[i]`` and ``points[i + 1]``; the argument
+    at fault is ``images`` or ``points``."""
+    terms = {"image_a": labels[i], "image_b": labels[i + 1], "points_a": f"points[{i}]", "points_b": f"points[{i + 1}]"}
+    message = re.sub(r"\b(image_[ab]|points_[ab])\b", lambda m: terms[m.group(1)], exc.message)
+    argument = {"image_a": "images", "image_b": "images", "points_a": "points", "points_b": "points"}.get(
+        exc.argument or "", exc.argument
+    )
+    return type(exc)(message, argument=argument, hint=exc.hint)
 
 
 SAID_RANGE = r"image_[ab]'s values span"
