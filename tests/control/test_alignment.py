@@ -38,12 +38,30 @@ def test_a_robust_pose_is_not_dragged_by_pairs_far_off(kind, noise, n, gen):
     b[far] += torch.rand(6, 2, generator=gen, dtype=torch.float64) * 450 + 150
     least_squares = estimate_alignment(a, b, kind)
     robust, inliers = robust_alignment(a, b, kind)
-    assert set((~inliers).nonzero()[:, 0].tolist()) == set(far.tolist())
+    flagged = set((~inliers).nonzero()[:, 0].tolist())
+    assert flagged >= set(far.tolist()) and len(flagged - set(far.tolist())) <= (0 if noise == 0 else 2)
     err = (apply_alignment(robust, a) - apply_alignment(m, a)).norm(dim=-1).max()
     err_ls = (apply_alignment(least_squares, a) - apply_alignment(m, a)).norm(dim=-1).max()
     assert float(err) < 1e-6 + 2 * noise and float(err_ls) > 40, (float(err), float(err_ls))
     again, _ = robust_alignment(a, b, kind)
     torch.testing.assert_close(again, robust, atol=0, rtol=0)  # no randomness from call to call
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_robust_pose_keeps_every_pair_when_none_is_far_off(dtype, gen):
+    # few pairs with a little noise: each candidate is judged by the pairs it was not made from, so the two it
+    # passes through exactly do not shrink the scale to nothing
+    a = torch.tensor([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [0.0, 10.0], [10.0, 10.0], [20.0, 10.0]], dtype=dtype)
+    noise = torch.tensor([[0.2, 0], [0, -0.1], [-0.1, 0.2], [0.1, 0.1], [0, 0.1], [-0.2, 0]], dtype=dtype)
+    assert bool(robust_alignment(a, a + 3 + noise)[1].all())
+    assert bool(robust_alignment(a[:4], a[:4] + 3 + noise[:4])[1].all())  # 4 pairs: too few to judge any
+    flagged = 0
+    for _ in range(20):  # pure similarities in float32 rounding, and Gaussian noise of 1 px on 12 pairs
+        p = torch.rand(12, 2, generator=gen, dtype=torch.float64) * 400
+        q = apply_alignment(_similarity(0.9, 0.2, 7.0, -4.0), p)
+        assert bool(robust_alignment(p.to(dtype), q.to(dtype))[1].all())
+        flagged += int((~robust_alignment(p, q + torch.randn(12, 2, generator=gen, dtype=torch.float64))[1]).sum())
+    assert flagged <= 6  # of 240 pairs: about 1 % lie beyond INLIER standard deviations by chance
 
 
 def test_interpolation_ends_and_centre_path():

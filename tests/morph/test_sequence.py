@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import pytest
@@ -73,6 +74,30 @@ def test_sequence_arguments_are_checked():
     assert caught.value.argument == "points" and "points_a" not in str(caught.value)
     with pytest.raises(InputError, match=r"points\[0\] and points\[1\]: the 4 marks' midpoints"):
         morph_sequence([_blobs(BASE)] * 2, [row, row + 1], names=["a.png", "b.png"], frames=3, **KW)
+
+
+def test_a_sequences_warnings_name_its_own_arguments():
+    ys, xs = torch.meshgrid(torch.linspace(24.0, 36.0, 3), torch.linspace(24.0, 36.0, 3), indexing="ij")
+    marks = torch.stack([xs, ys], -1).reshape(-1, 2)
+    off = marks + torch.tensor([1.0, 0.5])
+    off[4] = torch.tensor([62.0, 2.0])  # the middle mark put far off in the third picture
+    pictures = [_blobs(p) for p in (marks, marks + 1, off)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        morph_sequence(pictures, [marks, marks + 1, off], frames=5, names=["a.png", "b.png", "c.png"], **KW)
+    said = [str(w.message) for w in caught]
+    assert any(re.match(r"point 4 \(\d+ px\) of points\[1\] and points\[2\] lies far", m) for m in said), said
+    assert not any("points_a" in m or "points_b" in m or "image_a" in m for m in said), said
+
+
+def test_an_average_passes_on_each_pictures_warnings():
+    swapped = BASE[[1, 0, 2, 3]]  # the first two marks listed the other way round in the second picture
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        average([_blobs(BASE), _blobs(BASE)], [BASE, swapped], names=["a.png", "b.png"], **KW)
+    said = [str(w.message) for w in caught]
+    assert any(m.startswith("the marks cross: points 0 and 1") for m in said), said  # it was silenced
+    assert not any("points_a" in m or "image_a" in m for m in said), said
 
 
 def test_an_average_says_itself_in_one_line():

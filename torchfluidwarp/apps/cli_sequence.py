@@ -162,11 +162,11 @@ def run_sequence(args: argparse.Namespace) -> int:
             reports, path = write_measured(sequence, args, _measured(sequence, pictures, sequence.points))
             print(f"report: {write_report(args.report, {'segments': reports})}", file=sys.stderr)
     if not args.quiet:
-        errors = [float(segment.met_error.mean()) for segment in sequence.segments]
+        errors = [segment.met_error for segment in sequence.segments]
         let_go = sum(int(segment.let_go.sum()) for segment in sequence.segments)
         print(
             f"{PROG} morph: {len(errors)} segments, mean point error per segment "
-            + ", ".join(f"{e:.2f}" for e in errors)
+            + ", ".join(f"{float(e.mean()):.2f}" if e.numel() else "none met" for e in errors)
             + " px"
             + (f" over the marks met ({let_go} let go so as not to fold)" if let_go else "")
             + f", {clock.summary()}",
@@ -240,9 +240,12 @@ def _cmd_average(args: argparse.Namespace) -> int:
         if args.save_points:
             print(f"points: {write_points(args.save_points, result.points)}", file=sys.stderr)
         if not args.quiet:
+            met = result.errors.isfinite()  # NaN: an image whose every mark was let go (its warning said so)
+            error = f"{float(result.errors[met].mean()):.2f} px" if bool(met.any()) else "none (no mark met)"
+            unmet = "" if bool(met.all()) else f" ({int((~met).sum())} with no mark met)"
             print(
-                f"{PROG} average: {len(pictures)} images, mean point error "
-                f"{float(result.errors.mean()):.2f} px, folded fraction {result.folded:.2g}, {clock.summary()}",
+                f"{PROG} average: {len(pictures)} images, mean point error {error}{unmet}, folded fraction "
+                f"{result.folded:.2g}, {clock.summary()}",
                 file=sys.stderr,
             )
     except (OSError, ImportError) as exc:  # a file of the user's, or the faces extra missing: one line

@@ -81,13 +81,18 @@ def estimate_alignment(points_a: Tensor, points_b: Tensor, kind: AlignKind | Non
     return m.to(points_a.dtype)
 
 
-INLIER = 2.5
-""":func:`robust_alignment` keeps the pairs within this many robust standard deviations of the pose (the scale
-of the residuals estimated from their median, 1.4826 times it: a standard deviation for Gaussian noise)."""
+INLIER = 3.0
+""":func:`robust_alignment` keeps the pairs whose distance from the pose is within this many ``sigma``, the
+per-axis standard deviation of the Gaussian noise whose distances have the residuals' median (a Rayleigh
+distribution's median is ``sigma sqrt(2 ln 2)``): about 1 % of pairs with such noise alone lie beyond it."""
 
 PAIR_CANDIDATES = 2000
 """:func:`robust_alignment` tries the similarities through at most this many pairs of points (all pairs of up to
-63 points; a fixed sample of pairs beyond)."""
+63 points; beyond, as many pairs drawn with a fixed seed)."""
+
+FEWEST_TO_JUDGE = 5
+""":func:`robust_alignment` needs this many pairs of points to tell some from the rest: the similarity through two
+of them leaves at least 3 others to judge it by."""
 
 
 def robust_alignment(
@@ -99,17 +104,19 @@ def robust_alignment(
 
     The least median of squares (Rousseeuw 1984) over the similarities through two pairs each (all pairs of
     points, or :data:`PAIR_CANDIDATES` of them drawn with a fixed seed: the result does not vary from call to
-    call) gives a first pose and a robust scale of its residuals; then, twice, the least-squares ``kind``
-    (:func:`estimate_alignment`) through the pairs within :data:`INLIER` robust standard
-    deviations of the pose.
+    call), each judged by the median distance of the other pairs, gives a first pose and the scale of its
+    residuals; then, three times, the least-squares ``kind`` (:func:`estimate_alignment`) through the pairs
+    within :data:`INLIER` standard deviations of the pose, the scale taken again from the median distance of all
+    the pairs. With fewer than :data:`FEWEST_TO_JUDGE` pairs, or inliers too few or in a row for ``kind``, it is
+    the least squares through all of them, all counted as inliers.
 
     Args:
-        points_a, points_b: ``(M, 2)`` corresponding points in pixels, ``M >= 3``.
+        points_a, points_b: ``(M, 2)`` corresponding points in pixels.
         kind: as for :func:`estimate_alignment`.
 
     Returns:
         ``(M_ab, inliers)``: the ``(3, 3)`` transform (``points_a``'s dtype) and ``(M,)`` bool, the pairs it
-        agrees with. Half of the pairs or more are always inliers (the median's).
+        agrees with.
 
     Example:
         >>> a = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0]])
@@ -122,23 +129,24 @@ def robust_alignment(
     a = check_tensor("points_a", points_a, shape=[None, 2]).double()
     b = check_tensor("points_b", points_b, shape=[None, 2]).double()
     n = a.shape[0]
-    if b.shape != a.shape or n < 3:
-        raise InputError(
-            f"points_a and points_b must be (M, 2) with the same M >= 3, got {tuple(a.shape)} and {tuple(b.shape)}",
-            argument="points_b",
-        )
-    if kind in (None, "none"):
-        return estimate_alignment(points_a, points_b, kind), torch.ones(n, dtype=torch.bool, device=a.device)
-    i, j = torch.triu_indices(n, n, 1, device=a.device)
-    if i.numel() > PAIR_CANDIDATES:  # a fixed sample: the same pose on every call
-        pick = torch.randperm(i.numel(), generator=torch.Generator().manual_seed(0), device="cpu")[:PAIR_CANDIDATES]
-        i, j = i[pick.to(a.device)], j[pick.to(a.device)]
+    if b.shape != a.shape:
+        raise InputError(f"points_a has {n} points but points_b has {b.shape[0]}", argument="points_b")
+    everyone = torch.ones(n, dtype=torch.bool, device=a.device)
+    if kind in (None, "none") or n < FEWEST_TO_JUDGE:
+        return estimate_alignment(points_a, points_b, kind), everyone
+    if n * (n - 1) // 2 <= PAIR_CANDIDATES:
+        i, j = torch.triu_indices(n, n, 1, device=a.device)
+    else:  # a fixed sample of distinct pairs: the same pose on every call
+        seed = torch.Generator().manual_seed(0)
+        i = torch.randint(n, (PAIR_CANDIDATES,), generator=seed, device="cpu")
+        j = torch.randint(n - 1, (PAIR_CANDIDATES,), generator=seed, device="cpu")
+        i, j = i.to(a.device), (j + (j >= i)).to(a.device)
     da, db = a[j] - a[i], b[j] - b[i]  # (P, 2)
     norm = (da * da).sum(1)
     usable = norm > 1e-12 * float(norm.max())  # two pairs at one place in A say nothing of a pose
     if not bool(usable.any()):
         raise InputError("points_a must hold at least 2 distinct points for an alignment", argument="points_a")
-    da, db, i, norm = da[usable], db[usable], i[usable], norm[usable]
+    da, db, i, j, norm = da[usable], db[usable], i[usable], j[usable], norm[usable]
     # the similarity z a + t through both pairs, z = db / da as complex numbers
     zr = (db[:, 0] * da[:, 0] + db[:, 1] * da[:, 1]) / norm
     zi = (db[:, 1] * da[:, 0] - db[:, 0] * da[:, 1]) / norm
@@ -147,20 +155,33 @@ def robust_alignment(
     rx = zr[:, None] * a[None, :, 0] - zi[:, None] * a[None, :, 1] + tx[:, None] - b[None, :, 0]
     ry = zi[:, None] * a[None, :, 0] + zr[:, None] * a[None, :, 1] + ty[:, None] - b[None, :, 1]
     residual = (rx * rx + ry * ry).sqrt()  # (P, M)
-    median = residual.median(1).values
+    rows = torch.arange(len(i), device=a.device)
+    others = residual.clone()
+    others[rows, i] = others[rows, j] = torch.nan  # each is judged by the pairs it was not made from
+    median = others.nanmedian(1).values
     best = int(median.argmin())
-    floor = 1e-9 * float((b - b.mean(0)).norm(dim=-1).max()) + 1e-12
-    scale = 1.4826 * (1 + 5 / max(n - 2, 1)) * max(float(median[best]), floor)
-    inliers = residual[best] <= INLIER * scale
+    floor = 1e-6 * float((b - b.mean(0)).norm(dim=-1).max()) + 1e-12  # float32 points' rounding
+
+    def within(r: Tensor, typical: float) -> Tensor:
+        sigma = max(typical / math.sqrt(2 * math.log(2)) * (1 + 5 / (n - 2)), floor)  # small-sample correction
+        return r <= INLIER * sigma
+
+    inliers = within(residual[best], float(median[best]))
     least = 3 if kind == "affine" else 2
+    fit: tuple[Tensor, Tensor] | None = None
     for _ in range(3):  # refit through the inliers, then find them again
-        if int(inliers.sum()) < least:  # too few agree to say more than least squares through all
-            return estimate_alignment(points_a, points_b, kind), torch.ones_like(inliers)
-        M = estimate_alignment(a[inliers], b[inliers], kind)
+        if int(inliers.sum()) < least:
+            break
+        try:
+            M = estimate_alignment(a[inliers], b[inliers], kind)
+        except InputError:  # inliers in a row: an affine through them is not defined
+            break
         r = (apply_alignment(M, a) - b).norm(dim=-1)
-        scale = 1.4826 * max(float(r[inliers].median()), floor)
-        inliers = r <= INLIER * scale
-    return M.to(points_a.dtype), inliers
+        fit = M, within(r, float(r.median()))
+        inliers = fit[1]
+    if fit is None:
+        return estimate_alignment(points_a, points_b, kind), everyone
+    return fit[0].to(points_a.dtype), fit[1]
 
 
 def interpolate_alignment(matrix: Tensor, u: float, center: Tensor | None = None) -> Tensor:

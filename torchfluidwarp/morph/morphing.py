@@ -52,6 +52,7 @@ from torchfluidwarp.morph.marks import (
     pose,
     warn_coarse_grid,
     warn_let_go,
+    warn_let_go_alone,
     warn_missed,
 )
 from torchfluidwarp.morph.regions import hull_mask
@@ -492,7 +493,7 @@ def morph(
     pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
     keep = _marks_on_canvas(pa_c, size)  # all of them on A's own canvas; a crop to another size may leave some out
     pa, pb, pa_c, pb_c = pa[keep], pb[keep], pa_c[keep], pb_c[keep]
-    M = pose(pa_c, pb_c, settings.align)  # canvas to canvas: A's place to B's
+    M = pose(pa_c, pb_c, settings.align, numbers=keep.nonzero()[:, 0])  # canvas to canvas: A's place to B's
     center = pa_c.mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb_c)
@@ -560,6 +561,8 @@ def morph(
     result = MorphResult(scene, fit, M, trajectories, pb_c, n, out_dtype, seconds, max_memory, let_go, advice)
     if placed is not None:
         warn_let_go(pa, pb, result.let_go, placed.matcher)
+    else:
+        warn_let_go_alone(pa, pb, result.let_go, result.error, keep.nonzero()[:, 0], MIN_AREA)
     if isinstance(settings, NaturalSettings):
         warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid, let_go)  # let go on purpose: not the grid's doing
     else:

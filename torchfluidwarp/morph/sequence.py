@@ -20,6 +20,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -28,7 +29,7 @@ from torchfluidwarp._checks import check_instance, check_int, check_real, check_
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, Note, find_each_face
 from torchfluidwarp.correspond.auto import bordered_pairs
-from torchfluidwarp.errors import InputError, InputTypeError
+from torchfluidwarp.errors import AdvisedWarning, InputError, InputTypeError
 from torchfluidwarp.io import write_animation
 from torchfluidwarp.io.images import premultiplied, straight
 from torchfluidwarp.morph.morphing import _as_image, _as_points, match_channels, morph, placement
@@ -216,7 +217,8 @@ def morph_sequence(
     for i in range(segments):
         (a, pa), (b, pb) = pairs[i], pairs[i + 1]
         ma, mb, found_marks = _marks(pa, pb, found, ((a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])))
-        with warnings.catch_warnings():
+        terms = _terms(i, labels, found)
+        with warnings.catch_warnings(record=True) as caught:
             warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name, above
             try:
                 results.append(
@@ -235,21 +237,42 @@ def morph_sequence(
                     )
                 )
             except (InputError, InputTypeError) as exc:
-                raise _in_sequence_terms(exc, i, labels) from exc
+                raise _in_terms(exc, terms) from exc
+        for caught_warning in caught:  # the segment's warnings, in the sequence's terms too
+            warn(_in_terms(caught_warning.message, terms))
     return MorphSequence(results, [s + 1 for s in shares], [p for _, p in pairs])
 
 
-def _in_sequence_terms(exc: InputError | InputTypeError, i: int, labels: Sequence[str]) -> InputError | InputTypeError:
-    """The error that segment ``i``'s :func:`~torchfluidwarp.morph.morph` raised, said in
-    :func:`morph_sequence`'s terms: its ``image_a`` and ``image_b`` are the sequence's images ``i`` and ``i + 1``
-    (by their ``labels``), its ``points_a`` and ``points_b`` are ``points[i]`` and ``points[i + 1]``; the argument
-    at fault is ``images`` or ``points``."""
-    terms = {"image_a": labels[i], "image_b": labels[i + 1], "points_a": f"points[{i}]", "points_b": f"points[{i + 1}]"}
-    message = re.sub(r"\b(image_[ab]|points_[ab])\b", lambda m: terms[m.group(1)], exc.message)
-    argument = {"image_a": "images", "image_b": "images", "points_a": "points", "points_b": "points"}.get(
-        exc.argument or "", exc.argument
-    )
-    return type(exc)(message, argument=argument, hint=exc.hint)
+def _terms(i: int, labels: Sequence[str], found: bool) -> dict[str, str]:
+    """What :func:`morph_sequence` calls segment ``i``'s :func:`~torchfluidwarp.morph.morph` arguments: its
+    ``image_a`` and ``image_b`` are the sequence's images ``i`` and ``i + 1`` (by their ``labels``), its
+    ``points_a`` and ``points_b`` are ``points[i]`` and ``points[i + 1]``, or the landmarks found on those images
+    when the caller gave no points (``found``)."""
+    if found:
+        points = f"{labels[i]}'s face landmarks", f"{labels[i + 1]}'s face landmarks"
+    else:
+        points = f"points[{i}]", f"points[{i + 1}]"
+    return {"image_a": labels[i], "image_b": labels[i + 1], "points_a": points[0], "points_b": points[1]}
+
+
+_ARGUMENT = re.compile(r"\b(image_[ab]|points_[ab])\b")
+
+
+def _in_terms(said: Exception | Warning | str, terms: dict[str, str]) -> Any:
+    """An error or a warning of one segment's :func:`~torchfluidwarp.morph.morph`, said in ``terms``
+    (:func:`_terms`): the library's own errors and warnings, and plain ``RuntimeWarning`` and ``UserWarning``
+    (another kind says itself in its own terms and comes back as it is). The argument at fault is ``images`` or
+    ``points`` (none when the points were found)."""
+    if isinstance(said, (InputError, InputTypeError, AdvisedWarning)):
+        argument = said.argument
+        if argument in terms:  # the sequence's images, its points, or none of the caller's (landmarks found)
+            found = "landmarks" in terms[argument]
+            argument = "images" if argument.startswith("image") else None if found else "points"
+        return type(said)(_ARGUMENT.sub(lambda m: terms[m.group(1)], said.message), argument=argument, hint=said.hint)
+    if isinstance(said, str) or type(said) in (RuntimeWarning, UserWarning):
+        text = _ARGUMENT.sub(lambda m: terms[m.group(1)], str(said))
+        return text if isinstance(said, str) else type(said)(text)
+    return said
 
 
 SAID_RANGE = r"image_[ab]'s values span"
@@ -268,7 +291,8 @@ class AverageResult:
             and warped to the mean shape.
         folded: the fraction of the warps' map pixels that fold (0 for a fold-free average).
         errors: ``(N,)`` each image's mean distance, in the first image's pixels, between its warped points and
-            the mean shape, over the points its morph met (:attr:`~torchfluidwarp.morph.MorphResult.met_error`).
+            the mean shape, over the points its morph met (:attr:`~torchfluidwarp.morph.MorphResult.met_error`);
+            NaN for an image whose every point was let go (its warning says so).
     """
 
     image: Tensor
@@ -318,6 +342,7 @@ def average(
         an :class:`AverageResult`.
     """
     pairs, found = _checked(images, points, face_index, names)
+    labels = _labels(images, names)
     first = pairs[0][0]
     H, W = first.shape[-2:]
     canvas = (H, W)
@@ -330,27 +355,37 @@ def average(
     back[:, 0].clamp_(-0.5, W - 0.5)
     back[:, 1].clamp_(-0.5, H - 0.5)
     warped, folded, errors = [], 0.0, []
-    for place, (image, p) in zip(places, pairs):
+    for i, (place, (image, p)) in enumerate(zip(places, pairs)):
         # B is the same picture already on the canvas, where morph() places it by the identity, marked at the
         # mean shape `back` (a placement centred on `back` in the picture's own pixels would differ from A's)
         placed = on_canvas(image, place, canvas)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # folds are counted below
+        terms = {
+            "image_a": labels[i],
+            "image_b": f"{labels[i]} on the canvas",
+            "points_a": f"{labels[i]}'s face landmarks" if found else f"points[{i}]",
+            "points_b": "the mean shape",
+        }
+        with warnings.catch_warnings(record=True) as caught:
             warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name
             ma, mb, found_marks = _marks(p, back.to(p), found)
-            result = morph(
-                image,
-                placed,
-                ma,
-                mb,
-                placed=found_marks,
-                settings=settings,
-                frames=2,
-                blending=Blending(size=canvas),
-                progress=progress,
-                max_memory=max_memory,
-            )
+            try:
+                result = morph(
+                    image,
+                    placed,
+                    ma,
+                    mb,
+                    placed=found_marks,
+                    settings=settings,
+                    frames=2,
+                    blending=Blending(size=canvas),
+                    progress=progress,
+                    max_memory=max_memory,
+                )
+            except (InputError, InputTypeError) as exc:
+                raise _in_terms(exc, terms) from exc
             end = result.render([1.0])  # its forward warp at the end: A in the mean shape, on the canvas
+        for caught_warning in caught:  # each picture's warnings (crossing marks, marks let go), in its own name
+            warn(_in_terms(caught_warning.message, terms))
         warped.append(end.forward[0])
         folded += end.folded / (2 * H * W)
         errors.append(float(result.met_error.mean()))  # the marks let go so as not to fold left out
