@@ -11,8 +11,9 @@ import torch
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.data import load_sample, load_sample_points
+from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph import NaturalSettings, morph
-from torchfluidwarp.morph.marks import LET_GO, MIN_POSE_FIT, pose, warn_coarse_grid, warn_missed
+from torchfluidwarp.morph.marks import LET_GO, MIN_POSE_FIT, mirrored, pose, warn_coarse_grid, warn_missed
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
 
@@ -113,6 +114,28 @@ def test_a_mark_let_go_around_a_squeeze_is_named_though_it_crosses_none():
     assert any(named) and not any("cross" in m for m in said), said
     distance = int(next(m for m in named if m).group(1))
     assert abs(distance - float(result.error[released[0]])) <= 0.5  # the distance said is the one the result holds
+
+
+def test_marks_that_are_a_mirror_image_are_said_to_be_one():
+    from torchfluidwarp.morph.fit import straight_paths
+
+    pa = _grid_marks(4).double() + torch.tensor([3.0, -2.0], dtype=torch.float64)
+    pa[5] += torch.tensor([4.0, 1.0], dtype=torch.float64)  # not symmetric itself
+    swapped = pa.flip(-1)  # (y, x) pairs: a reflection about the diagonal
+    with pytest.warns(RuntimeWarning, match=r"points_b look mirrored: .* \(y, x\) pairs"):
+        pose(pa, swapped, "similarity")
+    # a picture flipped left for right with its points flipped but not reordered: the midpoints lie on one line
+    flipped = pa * torch.tensor([-1.0, 1.0], dtype=torch.float64) + 63
+    with pytest.raises(InputError, match="midpoints .* lie on one line, .*; points_b look mirrored"):
+        straight_paths(pa, flipped, (0.0, 0.0, 64.0, 64.0))
+    # marks in a row agree with their own reflection as well as with themselves: not a mirror image
+    row = torch.tensor([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0]], dtype=torch.float64)
+    assert not mirrored(row, row + 2) and mirrored(pa, swapped) and not mirrored(pa, pa + 1)
+    # a morph refuses the user's mirrored marks before any work (it would fold most of the picture)
+    picture = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
+    with pytest.raises(InputError, match="points_b look mirrored") as caught:
+        morph(picture, picture, pa.float(), swapped.float(), frames=2, progress=False)
+    assert caught.value.argument == "points_b"
 
 
 def test_no_pre_alignment_asked_is_the_identity_without_a_check():

@@ -183,6 +183,15 @@ def test_empty_or_malformed_points_are_said_in_the_callers_shape():
         _morph(A, A, torch.zeros(3, 3), PA, frames=3)
 
 
+def test_points_in_normalised_coordinates_are_refused_with_the_product_that_gives_pixels():
+    with pytest.raises(ValueError, match=r"points_b: all 3 points lie within \[0, 1\] on a 16 x 16 picture: "
+                       r"normalised coordinates\? .* multiply by \(16, 16\)") as caught:  # fmt: skip
+        _morph(A, A, PA, PA / 16, frames=3)
+    assert caught.value.argument == "points_b"
+    small = A[:, :12, :12]  # a picture this small may be marked within its corner pixel
+    _morph(small, small, PA / 16, PA / 15, frames=2)
+
+
 @pytest.mark.parametrize("scale, advice", [(255.0, "divide by 255"), (-1.0, "bring them to")])
 def test_values_outside_a_pictures_range_are_said_naming_the_image(scale, advice):
     with pytest.warns(UserWarning, match=rf"image_b's values span \[.*\], not a picture's \[0, 1\].*{advice}"):
