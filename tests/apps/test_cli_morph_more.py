@@ -141,6 +141,19 @@ def test_no_face_names_the_file(tmp_path, capsys):
     assert err.count("\n") == 1 and "blank.png" in err
 
 
+def test_points_outside_their_picture_are_named_by_their_file_with_the_likely_cause(astronauts, tmp_path, capsys):
+    (a, b), files, _, (pa, pb) = astronauts
+    wide = tmp_path / "narrow.png"  # a narrow B, 40 px wide
+    write_image(wide, torch.full((3, 128, 40), 0.5))
+    shifted = tmp_path / "one_based.pts"
+    write_points(shifted, pb.clamp(0, 39) + 1.0)  # inside 40 x 128 once 1 is subtracted; some beyond x = 39.5
+    code = main(["morph", str(a), str(wide), "--points", str(files[0]), str(shifted), "-o", str(tmp_path / "x.gif")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "points file '" in err and "one_based.pts' has a point outside the 40 x 128 image" in err, err
+    assert "--points-a" not in err and "--points-b" not in err and "1-based (subtract 1)" in err, err
+
+
 @pytest.fixture
 def three(tmp_path):
     gen = torch.Generator().manual_seed(3)

@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from torchfluidwarp.control.keyframes import fit_keyframes, keyframe_loss, velocity_gradient_energy
+from torchfluidwarp.control.keyframes import check_points, fit_keyframes, keyframe_loss, velocity_gradient_energy
 from torchfluidwarp.warp.forces import ControlGrid
 from torchfluidwarp.warp.layer import FluidWarp
 
@@ -175,3 +175,18 @@ def test_smoothness_calms_the_fitted_flow(gen):
     shear = zero.clone()
     shear[:, :, 0, :8, :] = torch.arange(8.0).view(8, 1)  # u = y: du/dy = 1 on 8 x 9 faces, over 64 cells
     torch.testing.assert_close(velocity_gradient_energy(shear), torch.tensor(2 * 3 * 7 * 9 / 64.0))
+
+
+@pytest.mark.parametrize(
+    ("points", "advice"),
+    [
+        ([[1.0, 1.0], [64.0, 10.0]], "are 1-based (subtract 1) or measured from pixel corners (subtract 0.5)"),
+        ([[0.0, 0.0], [64.0, 10.0]], "; all of them fit if they are measured from pixel corners (subtract 0.5)"),
+        ([[90.0, 20.0], [10.0, 10.0]], "(y, x) pairs, points being (x, y), or marked on the picture turned a quarter"),
+        ([[300.0, 20.0], [10.0, 10.0]], "y in [-0.5, 99.5])"),  # no convention explains it: nothing more said
+    ],
+)
+def test_points_outside_the_picture_are_said_with_the_convention_that_would_fit_them(points, advice):
+    with pytest.raises(ValueError, match=r"points has a point outside the 64 x 100 image: point \d at \[") as caught:
+        check_points("points", torch.tensor(points), (100, 64))
+    assert advice in str(caught.value) and str(caught.value).endswith((advice, "upright)")), str(caught.value)

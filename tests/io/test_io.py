@@ -296,6 +296,11 @@ def test_pts_layout(tmp_path):
         ("object.json", '{"points": [[1, 2], [3.5, 4.5]]}'),
         ("header.csv", "x,y\n1,2\n3.5,4.5\n"),
         ("noheader.csv", "1,2\n\n3.5, 4.5\n"),
+        ("bom.csv", "\ufeffx,y\n1,2\n3.5,4.5\n"),  # a spreadsheet's "CSV UTF-8" starts with a byte-order mark
+        ("bomnoheader.csv", "\ufeff1,2\n3.5,4.5\n"),
+        ("named.csv", "id,label,X,Y,visible\n0,eye,1,2,1\n1,eye,3.5,4.5,0\n"),
+        ("yx.csv", "y,x\n2,1\n4.5,3.5\n"),  # columns read by their names, in any order
+        ("bom.pts", "\ufeffversion: 1\nn_points: 2\n{\n1 2\n3.5 4.5\n}\n"),
         ("spaced.pts", "version: 1\nn_points:  2\n{\n  1 2\n3.5\t4.5\n}\n\n"),
     ],
 )
@@ -321,6 +326,8 @@ def test_read_points_accepted_forms(tmp_path, name, text):
         ("inf.json", "[[Infinity, 2]]", "non-finite"),
         ("three.csv", "1,2,3\n", "expected 2 values"),
         ("word.csv", "x,y\n1,2\na,b\n", "not a number"),
+        ("unnamed.csv", "a,b\n1,2\n", "a header row must name the columns x and y, got ['a', 'b']"),
+        ("short.csv", "id,x,y\n0,1\n", "line 2: 2 fields, fewer than the header's columns x and y"),
     ],
 )
 def test_malformed_points_raise(tmp_path, name, text, why):

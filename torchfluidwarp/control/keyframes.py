@@ -130,12 +130,30 @@ def check_points(name: str, points: object, image_size: tuple[int, int], batch: 
     outside = ~inside_picture(p, image_size)
     if bool(outside.any()):
         i = int(outside.flatten().nonzero()[0])
+        where = [round(float(v), 2) for v in p.reshape(-1, 2)[i]]
         raise InputError(
-            f"{name} has a point outside the {W} x {H} image: {p.reshape(-1, 2)[i].tolist()} "
-            f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}])",
+            f"{name} has a point outside the {W} x {H} image: point {i % p.shape[1]} at {where} "
+            f"(pixels, x in [-0.5, {W - 0.5}], y in [-0.5, {H - 0.5}]){_likely_cause(p, image_size)}",
             argument=argument_of(name),
         )
     return p
+
+
+def _likely_cause(p: Tensor, image_size: tuple[int, int]) -> str:
+    """Why points ``(B, M, 2)`` some of which lie outside a picture of ``image_size`` ``(H, W)`` may have been
+    given so, when changing one convention puts them all inside, the smallest change first: the advice, after
+    ``"; "``, or ``""``. Points that fit with their columns swapped also fit the picture turned a quarter."""
+    for changes in (
+        {"1-based (subtract 1)": p - 1, "measured from pixel corners (subtract 0.5)": p - 0.5},
+        {
+            "(y, x) pairs, points being (x, y), or marked on the picture turned a quarter (a photograph stored "
+            "sideways, which its EXIF orientation turns upright)": p.flip(-1)
+        },
+    ):
+        fitting = [advice for advice, moved in changes.items() if bool(inside_picture(moved, image_size).all())]
+        if fitting:
+            return f"; all of them fit if they are {' or '.join(fitting)}"
+    return ""
 
 
 def _worst_keyframe(errors: list[tuple[int, Tensor]]) -> str:

@@ -44,7 +44,8 @@ def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32, max_bytes
 
     * ``.pts`` (iBUG): ``version: 1``, ``n_points: N``, ``{``, then N lines ``x y``, then ``}``.
     * ``.json``: ``[[x, y], ...]`` or ``{"points": [[x, y], ...]}``.
-    * ``.csv``: one ``x,y`` row per point, after an optional header row ``x,y``.
+    * ``.csv``: one ``x,y`` row per point; or a header row that names its columns, ``x`` and ``y`` among them
+      (``id,x,y``, ``label,y,x``, any case), and the rows under it.
 
     Conventions:
         Coordinates are returned exactly as written, as pixel coordinates with pixel centres at
@@ -80,7 +81,7 @@ def read_points(path: PathLike, *, dtype: torch.dtype = torch.float32, max_bytes
             argument="path",
         )
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (a spreadsheet's "CSV UTF-8") is dropped
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read points {str(path)!r}: {first_line(exc)}", argument="path") from exc
     parse = {".pts": _parse_pts, ".json": _parse_json, ".csv": _parse_csv}[suffix]
@@ -258,16 +259,36 @@ def _shorten(text: str, limit: int = 60) -> str:
     return text if len(text) <= limit else f"{text[: limit - 5]}...({len(text):,} characters)"
 
 
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
+
+
 def _parse_csv(text: str) -> list[list[float]]:
+    """Rows ``x,y``; or, after a header row that names its columns, the columns named ``x`` and ``y`` (any case,
+    in any place, among others such as an id or a label)."""
     rows: list[list[float]] = []
+    columns: tuple[int, int] | None = None  # where x and y are, when a header names them
     reader = csv.reader(io.StringIO(text))
     try:
         for n, fields in enumerate(reader, start=1):
             fields = [f.strip() for f in fields]
             if not any(fields):
                 continue
-            if not rows and [f.lower() for f in fields] == ["x", "y"]:
+            if not rows and columns is None and not any(_is_number(f) for f in fields):  # a header
+                names = [f.lower() for f in fields]
+                if "x" not in names or "y" not in names:
+                    got = _shorten(str(fields))
+                    raise ValueError(f"line {n}: a header row must name the columns x and y, got {got}")
+                columns = names.index("x"), names.index("y")
                 continue
+            if columns is not None:
+                if len(fields) <= max(columns):
+                    raise ValueError(f"line {n}: {len(fields)} fields, fewer than the header's columns x and y")
+                fields = [fields[columns[0]], fields[columns[1]]]
             rows.append(_parse_pair(fields, f"line {n}"))
     except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit()
         raise ValueError(f"line {reader.line_num}: {exc}") from None
