@@ -9,7 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
+from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment, robust_alignment
 from torchfluidwarp.control.images import FoldWarning
 from torchfluidwarp.correspond import (
     FACE_MESH_INDICES,
@@ -80,7 +80,15 @@ def test_border_pairs_follow_the_pose_where_the_frames_do_not_correspond():
     kept = usable_pairs(torch.cat([pa, ea]), torch.cat([pb, eb]), size_a, size_b)
     both_a, both_b = torch.cat([pa, ea])[kept], torch.cat([pb, eb])[kept]
     assert crossing_pairs(both_a, both_b).shape[0] == 0
-    assert crossing_pairs(torch.cat([pa, ea]), torch.cat([pb, own])).shape[0] > 0
+    # with B's own border instead, the border pairs lie far from the pose the face's points agree on (the least
+    # squares through them all explains under half of B's spread); with the border pairs, only the two that kept
+    # B's own (near the pose, within the slack) may
+    moved = {30 + i for i in far.nonzero()[:, 0].tolist()}
+    _, agree = robust_alignment(torch.cat([pa, ea]), torch.cat([pb, own]))
+    flagged = set((~agree).nonzero()[:, 0].tolist())
+    assert flagged >= moved and min(flagged) >= 30, flagged
+    _, agree = robust_alignment(torch.cat([pa, ea]), torch.cat([pb, eb]))
+    assert not set((~agree).nonzero()[:, 0].tolist()) & moved
 
 
 def test_two_faces_give_the_face_landmarks_and_the_border():
