@@ -167,6 +167,15 @@ def three(tmp_path):
     return [str(p) for p in paths], [str(f) for f in files]
 
 
+def test_a_sequences_point_files_are_checked_against_their_pictures_by_name(three, tmp_path, capsys):
+    images, files = three
+    write_points(files[2], read_points(files[2]) / torch.tensor([40.0, 36.0]))  # normalised coordinates
+    assert main(["morph", *images, "--points", *files, "-o", str(tmp_path / "s.gif")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"points file {files[2]!r}: all 4 points lie within [0, 1]" in err, err
+    assert "multiply by (40, 36)" in err and "argument --points" not in err, err
+
+
 def test_sequence_of_three_images_writes_one_animation_and_reports_each_segment(three, tmp_path):
     images, files = three
     out, report = tmp_path / "seq.gif", tmp_path / "r.json"

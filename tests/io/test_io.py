@@ -326,8 +326,10 @@ def test_read_points_accepted_forms(tmp_path, name, text):
         ("inf.json", "[[Infinity, 2]]", "non-finite"),
         ("three.csv", "1,2,3\n", "expected 2 values"),
         ("word.csv", "x,y\n1,2\na,b\n", "not a number"),
-        ("unnamed.csv", "a,b\n1,2\n", "a header row must name the columns x and y, got ['a', 'b']"),
-        ("short.csv", "id,x,y\n0,1\n", "line 2: 2 fields, fewer than the header's columns x and y"),
+        ("unnamed.csv", "a,b\n1,2\n", "a header row must name the columns x and y once each, got ['a', 'b']"),
+        ("twice.csv", "x,y,x\n1,2,3\n", "name the columns x and y once each, got ['x', 'y', 'x']"),
+        ("short.csv", "id,x,y\n0,1\n", "line 2: 2 fields under a header of 3 columns"),
+        ("long.csv", "x,y\n0,10,20\n", "line 2: 3 fields under a header of 2 columns"),  # not read as id,x
     ],
 )
 def test_malformed_points_raise(tmp_path, name, text, why):

@@ -11,9 +11,16 @@ import torch
 
 from torchfluidwarp.control.alignment import apply_alignment, estimate_alignment
 from torchfluidwarp.data import load_sample, load_sample_points
-from torchfluidwarp.errors import InputError
 from torchfluidwarp.morph import NaturalSettings, morph
-from torchfluidwarp.morph.marks import LET_GO, MIN_POSE_FIT, mirrored, pose, warn_coarse_grid, warn_missed
+from torchfluidwarp.morph.marks import (
+    LET_GO,
+    MIN_POSE_FIT,
+    check_marks,
+    mirrored,
+    pose,
+    warn_coarse_grid,
+    warn_missed,
+)
 
 PA = torch.tensor([[20.0, 22.0], [44.0, 20.0], [32.0, 40.0], [22.0, 46.0], [44.0, 44.0], [30.0, 12.0]])
 
@@ -117,25 +124,31 @@ def test_a_mark_let_go_around_a_squeeze_is_named_though_it_crosses_none():
 
 
 def test_marks_that_are_a_mirror_image_are_said_to_be_one():
-    from torchfluidwarp.morph.fit import straight_paths
-
     pa = _grid_marks(4).double() + torch.tensor([3.0, -2.0], dtype=torch.float64)
     pa[5] += torch.tensor([4.0, 1.0], dtype=torch.float64)  # not symmetric itself
     swapped = pa.flip(-1)  # (y, x) pairs: a reflection about the diagonal
-    with pytest.warns(RuntimeWarning, match=r"points_b look mirrored: .* \(y, x\) pairs"):
-        pose(pa, swapped, "similarity")
-    # a picture flipped left for right with its points flipped but not reordered: the midpoints lie on one line
-    flipped = pa * torch.tensor([-1.0, 1.0], dtype=torch.float64) + 63
-    with pytest.raises(InputError, match="midpoints .* lie on one line, .*; points_b look mirrored"):
-        straight_paths(pa, flipped, (0.0, 0.0, 64.0, 64.0))
+    flipped = pa * torch.tensor([-1.0, 1.0], dtype=torch.float64) + 63  # a mirror image, its points not reordered
+    for mirror in (swapped, flipped):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check_marks(pa, mirror)
+        said = [str(w.message) for w in caught]
+        assert len(said) == 1 and said[0].startswith("points_b look mirrored: "), said  # not "the marks cross"
     # marks in a row agree with their own reflection as well as with themselves: not a mirror image
     row = torch.tensor([[10.0, 10.0], [20.0, 20.0], [30.0, 30.0]], dtype=torch.float64)
-    assert not mirrored(row, row + 2) and mirrored(pa, swapped) and not mirrored(pa, pa + 1)
-    # a morph refuses the user's mirrored marks before any work (it would fold most of the picture)
-    picture = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
-    with pytest.raises(InputError, match="points_b look mirrored") as caught:
-        morph(picture, picture, pa.float(), swapped.float(), frames=2, progress=False)
-    assert caught.value.argument == "points_b"
+    assert not mirrored(row, row + 2) and not mirrored(pa, pa + 1)
+    # two marks put far off (where a reflection explains the rest better than the least squares): the pose the
+    # others agree on outvotes them, so they are not taken for a mirror image
+    pa = torch.rand(12, 2, generator=torch.Generator().manual_seed(0)) * 50 + 7
+    pb = 2 * pa + 3
+    pa[5], pa[6] = torch.tensor([5.0, 60.0]), torch.tensor([60.0, 5.0])
+    pb[5], pb[6] = torch.tensor([127.0, 0.0]), torch.tensor([0.0, 127.0])
+    flip = pb * torch.tensor([-1.0, 1.0])
+    residual = apply_alignment(estimate_alignment(pa, flip), pa) - flip
+    assert 1 - float(residual.square().sum() / (flip - flip.mean(0)).square().sum()) > 0.6  # a reflection explains
+    assert not mirrored(pa, pb)
+    with pytest.warns(RuntimeWarning, match=r"points 5 \(\d+ px\), 6 \(\d+ px\) of points_a and points_b lie far"):
+        pose(pa, pb, "similarity")
 
 
 def test_no_pre_alignment_asked_is_the_identity_without_a_check():

@@ -98,6 +98,25 @@ def test_an_average_passes_on_each_pictures_warnings():
     said = [str(w.message) for w in caught]
     assert any(m.startswith("the marks cross: points 0 and 1") for m in said), said  # it was silenced
     assert not any("points_a" in m or "image_a" in m for m in said), said
+    # a warning that names the morph's points is said with the picture's points and the mean shape
+    ys, xs = torch.meshgrid(torch.linspace(24.0, 40.0, 3), torch.linspace(24.0, 40.0, 3), indexing="ij")
+    marks = torch.stack([xs, ys], -1).reshape(-1, 2)
+    off = marks.clone()
+    off[4] = torch.tensor([62.0, 2.0])  # the middle mark of the second picture put in a corner
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        average([_blobs(marks), _blobs(off)], [marks, off], **KW)
+    said = [str(w.message) for w in caught]
+    assert any(re.match(r"point 4 \(\d+ px\) of points\[[01]\] and the mean shape", m) for m in said), said
+
+
+def test_a_segments_warnings_are_said_when_it_then_fails():
+    flipped = BASE * torch.tensor([-1.0, 1.0]) + torch.tensor([63.0, 0.0])  # midpoints on the line x = 31.5
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(InputError, match=r"points\[0\] and points\[1\]: the 4 marks' midpoints"):
+            morph_sequence([_blobs(BASE), _blobs(flipped)], [BASE, flipped], frames=3, **KW)
+    assert any("the marks cross" in str(w.message) for w in caught), [str(w.message) for w in caught]
 
 
 def test_an_average_says_itself_in_one_line():

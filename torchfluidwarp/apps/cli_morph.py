@@ -44,6 +44,7 @@ from torchfluidwarp.apps.cli_args import (
 )
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
+    check_point_files,
     check_result_output,
     frame_shape,
     max_memory,
@@ -56,7 +57,7 @@ from torchfluidwarp.apps.cli_morph_output import (
     write_result,
 )
 from torchfluidwarp.apps.cli_sequence import run_sequence
-from torchfluidwarp.control import apply_alignment, check_points
+from torchfluidwarp.control import apply_alignment
 from torchfluidwarp.correspond import FoundPoints, MatchNotice, find_points
 from torchfluidwarp.correspond.auto import MATCH_MODES, TRUSTED_MATCHES
 from torchfluidwarp.data import load_sample, load_sample_points
@@ -379,8 +380,7 @@ def _cmd_morph(args: argparse.Namespace) -> int:
             with clock.part("points"):
                 pa, pb = read_points(files[0]), read_points(files[1])
             check_point_counts(pa, pb, *(files if args.points else ("--points-a", "--points-b")))
-            for file, points, image in zip(files, (pa, pb), (a, b)):  # named by their files
-                check_points(f"points file {file!r}", points, (image.shape[-2], image.shape[-1]))
+            check_point_files(files, (pa, pb), (a, b))
         else:
             faces = args.face_index  # I, or (I, J)
             with clock.part("points"):  # the face model's log lines are kept off stderr by the library

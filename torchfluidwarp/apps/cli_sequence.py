@@ -37,6 +37,7 @@ from torchfluidwarp.apps.cli_args import (
     fail,
 )
 from torchfluidwarp.apps.cli_morph_output import (
+    check_point_files,
     check_result_output,
     frame_shape,
     max_memory,
@@ -67,6 +68,7 @@ def _read_all(images: list[str], point_files: list[str] | None) -> tuple[list[Te
     points = [read_points(path) for path in point_files]
     for path, p in zip(point_files[1:], points[1:]):
         check_point_counts(points[0], p, point_files[0], path)
+    check_point_files(point_files, points, pictures)
     return pictures, points
 
 

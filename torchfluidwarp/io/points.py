@@ -272,6 +272,7 @@ def _parse_csv(text: str) -> list[list[float]]:
     in any place, among others such as an id or a label)."""
     rows: list[list[float]] = []
     columns: tuple[int, int] | None = None  # where x and y are, when a header names them
+    width = 2  # the header's number of columns
     reader = csv.reader(io.StringIO(text))
     try:
         for n, fields in enumerate(reader, start=1):
@@ -280,14 +281,14 @@ def _parse_csv(text: str) -> list[list[float]]:
                 continue
             if not rows and columns is None and not any(_is_number(f) for f in fields):  # a header
                 names = [f.lower() for f in fields]
-                if "x" not in names or "y" not in names:
+                if names.count("x") != 1 or names.count("y") != 1:
                     got = _shorten(str(fields))
-                    raise ValueError(f"line {n}: a header row must name the columns x and y, got {got}")
-                columns = names.index("x"), names.index("y")
+                    raise ValueError(f"line {n}: a header row must name the columns x and y once each, got {got}")
+                columns, width = (names.index("x"), names.index("y")), len(names)
                 continue
             if columns is not None:
-                if len(fields) <= max(columns):
-                    raise ValueError(f"line {n}: {len(fields)} fields, fewer than the header's columns x and y")
+                if len(fields) != width:
+                    raise ValueError(f"line {n}: {len(fields)} fields under a header of {width} columns")
                 fields = [fields[columns[0]], fields[columns[1]]]
             rows.append(_parse_pair(fields, f"line {n}"))
     except csv.Error as exc:  # e.g. a field longer than csv.field_size_limit()

@@ -21,7 +21,7 @@ from torchfluidwarp.core.grid import FluidGrid, SquareCells, mean_pixels_per_cel
 from torchfluidwarp.core.spline import tps_fit
 from torchfluidwarp.correspond.halfway import least_area_ratio
 from torchfluidwarp.errors import InputError
-from torchfluidwarp.morph.marks import MIRRORED, crossing_pairs, mirrored
+from torchfluidwarp.morph.marks import crossing_pairs
 from torchfluidwarp.morph.settings import MorphSettings, NaturalSettings, PaperSettings
 from torchfluidwarp.warp.landmarks import LandmarkForces, solve_midpoints
 
@@ -89,7 +89,7 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     squeezed, and each mark travels as that spline says. The marks not met show in the morph's ``result.error``.
     """
     mids, disp = 0.5 * (src + tgt), tgt - src
-    _check_spread(mids, src, tgt)
+    _check_spread(mids)
     at = _squeeze_points(mids, inside)
     n = mids.shape[0]
     keep = torch.ones(n, dtype=torch.bool, device=mids.device)
@@ -134,11 +134,10 @@ def straight_paths(src: Tensor, tgt: Tensor, inside: tuple[float, float, float, 
     return m, travel(m)
 
 
-def _check_spread(mids: Tensor, src: Tensor, tgt: Tensor) -> None:
+def _check_spread(mids: Tensor) -> None:
     """Refuse marks whose midpoints ``(M, 2)`` (pixels) lie on one line: no spline says how the picture moves off
-    it (the caller's points are to blame, so the error names them). ``src`` and ``tgt`` ``(M, 2)``: the marks
-    themselves, whose midpoints lie on one line when they are mirror images of each other
-    (:func:`~torchfluidwarp.morph.marks.mirrored`)."""
+    it (the caller's points are to blame, so the error names them). A picture's marks against its mirror image's,
+    not reordered, give such midpoints: :func:`~torchfluidwarp.morph.marks.check_marks` warned of them first."""
     distinct = torch.unique(torch.round(mids / SPREAD), dim=0).shape[0]
     if distinct < 3:
         raise InputError(TOO_FEW_MIDPOINTS, argument="points_a")
@@ -146,13 +145,8 @@ def _check_spread(mids: Tensor, src: Tensor, tgt: Tensor) -> None:
     if float(spread[-1]) < SPREAD:
         raise InputError(
             f"points_a and points_b: the {mids.shape[0]} marks' midpoints (halfway between each pair) lie on one "
-            "line, so nothing says how the picture moves off it; "
-            + (
-                MIRRORED
-                if mirrored(src, tgt)
-                else "add a mark away from that line (the natural method needs 3 or more whose midpoints are not in "
-                "a row)"
-            ),
+            "line, so nothing says how the picture moves off it; add a mark away from that line (the natural "
+            "method needs 3 or more whose midpoints are not in a row)",
             argument="points_a",
         )
 

@@ -11,7 +11,7 @@ import math
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import warn
+from torchfluidwarp._checks import argument_of, warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment, robust_alignment
 from torchfluidwarp.core.grid import mean_pixels_per_cell
 from torchfluidwarp.errors import AdvisedWarning, Hint, InputError
@@ -48,16 +48,16 @@ def pose(pa: Tensor, pb: Tensor, align: AlignKind | None, numbers: Tensor | None
         warn(
             f"{'point' if len(far) == 1 else 'points'} {listed}{more} of points_a and points_b "
             f"{'lies' if len(far) == 1 else 'lie'} far from the {align} pose the other {a.shape[0] - len(far)} "
-            f"marks agree on (in B's pixels), which the morph's pre-alignment follows; check where "
+            f"marks agree on (the frames' pixels), which the morph's pre-alignment follows; check where "
             f"{'it is' if len(far) == 1 else 'they are'} marked",
             RuntimeWarning,
         )
     if M is not None:
         return M
-    advice = MIRRORED if mirrored(a, b) else "check that points_a and points_b list the same features in the same order"
     warn(
         f"the marks do not agree on a pose: the {align} pre-alignment explains {max(explained, 0):.0%} of how "
-        f"points_b spread (under {MIN_POSE_FIT:.0%}), so the morph runs without it; {advice}",
+        f"points_b spread (under {MIN_POSE_FIT:.0%}), so the morph runs without it; check that points_a and "
+        "points_b list the same features in the same order",
         RuntimeWarning,
     )
     return torch.eye(3, dtype=torch.float64, device=a.device)
@@ -164,11 +164,31 @@ LET_GO_HINT = Hint(
 ``--report``; a command without one gives no advice)."""
 
 
+def check_not_normalised(name: str, points: Tensor, size: tuple[int, int]) -> None:
+    """Refuse ``points`` ``(M, 2)`` that look like normalised coordinates on a picture of ``size`` ``(H, W)``: 3
+    or more, all within ``[0, 1]``, on a picture whose shorter side is at least :data:`NORMALISED_SIDE`; the
+    message gives the product that makes pixels, and names ``name``."""
+    H, W = size
+    if points.shape[0] >= 3 and min(H, W) >= NORMALISED_SIDE and bool(((points >= 0) & (points <= 1)).all()):
+        raise InputError(
+            f"{name}: all {points.shape[0]} points lie within [0, 1] on a {W} x {H} picture: normalised "
+            f"coordinates? Points are pixels (x, y); multiply by ({W}, {H})",
+            argument=argument_of(name),
+        )
+
+
+NORMALISED_SIDE = 16
+"""Pixels: on a picture whose shorter side is at least this, 3 or more points all within ``[0, 1]`` are taken for
+normalised coordinates (fractions of the picture's width and height) and refused, with the product that gives
+pixels (:func:`check_not_normalised`); a morph of a picture this size has no use for marks within one pixel of its
+corner."""
+
+
 def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
-    """Refuse marks that cannot be morphed (repeated; the user's, mirrored: :func:`mirrored`), and warn about the
-    user's marks whose order crosses. Points the library placed (``placed_by``, the matcher's name) are nobody's
-    order to check: :func:`warn_let_go` names after the fit the crossing pairs that the morph had to let go (points
-    placed twice are dropped before, by :func:`drop_repeats`)."""
+    """Refuse marks that cannot be morphed (repeated), and warn about the user's marks that are a mirror image of
+    each other (:func:`mirrored`) or whose order crosses. Points the library placed (``placed_by``, the matcher's
+    name) are nobody's order to check: :func:`warn_let_go` names after the fit the crossing pairs that the morph
+    had to let go (points placed twice are dropped before, by :func:`drop_repeats`)."""
     for name, p in (("points_a", pa), ("points_b", pb)):
         pairs = _repeats(p)
         if pairs:
@@ -177,17 +197,17 @@ def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
                 "position; each feature must be marked once",
                 argument=name,
             )
-    if placed_by is None and mirrored(pa, pb):
-        raise InputError(
-            f"{MIRRORED}; no morph follows them without turning the picture inside out (folding it)",
-            argument="points_b",
-        )
-    bad = _crossings(pa, pb) if placed_by is None else []
+    if placed_by is not None:
+        return
+    if mirrored(pa, pb):
+        warn(AdvisedWarning(f"{MIRRORED}; check their order: a morph that follows them folds", hint=LET_GO_HINT))
+        return
+    bad = _crossings(pa, pb)
     if bad:
         warn(
             AdvisedWarning(
                 f"the marks cross: points {_listed(bad)} swap sides or tear apart between A and B, which no smooth "
-                f"morph can do without folding; {MIRRORED if mirrored(pa, pb) else 'check their order'}",
+                "morph can do without folding; check their order",
                 hint=LET_GO_HINT,
             )
         )
@@ -197,8 +217,7 @@ MIRRORED = (
     "points_b look mirrored: they agree with points_a on a pose once reflected (features listed in mirror order, "
     "left for right; a mirror image whose points were not reordered; or (y, x) pairs where (x, y) belong)"
 )
-"""What :func:`check_marks`, :func:`pose` and the natural morph's check of the marks' spread say of marks that are
-a mirror image of each other (:func:`mirrored`)."""
+"""What :func:`check_marks` says of the user's marks that are a mirror image of each other (:func:`mirrored`)."""
 
 
 MIRROR_MARKS = 8
@@ -211,10 +230,10 @@ def mirrored(pa: Tensor, pb: Tensor) -> bool:
     """Whether the marks ``pa``, ``pb`` ``(M, 2)`` agree on a reflected pose, and much better than on any other:
     at least :data:`MIRROR_MARKS` of them, a similarity from ``pa`` to ``pb`` reflected left for right explains at
     least :data:`TRUSTED_POSE_FIT` of their spread, and the similarity to ``pb`` itself less than half of what the
-    reflected one does. A reflection about any line is a reflection left for right and a turn, so (y, x) pairs are
-    caught too."""
+    reflected one does, and no pose most of them agree on leaves a few far off (:func:`pose`). A reflection about any
+    line is a reflection left for right and a turn, so (y, x) pairs are caught too."""
     a, b = pa.double(), pb.double()
-    if a.shape[0] < MIRROR_MARKS:
+    if a.shape[0] < MIRROR_MARKS or _agreed(a, b, "similarity")[1]:  # most agree on a pose: a few marks far off
         return False
     flip = b * b.new_tensor([-1.0, 1.0])
     reflected = _explained(estimate_alignment(a, flip, "similarity"), a, flip)

@@ -48,6 +48,7 @@ from torchfluidwarp.morph.fit import MIN_AREA, PAD, fit_natural, fit_paper, flui
 from torchfluidwarp.morph.marks import (
     LET_GO,
     check_marks,
+    check_not_normalised,
     drop_repeats,
     pose,
     warn_coarse_grid,
@@ -117,19 +118,8 @@ def _as_points(name: str, points: object, image: Tensor) -> Tensor:
     p = check_points(name, points, (H, W))
     if p.shape[0] != 1:
         raise InputError(f"{name} must be one set of points (M, 2) for a morph, got shape {tuple(p.shape)}")
-    if p.shape[1] >= 3 and min(H, W) >= NORMALISED_SIDE and bool(((p >= 0) & (p <= 1)).all()):
-        raise InputError(
-            f"{name}: all {p.shape[1]} points lie within [0, 1] on a {W} x {H} picture: normalised coordinates? "
-            f"Points are pixels (x, y); multiply by ({W}, {H})",
-            argument=name,
-        )
+    check_not_normalised(name, p[0], (H, W))
     return p[0].detach().to(image.device)
-
-
-NORMALISED_SIDE = 16
-"""Pixels: on a picture whose shorter side is at least this, 3 or more points all within ``[0, 1]`` are taken for
-normalised coordinates (fractions of the picture's width and height) and refused, with the product that gives
-pixels; a morph of a picture this size has no use for marks within one pixel of its corner."""
 
 
 def _region_masks(blending: Blending, pa: Tensor, pb: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor] | None:

@@ -17,8 +17,9 @@ from __future__ import annotations
 import os
 import re
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -217,30 +218,41 @@ def morph_sequence(
     for i in range(segments):
         (a, pa), (b, pb) = pairs[i], pairs[i + 1]
         ma, mb, found_marks = _marks(pa, pb, found, ((a.shape[-2], a.shape[-1]), (b.shape[-2], b.shape[-1])))
-        terms = _terms(i, labels, found)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name, above
-            try:
-                results.append(
-                    morph(
-                        a,
-                        b,
-                        ma,
-                        mb,
-                        placed=found_marks,
-                        settings=settings,
-                        frames=shares[i] + 1,
-                        timing=timing,
-                        blending=on_canvas,
-                        progress=progress,
-                        max_memory=max_memory,
-                    )
-                )
-            except (InputError, InputTypeError) as exc:
-                raise _in_terms(exc, terms) from exc
-        for caught_warning in caught:  # the segment's warnings, in the sequence's terms too
-            warn(_in_terms(caught_warning.message, terms))
+        segment = partial(
+            morph,
+            a,
+            b,
+            ma,
+            mb,
+            placed=found_marks,
+            settings=settings,
+            frames=shares[i] + 1,
+            timing=timing,
+            blending=on_canvas,
+            progress=progress,
+            max_memory=max_memory,
+        )
+        results.append(_said_in(_terms(i, labels, found), segment))
     return MorphSequence(results, [s + 1 for s in shares], [p for _, p in pairs])
+
+
+def _said_in(terms: dict[str, str], call: Callable[[], MorphResult]) -> MorphResult:
+    """``call()``, one :func:`~torchfluidwarp.morph.morph` of a sequence or an average, with its warnings and its
+    error said in ``terms`` (:func:`_in_terms`): every warning is caught as it is, then said again in the caller's
+    terms, where the caller's own warning filters act on it; warnings said before an error are said too."""
+    failure: InputError | InputTypeError | None = None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")  # the caller's filters act on what is said again below
+        warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name
+        try:
+            result = call()
+        except (InputError, InputTypeError) as exc:
+            failure = exc
+    for caught_warning in caught:
+        warn(_in_terms(caught_warning.message, terms))
+    if failure is not None:
+        raise _in_terms(failure, terms) from failure
+    return result
 
 
 def _terms(i: int, labels: Sequence[str], found: bool) -> dict[str, str]:
@@ -262,12 +274,12 @@ def _in_terms(said: Exception | Warning | str, terms: dict[str, str]) -> Any:
     """An error or a warning of one segment's :func:`~torchfluidwarp.morph.morph`, said in ``terms``
     (:func:`_terms`): the library's own errors and warnings, and plain ``RuntimeWarning`` and ``UserWarning``
     (another kind says itself in its own terms and comes back as it is). The argument at fault is ``images`` or
-    ``points`` (none when the points were found)."""
+    ``points`` (none where the points were found, or are the average's mean shape)."""
     if isinstance(said, (InputError, InputTypeError, AdvisedWarning)):
         argument = said.argument
-        if argument in terms:  # the sequence's images, its points, or none of the caller's (landmarks found)
-            found = "landmarks" in terms[argument]
-            argument = "images" if argument.startswith("image") else None if found else "points"
+        if argument in terms:  # the caller's images, its points, or none of its arguments (landmarks, mean shape)
+            said_as = terms[argument]
+            argument = "images" if argument.startswith("image") else "points" if said_as.startswith("points[") else None
         return type(said)(_ARGUMENT.sub(lambda m: terms[m.group(1)], said.message), argument=argument, hint=said.hint)
     if isinstance(said, str) or type(said) in (RuntimeWarning, UserWarning):
         text = _ARGUMENT.sub(lambda m: terms[m.group(1)], str(said))
@@ -303,9 +315,12 @@ class AverageResult:
 
     def __repr__(self) -> str:
         C, H, W = self.image.shape
+        met = self.errors.isfinite()  # NaN: an image whose every point was let go
+        error = f"mean point error {float(self.errors[met].mean()):.2f} px" if bool(met.any()) else "no point met"
+        unmet = "" if bool(met.all()) else f" ({int((~met).sum())} images met none)"
         return (
             f"AverageResult(({C}, {H}, {W}) mean of {self.warped.shape[0]} images, {self.points.shape[0]} points, "
-            f"mean point error {float(self.errors.mean()):.2f} px, folded {self.folded:.2%})"
+            f"{error}{unmet}, folded {self.folded:.2%})"
         )
 
 
@@ -365,27 +380,22 @@ def average(
             "points_a": f"{labels[i]}'s face landmarks" if found else f"points[{i}]",
             "points_b": "the mean shape",
         }
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.filterwarnings("ignore", message=SAID_RANGE)  # said once per picture, by its name
-            ma, mb, found_marks = _marks(p, back.to(p), found)
-            try:
-                result = morph(
-                    image,
-                    placed,
-                    ma,
-                    mb,
-                    placed=found_marks,
-                    settings=settings,
-                    frames=2,
-                    blending=Blending(size=canvas),
-                    progress=progress,
-                    max_memory=max_memory,
-                )
-            except (InputError, InputTypeError) as exc:
-                raise _in_terms(exc, terms) from exc
-            end = result.render([1.0])  # its forward warp at the end: A in the mean shape, on the canvas
-        for caught_warning in caught:  # each picture's warnings (crossing marks, marks let go), in its own name
-            warn(_in_terms(caught_warning.message, terms))
+        ma, mb, found_marks = _marks(p, back.to(p), found)
+        warp = partial(
+            morph,
+            image,
+            placed,
+            ma,
+            mb,
+            placed=found_marks,
+            settings=settings,
+            frames=2,
+            blending=Blending(size=canvas),
+            progress=progress,
+            max_memory=max_memory,
+        )
+        result = _said_in(terms, warp)
+        end = result.render([1.0])  # its forward warp at the end: A in the mean shape, on the canvas
         warped.append(end.forward[0])
         folded += end.folded / (2 * H * W)
         errors.append(float(result.met_error.mean()))  # the marks let go so as not to fold left out
