@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 
 import pytest
 import torch
@@ -270,6 +271,18 @@ def test_a_warm_start_of_the_other_method_or_another_control_grid_is_refused():
     with pytest.raises(InputError, match=r"control grid is \(4, 2, 3, 3\).*\(4, 2, 4, 4\)"):
         morph(a, a, PA * 0.7, pb, frames=2, progress=False, settings=PaperSettings(steps=4, control=4, max_iter=3),
               warm_start=fitted.fit)  # fmt: skip
+
+
+def test_marks_whose_midpoints_lie_close_to_one_line_are_warned_about():
+    eyes = torch.tensor(  # two eyes' corners and lids: 33 px across, 1 px high
+        [[10.0, 20.0], [18.0, 20.5], [25.0, 21.0], [35.0, 21.0], [40.0, 20.5], [43.0, 20.0]], dtype=torch.float64
+    )
+    with pytest.warns(RuntimeWarning, match=r"midpoints lie close to one line \(their spread across it is [0-4]\.\d%"):
+        straight_paths(eyes, eyes + eyes.new_tensor([2.0, 1.0]), (0.0, 0.0, 64.0, 64.0))
+    square = torch.tensor([[10.0, 10.0], [40.0, 10.0], [10.0, 40.0], [40.0, 40.0]], dtype=torch.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # marks spread both ways say nothing
+        straight_paths(square, square + 1.0, (0.0, 0.0, 64.0, 64.0))
 
 
 def test_marks_whose_midpoints_lie_on_one_line_are_refused_naming_the_points():

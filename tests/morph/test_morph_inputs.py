@@ -183,6 +183,12 @@ def test_empty_or_malformed_points_are_said_in_the_callers_shape():
         _morph(A, A, torch.zeros(3, 3), PA, frames=3)
 
 
+def test_points_where_a_picture_goes_are_told_the_order_of_the_arguments():
+    with pytest.raises(ValueError, match=r"image_b has shape \(3, 2\), a set of points, not a picture; the order is "
+                       r"morph\(image_a, image_b, points_a, points_b\)"):  # fmt: skip
+        morph(A, PA, A, PA)
+
+
 def test_points_in_normalised_coordinates_are_refused_with_the_product_that_gives_pixels():
     with pytest.raises(ValueError, match=r"points_b: all 3 points lie within \[0, 1\] on a 16 x 16 picture: "
                        r"normalised coordinates\? .* multiply by \(16, 16\)") as caught:  # fmt: skip

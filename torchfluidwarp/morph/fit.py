@@ -15,6 +15,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor, nn
 
+from torchfluidwarp._checks import warn
 from torchfluidwarp.control.alignment import apply_alignment
 from torchfluidwarp.control.keyframes import KeyframeFit, Keyframes, fit_keyframes
 from torchfluidwarp.core.grid import FluidGrid, SquareCells, mean_pixels_per_cell
@@ -142,6 +143,13 @@ def _check_spread(mids: Tensor) -> None:
     if distinct < 3:
         raise InputError(TOO_FEW_MIDPOINTS, argument="points_a")
     spread = torch.linalg.svdvals(mids - mids.mean(0))
+    if float(spread[-1]) >= SPREAD and float(spread[-1]) < THIN * float(spread[0]):
+        warn(
+            f"points_a and points_b: the {mids.shape[0]} marks' midpoints lie close to one line (their spread "
+            f"across it is {float(spread[-1] / spread[0]):.1%} of their spread along it), so the morph guesses how "
+            "the picture moves away from it and may stretch it; add a mark away from that line",
+            RuntimeWarning,
+        )
     if float(spread[-1]) < SPREAD:
         raise InputError(
             f"points_a and points_b: the {mids.shape[0]} marks' midpoints (halfway between each pair) lie on one "
@@ -161,6 +169,14 @@ TOO_FEW_MIDPOINTS = (
 SPREAD = 1e-3
 """Pixels: the least spread of the marks' midpoints across their best-fitting line (the second singular value of
 the centred midpoints) for :func:`straight_paths`; below it they lie on one line."""
+
+
+THIN = 0.05
+"""The natural morph warns of marks whose midpoints spread across their best-fitting line less than this share of
+their spread along it (the two singular values of the centred midpoints; :func:`_check_spread`): six marks on two
+eyes, 33 px by 1 px, gave a grossly stretched face without a word. The 68 landmarks of two faces spread across at
+77 % or more of their spread along (every ordered pair of ``benchmarks/bench_morph_quality.py``'s faces, all 68
+or the 46 it gives; scratch, twenty-first session)."""
 
 
 RELEASE = 0.5

@@ -83,6 +83,12 @@ RANGE_SLACK = 1 / 255
 def _as_image(name: str, image: Tensor) -> Tensor:
     """One picture ``(1, C, H, W)``, detached; values far outside ``[0, 1]`` are said (the frames are written
     clipped to it, so a 0..255 float picture would come out nearly white)."""
+    if isinstance(image, Tensor) and image.ndim == 2 and image.shape[-1] == 2:  # (M, 2): points in a picture's place
+        raise InputError(
+            f"{name} has shape {tuple(image.shape)}, a set of points, not a picture; the order is "
+            "morph(image_a, image_b, points_a, points_b)",
+            argument=name,
+        )
     img = check_picture(name, image)
     img = img.unsqueeze(0) if img.ndim == 3 else img
     if img.shape[0] != 1 or img.shape[1] < 1 or min(img.shape[2:]) < 2:
