@@ -40,16 +40,14 @@ def pose(pa: Tensor, pb: Tensor, align: AlignKind | None, numbers: Tensor | None
         return estimate_alignment(a, b, align)
     M, far, explained = _agreed(a, b, align)
     if M is not None and far:
-        off = (apply_alignment(M, a[far]) - b[far]).norm(dim=-1)  # px of B
-        order = off.argsort(descending=True).tolist()
-        named = [int(far[k] if numbers is None else numbers[far[k]]) for k in order]
-        listed = ", ".join(f"{i} ({float(off[k]):.0f} px)" for i, k in zip(named[:5], order[:5]))
-        more = f" and {len(far) - 5} more" if len(far) > 5 else ""
+        off = (apply_alignment(M, a[far]) - b[far]).norm(dim=-1)  # the frames' pixels, as pa and pb
+        order = off.argsort(descending=True).tolist()  # the farthest first
+        named = [far[k] if numbers is None else int(numbers[far[k]]) for k in order]
+        one = len(far) == 1
         warn(
-            f"{'point' if len(far) == 1 else 'points'} {listed}{more} of points_a and points_b "
-            f"{'lies' if len(far) == 1 else 'lie'} far from the {align} pose the other {a.shape[0] - len(far)} "
-            f"marks agree on (the frames' pixels), which the morph's pre-alignment follows; check where "
-            f"{'it is' if len(far) == 1 else 'they are'} marked",
+            f"{_marks_off(named, off[order])} of points_a and points_b {'lies' if one else 'lie'} far from the "
+            f"{align} pose the other {a.shape[0] - len(far)} marks agree on (the frames' pixels), which the morph's "
+            f"pre-alignment follows; check where {'it is' if one else 'they are'} marked",
             RuntimeWarning,
         )
     if M is not None:
@@ -104,6 +102,14 @@ others agree on was taken in every draw where the least squares explained too li
 66 draws), and in 73 % of them with 5 (the rest: too many flagged for a majority, and the identity, as before)."""
 
 
+def _marks_off(numbers: list[int], distances: Tensor) -> str:
+    """Marks by their numbers with how far each is off (``(K,)`` pixels), the first five: ``"point 4 (12 px)"``,
+    ``"points 4 (12 px), 7 (3 px) and 2 more"``."""
+    listed = ", ".join(f"{i} ({float(d):.0f} px)" for i, d in zip(numbers[:5], distances[:5]))
+    more = f" and {len(numbers) - 5} more" if len(numbers) > 5 else ""
+    return f"{'point' if len(numbers) == 1 else 'points'} {listed}{more}"
+
+
 def _explained(M: Tensor, a: Tensor, b: Tensor) -> float:
     """The share of the spread of ``b`` ``(M, 2)`` around its mean that ``M`` ``(3, 3)`` applied to ``a`` explains."""
     spread = float((b - b.mean(0)).square().sum())
@@ -113,9 +119,9 @@ def _explained(M: Tensor, a: Tensor, b: Tensor) -> float:
 def crossing_pairs(pa: Tensor, pb: Tensor) -> Tensor:
     """``(K, 2)`` int64: the pairs ``i < j`` of marks ``pa``, ``pb`` ``(M, 2)`` (M >= 3) whose order crosses. After a
     similarity that best maps ``pa`` onto ``pb`` (the one most marks agree on where a few lie far off, as for
-    :func:`pose`), the segment between the two turns by more than 90 degrees (both
-    longer than 2 % of B's spread), or marks close in A (under a tenth of the spread) end far apart in B (over
-    half): what no smooth, fold-free map does."""
+    :func:`pose`), the segment between the two turns by more than 90 degrees (both longer than 2 % of B's spread),
+    or marks close in A (under a tenth of the spread) end far apart in B (over half): what no smooth, fold-free map
+    does."""
     qb = pb.double()
     M, _, _ = _agreed(pa.double(), qb, "similarity")  # the pose most marks agree on: one far off drags no other
     qa = apply_alignment(estimate_alignment(pa.double(), qb) if M is None else M, pa.double())
@@ -270,12 +276,11 @@ def warn_let_go_alone(
     alone = [i for i in let_go.nonzero()[:, 0].tolist() if i not in crossing]
     if not alone:
         return
-    listed = ", ".join(f"{int(numbers[i])} ({float(error[i]):.0f} px)" for i in alone[:5])
-    more = f" and {len(alone) - 5} more" if len(alone) > 5 else ""
     one = len(alone) == 1
     warn(
         AdvisedWarning(
-            f"{'point' if one else 'points'} {listed}{more} of points_a and points_b {'was' if one else 'were'} "
+            f"{_marks_off([int(numbers[i]) for i in alone], error[alone])} of points_a and points_b "
+            f"{'was' if one else 'were'} "
             f"let go so as not to fold: on the straight paths the picture between {'it' if one else 'them'} and "
             f"the marks near {'it' if one else 'them'} would be squeezed below {least_area:.0%} of its area; "
             "check where these marks are",
