@@ -338,3 +338,20 @@ def test_the_summarys_warnings_name_the_command_lines_flags(tmp_path, gen):
     morph_pairs(pairs, tmp_path / "py", progress=False, **OPTIONS)
     (row,) = read_csv(tmp_path / "py/summary.csv")
     assert "result.let_go (and result.error) names the points let go" in row["warnings"]
+
+
+def test_a_rows_point_files_are_named_in_its_failure(tmp_path, gen):
+    pairs = make_pairs(tmp_path, gen, n=1, bad=False)
+    write_points(tmp_path / "data" / "normalised.pts", POINTS_A / 36)  # fractions of the picture
+    write_points(tmp_path / "data" / "swapped.pts", POINTS_A.flip(-1) + torch.tensor([0.0, 20.0]))  # (y, x), off
+    with open(pairs, "a") as fp:
+        fp.write("data/a0.png,data/b0.png,data/a0.pts,data/normalised.pts,normalised\n")
+        fp.write("data/a0.png,data/b0.png,data/swapped.pts,data/b0.json,swapped\n")
+    out = tmp_path / "out"
+    assert main(["morph", "--pairs", str(pairs), "--out", str(out), *FAST]) == 1
+    reasons = {f["name"]: f["reason"] for f in read_csv(out / "failures.csv")}
+    assert (
+        "points file '" in reasons["normalised"]
+        and "normalised.pts': all 3 points lie within [0, 1]" in reasons["normalised"]
+    )
+    assert "swapped.pts' has a point outside the 36 x 32 image" in reasons["swapped"], reasons

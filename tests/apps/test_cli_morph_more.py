@@ -154,6 +154,19 @@ def test_points_outside_their_picture_are_named_by_their_file_with_the_likely_ca
     assert "--points-a" not in err and "--points-b" not in err and "1-based (subtract 1)" in err, err
 
 
+def test_a_morph_that_meets_none_of_the_marks_writes_nothing_and_says_why(astronauts, tmp_path, capsys):
+    (a, _), files, _, _ = astronauts
+    cat = tmp_path / "cat.png"
+    write_image(cat, F.interpolate(load_sample("cat"), size=(128, 128), mode="bilinear", antialias=True)[0])
+    swapped = tmp_path / "yx.pts"  # the cat's points as (y, x) pairs
+    write_points(swapped, ((load_sample_points("cat") + 0.5) / 4 - 0.5).flip(-1))
+    out = tmp_path / "m.gif"
+    code = main(["morph", str(a), str(cat), "--points", str(files[0]), str(swapped), "-o", str(out), "--frames", "3"])
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists(), err
+    assert "points_b look mirrored" in err and "error: the morph met none of the 23 marks: each was let go" in err, err
+
+
 @pytest.fixture
 def three(tmp_path):
     gen = torch.Generator().manual_seed(3)

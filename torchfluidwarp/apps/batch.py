@@ -57,6 +57,7 @@ from torchfluidwarp.io import (
     write_animation,
 )
 from torchfluidwarp.morph import Blending, MorphSequence, MorphSettings, NaturalSettings, Timing, morph
+from torchfluidwarp.morph.marks import check_met, check_point_files
 from torchfluidwarp.morph.result import MorphResult
 
 __all__ = [
@@ -392,6 +393,7 @@ def _morph_pair(
     b = read_image(pair.image_b).to(device)
     pa, pb = read_points(pair.points_a), read_points(pair.points_b)
     check_point_counts(pa, pb, "points_a", "points_b")
+    check_point_files((pair.points_a, pair.points_b), (pa, pb), (a, b))  # named by their files
     blending = options.blending
     size = None if blending.size is None else check_size("blending.size", blending.size)
     height, width = _frames_size((a.shape[-2], a.shape[-1]), size, options.max_size)
@@ -412,6 +414,7 @@ def _morph_pair(
             progress=False,
             max_memory=options.max_memory,
         )
+        check_met(result.error, result.let_go, result.targets)  # no mark met: a failed row, nothing written
         write_animation(target, returning_memory(stream_frames(result)), fps=fps, overwrite=overwrite)
     err = result.met_error  # those let go so as not to fold are counted apart
     err = err if err.numel() else result.error.new_full((1,), float("nan"))

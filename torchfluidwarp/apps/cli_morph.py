@@ -44,7 +44,6 @@ from torchfluidwarp.apps.cli_args import (
 )
 from torchfluidwarp.apps.cli_morph_output import (
     add_result_options,
-    check_point_files,
     check_result_output,
     frame_shape,
     max_memory,
@@ -65,6 +64,7 @@ from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_points
 from torchfluidwarp.metrics import report_frames
 from torchfluidwarp.morph import morph
+from torchfluidwarp.morph.marks import check_met, check_point_files
 
 __all__ = ["add_morph", "add_demo", "EXIT_SOME_FAILED"]
 
@@ -270,6 +270,8 @@ def _run_morph(
             progress=progress,
             max_memory=max_memory(args),
         )  # errors: see fail()
+    if placed is None:  # the user's marks, every one let go: frames that follow none are not written
+        check_met(result.error, result.let_go, result.targets)
     if not args.report:
         with clock.part("render and write"):
             path = write_result(result, args)

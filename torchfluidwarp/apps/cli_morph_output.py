@@ -16,7 +16,7 @@ import argparse
 import dataclasses
 import json
 import os
-from collections.abc import Generator, Iterator, Sequence
+from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -35,12 +35,10 @@ from torchfluidwarp.apps.cli_args import (
     progress_bar,
     timing,
 )
-from torchfluidwarp.control.keyframes import check_points
 from torchfluidwarp.core.grid import SquareCells
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, shrunk_size, write_animation, write_image
 from torchfluidwarp.morph import Blending, MorphResult, MorphSequence, MorphSettings, Timing
-from torchfluidwarp.morph.marks import check_not_normalised
 from torchfluidwarp.morph.settings import METHODS
 
 Measures = TypeVar("Measures")
@@ -53,7 +51,6 @@ __all__ = [
     "output_size",
     "shrink_to_max_size",
     "frame_shape",
-    "check_point_files",
     "check_result_output",
     "write_result",
     "write_measured",
@@ -241,16 +238,6 @@ def result_options(args: argparse.Namespace) -> tuple[Timing, Blending]:
             raise InputError(f"--region takes 'points' or MASK_A,MASK_B (two image files), got {args.region!r}")
         region = tuple(read_image(f, channels=1)[0, 0] for f in files)
     return timing, Blending(region=region, region_margin=args.region_margin, background=args.background, size=size)
-
-
-def check_point_files(files: Sequence[str], points: Sequence[Tensor], pictures: Sequence[Tensor]) -> None:
-    """Refuse each file's points ``(M, 2)`` that do not fit its picture ``(1, C, H, W)``: outside it
-    (:func:`~torchfluidwarp.control.keyframes.check_points`, with the convention that would fit them) or in
-    normalised coordinates (:func:`~torchfluidwarp.morph.marks.check_not_normalised`), naming the file."""
-    for file, p, picture in zip(files, points, pictures):
-        size = (picture.shape[-2], picture.shape[-1])
-        check_points(f"points file {file!r}", p, size)
-        check_not_normalised(f"points file {file!r}", p, size)
 
 
 def check_result_output(args: argparse.Namespace, frames: int, image: Tensor) -> None:

@@ -37,7 +37,6 @@ from torchfluidwarp.apps.cli_args import (
     fail,
 )
 from torchfluidwarp.apps.cli_morph_output import (
-    check_point_files,
     check_result_output,
     frame_shape,
     max_memory,
@@ -53,6 +52,7 @@ from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import check_point_counts, read_image, read_points, write_image, write_points
 from torchfluidwarp.metrics import report_frames
 from torchfluidwarp.morph import MorphSequence, average, morph_sequence
+from torchfluidwarp.morph.marks import check_point_files
 
 __all__ = ["run_sequence", "add_average"]
 

@@ -7,12 +7,15 @@ Points are ``(M, 2)`` in pixels, ``(x, y)``, pixel centres at integers.
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
 
 from torchfluidwarp._checks import argument_of, warn
 from torchfluidwarp.control.alignment import AlignKind, apply_alignment, estimate_alignment, robust_alignment
+from torchfluidwarp.control.keyframes import check_points
 from torchfluidwarp.core.grid import mean_pixels_per_cell
 from torchfluidwarp.errors import AdvisedWarning, Hint, InputError
 
@@ -188,6 +191,37 @@ NORMALISED_SIDE = 16
 normalised coordinates (fractions of the picture's width and height) and refused, with the product that gives
 pixels (:func:`check_not_normalised`); a morph of a picture this size has no use for marks within one pixel of its
 corner."""
+
+
+def check_point_files(
+    files: Sequence[str | os.PathLike[str]], points: Sequence[Tensor], pictures: Sequence[Tensor]
+) -> None:
+    """Refuse each file's points ``(M, 2)`` that do not fit its picture ``(1, C, H, W)``: outside it
+    (:func:`~torchfluidwarp.control.keyframes.check_points`, with the convention that would fit them) or in
+    normalised coordinates (:func:`check_not_normalised`), naming the file (the command line's point files)."""
+    for file, p, picture in zip(files, points, pictures):
+        size = (picture.shape[-2], picture.shape[-1])
+        check_points(f"points file {str(file)!r}", p, size)
+        check_not_normalised(f"points file {str(file)!r}", p, size)
+
+
+def check_met(error: Tensor, let_go: Tensor, targets: Tensor) -> None:
+    """Refuse a morph of the user's marks that met none of them: each was let go so as not to fold (``let_go``
+    ``(M,)``) or ended (``error`` ``(M,)``, the last frame's pixels) farther from its target than
+    :data:`MISSED_SHARE` of the targets' extent (``targets`` ``(M, 2)``), as when the marks are listed in another
+    order or mirrored: frames that follow no mark (the command line writes nothing then)."""
+    extent = float((targets.max(0).values - targets.min(0).values).max())
+    if bool((let_go | (error > MISSED_SHARE * extent)).all()):
+        raise InputError(
+            f"the morph met none of the {let_go.numel()} marks: each was let go so as not to fold or ended far "
+            f"from its target ({float(error.min()):.0f} to {float(error.max()):.0f} px); check that both lists "
+            "give the same features in the same order",
+        )
+
+
+MISSED_SHARE = 0.1
+"""A mark that ends farther from its target than this share of the targets' extent is not met (:func:`check_met`):
+a fit that meets its marks at all leaves them within a few pixels."""
 
 
 def check_marks(pa: Tensor, pb: Tensor, placed_by: str | None = None) -> None:
