@@ -141,3 +141,23 @@ def test_config_json_round_trips():
     cfg = parse_config(CONFIG)
     assert parse_config(json.loads(json.dumps(config_json(cfg)))) == cfg
     assert parse_config(config_json(AnimationConfig())) == AnimationConfig()
+
+
+def test_a_brush_or_region_outside_the_picture_is_said_to_change_nothing(photo):
+    image = read_image(photo)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the brushes and the region of CONFIG lie on the 56 x 40 picture
+        animate_frames(parse_config(CONFIG), image)
+    far = {**CONFIG, "brushes": [{**CONFIG["brushes"][0], "position": [900, 900]}, CONFIG["brushes"][1]]}
+    far["viscosity"] = {**CONFIG["viscosity"], "regions": [{"position": [-40, 10], "radius": 5, "value": 4}]}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        frames = list(animate_frames(parse_config(far), image))
+    said = sorted(str(w.message) for w in caught)
+    assert len(said) == 2 and said[0].startswith("brush 0 at (900, 900), radius 8 px, lies outside the 56 x 40")
+    assert said[1].startswith("viscosity region 0 at (-40, 10), radius 5 px, lies outside"), said
+    near = {**CONFIG, "brushes": [{**CONFIG["brushes"][0], "position": [70, 20]}]}  # 14.5 px beyond: reaches in
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        animate_frames(parse_config(near), image)
+    assert len(frames) == CONFIG["steps"] + 1

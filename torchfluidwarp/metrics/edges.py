@@ -209,7 +209,7 @@ def border_seam(
     if min(H, W) < 8 * reach + 6:
         raise InputError(
             f"frames must be at least 8 * reach + 6 = {8 * reach + 6} pixels wide and high for reach={reach}, "
-            f"got {H} x {W}",
+            f"got {W} x {H}",
             argument="frames",
         )
     dev = frames.device

@@ -228,7 +228,7 @@ def _marks_on_canvas(points: Tensor, canvas: tuple[int, int]) -> Tensor:
     dropped = (~keep).nonzero().flatten().tolist()
     if not dropped:
         return keep
-    what = f"the output size {H} x {W} (Blending.size; --size on the command line)"
+    what = f"the output size {W} x {H} (width x height; Blending.size, --size on the command line)"
     if int(keep.sum()) < 3:
         raise InputError(
             f"{what} crops image_a so that only {int(keep.sum())} of its {len(keep)} points stay on it (3 are "

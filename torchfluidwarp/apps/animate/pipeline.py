@@ -18,13 +18,13 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import torch
 from torch import Tensor
 
-from torchfluidwarp._checks import check_int, check_tensor
-from torchfluidwarp.apps.animate.config import AnimationConfig
+from torchfluidwarp._checks import check_int, check_tensor, warn
+from torchfluidwarp.apps.animate.config import AnimationConfig, BrushSpec, RegionSpec
 from torchfluidwarp.core.grid import FluidGrid, scale_factor
 from torchfluidwarp.errors import InputError
 from torchfluidwarp.io import read_image, shrink_image
@@ -61,6 +61,7 @@ def animate_frames(config: AnimationConfig, image: Tensor, *, max_size: int = 0)
     check_tensor("image", image, shape=(1, None, None, None))
     check_int("max_size", max_size, minimum=0)
     original = (image.shape[-2], image.shape[-1])
+    _warn_outside(config, original)
     small = shrink_image(image, max_size)
     size = (small.shape[-2], small.shape[-1])
     sx, sy = scale_factor(original, size, dtype=torch.float64).tolist()
@@ -70,6 +71,32 @@ def animate_frames(config: AnimationConfig, image: Tensor, *, max_size: int = 0)
     forces = build_forces(scaled).to(image.device)
     warp = FluidWarp(grid, scaled.steps, scaled.dt, viscosity).to(image.device)
     return _stream(warp.iter_frames(small, forces))
+
+
+def _warn_outside(config: AnimationConfig, size: tuple[int, int]) -> None:
+    """Warn of each brush and viscosity region of ``config`` that lies wholly outside a picture of ``size``
+    ``(H, W)`` (its centre more than 3 radii beyond the picture's edge, where its Gaussian is about 1 % of its
+    peak): it changes nothing, as when its position was given in another picture's pixels or as fractions."""
+    H, W = size
+    placed: list[tuple[str, Sequence[BrushSpec | RegionSpec]]] = [
+        ("brush", config.brushes),
+        ("viscosity region", config.viscosity.regions),
+    ]
+    for kind, items in placed:
+        for i, item in enumerate(items):
+            x, y = item.position
+            beyond = max(-0.5 - x, x - (W - 0.5), -0.5 - y, y - (H - 0.5), 0.0)
+            if beyond > OUTSIDE_RADII * item.radius:
+                warn(
+                    f"{kind} {i} at ({x:g}, {y:g}), radius {item.radius:g} px, lies outside the {W} x {H} picture "
+                    f"(width x height): it changes nothing; positions are the picture's pixels (x, y)",
+                    RuntimeWarning,
+                )
+
+
+OUTSIDE_RADII = 3.0
+"""A brush or a viscosity region whose centre lies more than this many radii beyond the picture's edge reaches it at
+about 1 % of its peak at most (a Gaussian at 3 sigma): :func:`animate_frames` says it changes nothing."""
 
 
 def _stream(frames: Iterator[Tensor]) -> Iterator[Tensor]:
