@@ -363,7 +363,8 @@ def _cmd_morph(args: argparse.Namespace) -> int:
         if bool(args.points_a) != bool(args.points_b):
             return fail("morph", "give both --points-a and --points-b, or neither (then --match finds them)")
         if args.points and len(args.points) != len(args.images):
-            return fail("morph", f"--points needs one file per image: {len(args.images)} images, {len(args.points)}")
+            counts = f"{len(args.images)} images, {len(args.points)} files"
+            return fail("morph", f"--points needs one file per image: {counts}")
         args.output = args.output or "morph.gif"
         if len(args.images) > 2:
             return run_sequence(args)

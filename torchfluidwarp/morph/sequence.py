@@ -259,15 +259,21 @@ def _terms(i: int, labels: Sequence[str], found: bool) -> dict[str, str]:
     """What :func:`morph_sequence` calls segment ``i``'s :func:`~torchfluidwarp.morph.morph` arguments: its
     ``image_a`` and ``image_b`` are the sequence's images ``i`` and ``i + 1`` (by their ``labels``), its
     ``points_a`` and ``points_b`` are ``points[i]`` and ``points[i + 1]``, or the landmarks found on those images
-    when the caller gave no points (``found``)."""
+    when the caller gave no points (``found``); "A and B" in a message are those two images."""
     if found:
         points = f"{labels[i]}'s face landmarks", f"{labels[i + 1]}'s face landmarks"
     else:
         points = f"points[{i}]", f"points[{i + 1}]"
-    return {"image_a": labels[i], "image_b": labels[i + 1], "points_a": points[0], "points_b": points[1]}
+    return {
+        "image_a": labels[i],
+        "image_b": labels[i + 1],
+        "points_a": points[0],
+        "points_b": points[1],
+        "A and B": f"{labels[i]} and {labels[i + 1]}",
+    }
 
 
-_ARGUMENT = re.compile(r"\b(image_[ab]|points_[ab])\b")
+_ARGUMENT = re.compile(r"\b(image_[ab]|points_[ab]|A and B)\b")
 
 
 def _in_terms(said: Exception | Warning | str, terms: dict[str, str]) -> Any:
@@ -379,6 +385,7 @@ def average(
             "image_b": f"{labels[i]} on the canvas",
             "points_a": f"{labels[i]}'s face landmarks" if found else f"points[{i}]",
             "points_b": "the mean shape",
+            "A and B": f"{labels[i]} and the mean shape",
         }
         ma, mb, found_marks = _marks(p, back.to(p), found)
         warp = partial(
