@@ -242,11 +242,8 @@ def _cmd_average(args: argparse.Namespace) -> int:
         if args.save_points:
             print(f"points: {write_points(args.save_points, result.points)}", file=sys.stderr)
         if not args.quiet:
-            met = result.errors.isfinite()  # NaN: an image whose every mark was let go (its warning said so)
-            error = f"{float(result.errors[met].mean()):.2f} px" if bool(met.any()) else "none (no mark met)"
-            unmet = "" if bool(met.all()) else f" ({int((~met).sum())} with no mark met)"
             print(
-                f"{PROG} average: {len(pictures)} images, mean point error {error}{unmet}, folded fraction "
+                f"{PROG} average: {len(pictures)} images, {result.error_summary()}, folded fraction "
                 f"{result.folded:.2g}, {clock.summary()}",
                 file=sys.stderr,
             )

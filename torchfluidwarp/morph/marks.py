@@ -273,11 +273,13 @@ def mirrored(pa: Tensor, pb: Tensor) -> bool:
     reflected one does, and no pose most of them agree on leaves a few far off (:func:`pose`). A reflection about any
     line is a reflection left for right and a turn, so (y, x) pairs are caught too."""
     a, b = pa.double(), pb.double()
-    if a.shape[0] < MIRROR_MARKS or _agreed(a, b, "similarity")[1]:  # most agree on a pose: a few marks far off
+    if a.shape[0] < MIRROR_MARKS:
+        return False
+    _, far, straight = _agreed(a, b, "similarity")  # straight: what the least squares explains
+    if far:  # most agree on a pose: a few marks far off
         return False
     flip = b * b.new_tensor([-1.0, 1.0])
     reflected = _explained(estimate_alignment(a, flip, "similarity"), a, flip)
-    straight = _explained(estimate_alignment(a, b, "similarity"), a, b)
     return reflected >= TRUSTED_POSE_FIT and straight < 0.5 * reflected
 
 

@@ -502,7 +502,8 @@ def morph(
     pa_c, pb_c = apply_alignment(place_a, pa.double()), apply_alignment(place_b, pb.double())  # canvas pixels
     keep = _marks_on_canvas(pa_c, size)  # all of them on A's own canvas; a crop to another size may leave some out
     pa, pb, pa_c, pb_c = pa[keep], pb[keep], pa_c[keep], pb_c[keep]
-    M = pose(pa_c, pb_c, settings.align, numbers=keep.nonzero()[:, 0])  # canvas to canvas: A's place to B's
+    numbers = keep.nonzero()[:, 0]  # the caller's index of each mark kept, for the warnings
+    M = pose(pa_c, pb_c, settings.align, numbers=numbers)  # canvas to canvas: A's place to B's
     center = pa_c.mean(0)
     # the fluid moves A's points to where B's points are in A's (unaligned) frame
     target = apply_alignment(torch.linalg.inv(M), pb_c)
@@ -571,7 +572,7 @@ def morph(
     if placed is not None:
         warn_let_go(pa, pb, result.let_go, placed.matcher)
     else:
-        warn_let_go_alone(pa, pb, result.let_go, result.error, keep.nonzero()[:, 0], MIN_AREA)
+        warn_let_go_alone(pa, pb, result.let_go, result.error, numbers, MIN_AREA)
     if isinstance(settings, NaturalSettings):
         warn_coarse_grid(pa_c, result.error, roi, fit.warp.grid, let_go)  # let go on purpose: not the grid's doing
     else:
